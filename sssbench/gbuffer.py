@@ -1,0 +1,176 @@
+"""The G-buffer: what a screen-space SSS pass reads (DESIGN §3).
+
+Camera convention (DESIGN §2): pinhole, vertical field of view ``fov_y`` in radians, **linear**
+depth in millimetres along the view axis. A pixel at depth ``z`` covers
+``2 z tan(fov_y / 2) / H`` mm; :func:`pixel_size_mm` and :func:`view_positions` are the only
+places that turn depth into world units.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields, replace
+
+import torch
+
+from sssbench._checks import check_range, check_scalar, check_tensor
+
+__all__ = ["GBuffer", "pixel_size_mm", "view_positions"]
+
+#: fields that hold images, with their channel counts
+_IMAGE_FIELDS = {
+    "diffuse": 3,
+    "depth": 1,
+    "albedo": 3,
+    "specular": 3,
+    "normal": 3,
+    "mask": 1,
+    "thickness": 1,
+}
+
+
+@dataclass(frozen=True)
+class GBuffer:
+    """Screen-space inputs of an SSS pipeline.
+
+    Args:
+        diffuse: diffuse irradiance (linear, >= 0), ``(B, 3, H, W)``.
+        depth: linear view depth in mm, > 0, ``(B, 1, H, W)``.
+        fov_y: vertical field of view in radians, in (0, pi).
+        albedo: surface colour in [0, 1], ``(B, 3, H, W)``, optional.
+        specular: specular radiance to add after scattering (>= 0), ``(B, 3, H, W)``, optional.
+        normal: unit view-space normals (camera looks down -z), ``(B, 3, H, W)``, optional.
+        mask: SSS strength / stencil in [0, 1], ``(B, 1, H, W)``, optional (``None`` = all 1).
+        thickness: distance through the object toward the light in mm (>= 0),
+            ``(B, 1, H, W)``, optional.
+        light_dir: unit view-space direction *toward* the light, ``(B, 3)``, optional; used by
+            translucency (back light) and by scenes.
+
+    Fields a scene does not provide stay ``None``; operators declare which ones they need.
+
+    Example:
+        >>> g = GBuffer(torch.ones(1, 3, 4, 4), torch.full((1, 1, 4, 4), 500.0), 0.5)
+        >>> g.shape
+        (1, 4, 4)
+    """
+
+    diffuse: torch.Tensor
+    depth: torch.Tensor
+    fov_y: float
+    albedo: torch.Tensor | None = None
+    specular: torch.Tensor | None = None
+    normal: torch.Tensor | None = None
+    mask: torch.Tensor | None = None
+    thickness: torch.Tensor | None = None
+    light_dir: torch.Tensor | None = None
+
+    def __post_init__(self) -> None:
+        fov = check_scalar("fov_y", self.fov_y, 0.0, math.pi, low_inclusive=False,
+                           high_inclusive=False)
+        object.__setattr__(self, "fov_y", fov)
+        diffuse = check_tensor("diffuse", self.diffuse, ndim=4, channels=3)
+        check_range("diffuse", diffuse, 0.0)
+        b, _, h, w = diffuse.shape
+        if h < 1 or w < 1 or b < 1:
+            raise ValueError(f"diffuse must have non-empty B, H, W, got shape {tuple(diffuse.shape)}")
+        for name, channels in _IMAGE_FIELDS.items():
+            value = getattr(self, name)
+            if value is None:
+                continue
+            check_tensor(name, value, ndim=4, channels=channels)
+            if value.shape[0] != b or value.shape[2:] != diffuse.shape[2:]:
+                raise ValueError(
+                    f"{name} must have shape ({b}, {channels}, {h}, {w}) to match diffuse, "
+                    f"got {tuple(value.shape)}"
+                )
+            if value.dtype != diffuse.dtype:
+                raise TypeError(
+                    f"{name} has dtype {value.dtype} but diffuse has {diffuse.dtype}; "
+                    "all G-buffer tensors must share one dtype"
+                )
+        check_range("depth", self.depth, 0.0, low_inclusive=False)
+        if self.mask is not None:
+            check_range("mask", self.mask, 0.0, 1.0)
+        if self.albedo is not None:
+            check_range("albedo", self.albedo, 0.0, 1.0)
+        if self.specular is not None:
+            check_range("specular", self.specular, 0.0)
+        if self.thickness is not None:
+            check_range("thickness", self.thickness, 0.0)
+        if self.light_dir is not None:
+            check_tensor("light_dir", self.light_dir, ndim=2)
+            if self.light_dir.shape != (b, 3):
+                raise ValueError(
+                    f"light_dir must have shape ({b}, 3), got {tuple(self.light_dir.shape)}"
+                )
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        """``(B, H, W)``."""
+        b, _, h, w = self.diffuse.shape
+        return b, h, w
+
+    @property
+    def dtype(self) -> torch.dtype:
+        return self.diffuse.dtype
+
+    @property
+    def device(self) -> torch.device:
+        return self.diffuse.device
+
+    def mask_or_ones(self) -> torch.Tensor:
+        """The SSS mask, or ones ``(B, 1, H, W)`` when the scene gives none."""
+        if self.mask is not None:
+            return self.mask
+        return torch.ones_like(self.depth)
+
+    def to(self, dtype: torch.dtype) -> GBuffer:
+        """A copy with every tensor field cast to ``dtype``."""
+        changes = {}
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, torch.Tensor):
+                changes[f.name] = value.to(dtype)
+        return replace(self, **changes)
+
+    def replace(self, **changes: object) -> GBuffer:
+        """A copy with some fields replaced (validated again)."""
+        return replace(self, **changes)
+
+
+def pixel_size_mm(depth: torch.Tensor, fov_y: float, height: int) -> torch.Tensor:
+    """World size of one pixel at linear depth ``depth``: ``2 z tan(fov_y/2) / H`` (DESIGN §2).
+
+    Args:
+        depth: linear depth in mm, any shape.
+        fov_y: vertical field of view in radians.
+        height: image height H in pixels.
+
+    Returns:
+        mm per pixel, same shape as ``depth``.
+    """
+    return depth * (2.0 * math.tan(fov_y / 2.0) / height)
+
+
+def view_positions(depth: torch.Tensor, fov_y: float) -> torch.Tensor:
+    """View-space positions (mm) of pixel centres for a pinhole camera.
+
+    Pixel ``(i, j)`` (row, column) has its centre at normalised device coordinates
+    ``u = (j + 0.5 - W/2) / (H/2)``, ``v = (H/2 - i - 0.5) / (H/2)`` (square pixels), so
+    ``x = u z tan(fov_y/2)``, ``y = v z tan(fov_y/2)`` and the position is ``(x, y, z)`` with
+    ``z`` the (positive) linear depth.
+
+    Args:
+        depth: ``(B, 1, H, W)`` linear depth in mm.
+        fov_y: vertical field of view in radians.
+
+    Returns:
+        ``(B, 3, H, W)`` positions in mm.
+    """
+    _, _, h, w = depth.shape
+    t = math.tan(fov_y / 2.0)
+    cols = (torch.arange(w, dtype=depth.dtype, device=depth.device) + 0.5 - w / 2) / (h / 2)
+    rows = (h / 2 - torch.arange(h, dtype=depth.dtype, device=depth.device) - 0.5) / (h / 2)
+    x = cols.view(1, 1, 1, w) * depth * t
+    y = rows.view(1, 1, h, 1) * depth * t
+    return torch.cat([x, y, depth], dim=1)
