@@ -1,0 +1,315 @@
+"""Quality metrics of a result against a reference (DESIGN §1: ``sssbench/metrics.py``).
+
+Every metric takes a result and a reference of shape ``(B, 3, H, W)`` (linear radiance, >= 0 is
+not required by the error metrics but is by the tone-mapped ones) and an optional mask
+``(B, 1, H, W)`` with values in ``[0, 1]``. The mask acts as a per-pixel *weight*: a binary mask
+restricts the metric to the pixels where it is 1, a soft mask weights them. Each metric is
+computed per image and averaged over the batch; it returns a Python ``float``.
+
+Colour-space conventions (one place, shared by :func:`delta_e`, :func:`flip` and the app's PNG
+previews):
+
+* :func:`tonemap` maps linear radiance to display sRGB in ``[0, 1]``: Reinhard
+  ``y = e x / (1 + e x)`` per channel (``e`` = exposure, default 1), then the sRGB transfer
+  function (IEC 61966-2-1, ``kornia.color.linear_rgb_to_rgb``). Reinhard never clips, so two
+  different HDR values never map to the same display value.
+* :func:`rmse`, :func:`rel_rms`, :func:`psnr`, :func:`ssim` work on the *linear* values.
+* :func:`delta_e` and :func:`flip` work on the tone-mapped sRGB values, as a viewer sees them.
+
+Example:
+    >>> ref = torch.full((1, 3, 8, 8), 0.5)
+    >>> round(rmse(ref + 0.1, ref), 6)
+    0.1
+"""
+
+from __future__ import annotations
+
+import math
+
+import kornia.color
+import numpy as np
+import torch
+from skimage.color import deltaE_cie76, deltaE_ciede2000
+from skimage.metrics import peak_signal_noise_ratio, structural_similarity
+
+from sssbench._checks import check_choice, check_range, check_scalar, check_tensor
+
+__all__ = [
+    "tonemap",
+    "rmse",
+    "rel_rms",
+    "psnr",
+    "ssim",
+    "delta_e",
+    "flip",
+    "METRICS",
+    "compute_all",
+]
+
+
+# ----------------------------------------------------------------------------- validation
+def _check_pair(
+    result: object, reference: object, mask: object | None
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+    """Validate the inputs; return float64 copies (and the mask, or ``None``)."""
+    res = check_tensor("result", result, ndim=4, channels=3)
+    ref = check_tensor("reference", reference, ndim=4, channels=3)
+    if res.shape != ref.shape:
+        raise ValueError(
+            f"result must have the shape of reference {tuple(ref.shape)}, got {tuple(res.shape)}"
+        )
+    b, _, h, w = ref.shape
+    if b < 1 or h < 1 or w < 1:
+        raise ValueError(f"reference must have non-empty B, H, W, got shape {tuple(ref.shape)}")
+    m = None
+    if mask is not None:
+        m = check_tensor("mask", mask, ndim=4, channels=1)
+        if m.shape != (b, 1, h, w):
+            raise ValueError(f"mask must have shape ({b}, 1, {h}, {w}), got {tuple(m.shape)}")
+        check_range("mask", m, 0.0, 1.0)
+        sums = m.reshape(b, -1).sum(1)
+        if bool((sums <= 0).any()):
+            raise ValueError(
+                "mask must select at least one pixel in every image (sum > 0), "
+                f"got per-image sums {sums.tolist()}"
+            )
+        m = m.detach().double().cpu()
+    return res.detach().double().cpu(), ref.detach().double().cpu(), m
+
+
+def _weighted_mean(values: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
+    """Per-image mean of ``(B, C, H, W)`` values over C, H, W, weighted by a ``(B,1,H,W)`` mask."""
+    b, c = values.shape[:2]
+    if mask is None:
+        return values.reshape(b, -1).mean(1)
+    wsum = mask.reshape(b, -1).sum(1) * c
+    return (values * mask).reshape(b, -1).sum(1) / wsum
+
+
+def _mse(res: torch.Tensor, ref: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
+    return _weighted_mean((res - ref) ** 2, mask)
+
+
+def _peak(ref: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
+    """Per-image peak of the reference (over the mask's support): the PSNR/SSIM data range."""
+    b = ref.shape[0]
+    r = ref if mask is None else torch.where(mask > 0, ref, torch.full_like(ref, -math.inf))
+    return r.reshape(b, -1).max(1).values
+
+
+# ----------------------------------------------------------------------------- colour
+def tonemap(image: torch.Tensor, exposure: float = 1.0) -> torch.Tensor:
+    """Linear radiance -> display sRGB in ``[0, 1]``: Reinhard, then the sRGB curve.
+
+    Args:
+        image: linear RGB radiance, >= 0, ``(B, 3, H, W)``.
+        exposure: scale applied before the Reinhard curve ``y = x / (1 + x)``, > 0.
+
+    Returns:
+        sRGB-encoded values in ``[0, 1]``, same shape and dtype.
+
+    Shape:
+        - image: :math:`(B, 3, H, W)`
+        - output: :math:`(B, 3, H, W)`
+
+    Example:
+        >>> tonemap(torch.zeros(1, 3, 1, 1)).flatten().tolist()
+        [0.0, 0.0, 0.0]
+    """
+    check_tensor("image", image, ndim=4, channels=3)
+    check_range("image", image, 0.0)
+    e = check_scalar("exposure", exposure, 0.0, low_inclusive=False)
+    x = image * e
+    y = x / (1.0 + x)
+    return kornia.color.linear_rgb_to_rgb(y).clamp(0.0, 1.0)
+
+
+# ----------------------------------------------------------------------------- metrics
+def rmse(result: torch.Tensor, reference: torch.Tensor, mask: torch.Tensor | None = None) -> float:
+    """Root-mean-square error over pixels and channels, in the images' (linear) units.
+
+    Args:
+        result: ``(B, 3, H, W)``.
+        reference: ``(B, 3, H, W)``.
+        mask: optional ``(B, 1, H, W)`` weights in ``[0, 1]``.
+
+    Returns:
+        ``sqrt(Σ m (x - y)² / (3 Σ m))`` per image, averaged over the batch; >= 0.
+    """
+    res, ref, m = _check_pair(result, reference, mask)
+    return float(_mse(res, ref, m).sqrt().mean())
+
+
+def rel_rms(
+    result: torch.Tensor, reference: torch.Tensor, mask: torch.Tensor | None = None
+) -> float:
+    """Relative RMS error: ``RMS(result - reference) / RMS(reference)`` (dimensionless).
+
+    Raises ``ValueError`` when the reference is zero on the mask (the ratio is undefined).
+    """
+    res, ref, m = _check_pair(result, reference, mask)
+    num = _mse(res, ref, m).sqrt()
+    den = _weighted_mean(ref**2, m).sqrt()
+    if bool((den <= 0).any()):
+        raise ValueError("reference must be non-zero on the mask for rel_rms, got RMS = 0")
+    return float((num / den).mean())
+
+
+def psnr(result: torch.Tensor, reference: torch.Tensor, mask: torch.Tensor | None = None) -> float:
+    """Peak signal-to-noise ratio in dB, ``10 log10(peak² / MSE)``.
+
+    ``data_range`` (the peak) is the maximum of the *reference* over the mask's support: the
+    images are linear HDR radiance with no fixed white, and radiance is >= 0, so the reference's
+    own peak is the natural signal range; it also makes the value independent of the result
+    (``skimage.metrics.peak_signal_noise_ratio`` with ``data_range=reference.max()``).
+    Identical images give ``inf``.
+
+    Returns:
+        dB per image, averaged over the batch (``inf`` if any image is exact).
+    """
+    res, ref, m = _check_pair(result, reference, mask)
+    peaks = _peak(ref, m)
+    if bool((peaks <= 0).any()):
+        raise ValueError("reference must have a positive peak on the mask for psnr")
+    out = []
+    for i in range(ref.shape[0]):
+        if m is None:
+            mse = float(_mse(res[i : i + 1], ref[i : i + 1], None))
+            if mse == 0.0:
+                out.append(math.inf)
+                continue
+            out.append(
+                peak_signal_noise_ratio(ref[i].numpy(), res[i].numpy(), data_range=float(peaks[i]))
+            )
+        else:  # the same formula with the mask-weighted MSE
+            mse = float(_mse(res[i : i + 1], ref[i : i + 1], m[i : i + 1]))
+            out.append(math.inf if mse == 0.0 else 10.0 * math.log10(float(peaks[i]) ** 2 / mse))
+    return float(np.mean(out))
+
+
+def ssim(result: torch.Tensor, reference: torch.Tensor, mask: torch.Tensor | None = None) -> float:
+    """Structural similarity (``skimage.metrics.structural_similarity``) on linear values.
+
+    Computed with ``channel_axis`` over RGB, a 7×7 uniform window (smaller, odd, on images under
+    7 pixels) and ``data_range`` = the reference peak (as in :func:`psnr`). With a mask, the
+    full SSIM map (mean over channels) is averaged with the mask as weights.
+
+    Returns:
+        SSIM in ``[-1, 1]`` (1 for identical images), averaged over the batch.
+    """
+    res, ref, m = _check_pair(result, reference, mask)
+    _, _, h, w = ref.shape
+    win = min(7, h, w)
+    win = win if win % 2 == 1 else win - 1
+    if win < 3:
+        raise ValueError(f"reference must be at least 3×3 pixels for ssim, got {h}×{w}")
+    peaks = _peak(ref, m)
+    out = []
+    for i in range(ref.shape[0]):
+        data_range = float(peaks[i]) if float(peaks[i]) > 0 else 1.0
+        a = ref[i].permute(1, 2, 0).numpy()
+        b = res[i].permute(1, 2, 0).numpy()
+        value, smap = structural_similarity(
+            a, b, win_size=win, data_range=data_range, channel_axis=-1, full=True
+        )
+        if m is None:
+            out.append(float(value))
+        else:
+            wgt = m[i, 0].numpy()
+            out.append(float((smap.mean(-1) * wgt).sum() / wgt.sum()))
+    return float(np.mean(out))
+
+
+def delta_e(
+    result: torch.Tensor,
+    reference: torch.Tensor,
+    mask: torch.Tensor | None = None,
+    *,
+    formula: str = "cie76",
+    exposure: float = 1.0,
+) -> float:
+    """Mean CIE colour difference of the tone-mapped images.
+
+    Both images go through :func:`tonemap` (Reinhard + sRGB encoding), then
+    ``kornia.color.rgb_to_lab`` (which linearises sRGB and uses D65 / 2°). ``formula="cie76"``
+    is the Euclidean Lab distance ΔE*ab (1976); ``"ciede2000"`` uses
+    ``skimage.color.deltaE_ciede2000`` on the same Lab values. A ΔE of about 2.3 is a
+    just-noticeable difference.
+
+    Returns:
+        Mask-weighted mean ΔE per image, averaged over the batch; >= 0.
+    """
+    res, ref, m = _check_pair(result, reference, mask)
+    check_choice("formula", formula, ("cie76", "ciede2000"))
+    check_range("result", res, 0.0)
+    check_range("reference", ref, 0.0)
+    lab_res = kornia.color.rgb_to_lab(tonemap(res, exposure))
+    lab_ref = kornia.color.rgb_to_lab(tonemap(ref, exposure))
+    fn = deltaE_cie76 if formula == "cie76" else deltaE_ciede2000
+    de = fn(lab_ref.numpy(), lab_res.numpy(), channel_axis=1)  # (B, H, W)
+    return float(_weighted_mean(torch.from_numpy(np.ascontiguousarray(de))[:, None], m).mean())
+
+
+def flip(
+    result: torch.Tensor,
+    reference: torch.Tensor,
+    mask: torch.Tensor | None = None,
+    *,
+    exposure: float = 1.0,
+    ppd: float = 67.0,
+) -> float:
+    """Mean LDR-FLIP error (``flip_evaluator.evaluate``) of the tone-mapped sRGB images.
+
+    Both images go through :func:`tonemap` and are handed to FLIP as LDR sRGB
+    (``evaluate(reference, test, "LDR", inputsRGB=True)``), viewed at ``ppd`` pixels per degree
+    (FLIP's default, 67: a 0.7 m distance from a 24" 4K monitor). The per-pixel FLIP map is
+    averaged with the mask as weights.
+
+    Returns:
+        Mean FLIP error in ``[0, 1]`` (0 for identical images), averaged over the batch.
+    """
+    import flip_evaluator  # imported lazily: the extension is only needed for this metric
+
+    res, ref, m = _check_pair(result, reference, mask)
+    check_range("result", res, 0.0)
+    check_range("reference", ref, 0.0)
+    ppd = check_scalar("ppd", ppd, 0.0, low_inclusive=False)
+    t_res = tonemap(res, exposure)
+    t_ref = tonemap(ref, exposure)
+    out = []
+    for i in range(ref.shape[0]):
+        a = np.ascontiguousarray(t_ref[i].permute(1, 2, 0).numpy(), dtype=np.float32)
+        b = np.ascontiguousarray(t_res[i].permute(1, 2, 0).numpy(), dtype=np.float32)
+        fmap, mean, _ = flip_evaluator.evaluate(
+            a,
+            b,
+            "LDR",
+            inputsRGB=True,
+            applyMagma=False,
+            computeMeanError=m is None,
+            parameters={"ppd": ppd},
+        )
+        if m is None:
+            out.append(float(mean))
+        else:
+            wgt = m[i, 0].numpy()
+            out.append(float((np.asarray(fmap)[..., 0] * wgt).sum() / wgt.sum()))
+    return float(np.mean(out))
+
+
+#: the metrics the app computes for every run, by name
+METRICS = {
+    "rmse": rmse,
+    "rel_rms": rel_rms,
+    "psnr": psnr,
+    "ssim": ssim,
+    "delta_e": delta_e,
+    "flip": flip,
+}
+
+
+def compute_all(
+    result: torch.Tensor, reference: torch.Tensor, mask: torch.Tensor | None = None
+) -> dict[str, float]:
+    """Every metric of :data:`METRICS` as ``{name: value}``."""
+    return {name: fn(result, reference, mask) for name, fn in METRICS.items()}
