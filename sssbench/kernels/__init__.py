@@ -1,8 +1,18 @@
 """Discretisation of profiles into 1D taps (DESIGN §1, second layer)."""
 
 from sssbench.kernels.kernel1d import Kernel1D
+from sssbench.kernels.low_rank import LowRankKernel, low_rank, reconstruct, singular_energy
+from sssbench.kernels.matrix import MAX_MATRIX_SIZE, cell_centres, kernel_matrix
 from sssbench.kernels.preintegrated import preintegrated, profile_taps
-from sssbench.kernels.sampling import MAX_SAMPLES, SAMPLINGS, inverse_cdf, tap_positions
+from sssbench.kernels.sampling import (
+    MAX_SAMPLES,
+    SAMPLINGS,
+    gaussian_mixture_cdf,
+    gaussian_mixture_interval,
+    interval_weights,
+    inverse_cdf,
+    tap_positions,
+)
 
 __all__ = [
     "Kernel1D",
@@ -12,4 +22,14 @@ __all__ = [
     "inverse_cdf",
     "SAMPLINGS",
     "MAX_SAMPLES",
+    "interval_weights",
+    "gaussian_mixture_interval",
+    "gaussian_mixture_cdf",
+    "kernel_matrix",
+    "cell_centres",
+    "MAX_MATRIX_SIZE",
+    "low_rank",
+    "LowRankKernel",
+    "reconstruct",
+    "singular_energy",
 ]

@@ -6,7 +6,7 @@ import torch
 
 from sssbench._checks import check_choice, check_int, check_scalar
 from sssbench.kernels.kernel1d import Kernel1D
-from sssbench.kernels.sampling import MAX_SAMPLES, SAMPLINGS, tap_positions
+from sssbench.kernels.sampling import MAX_SAMPLES, SAMPLINGS, interval_weights, tap_positions
 from sssbench.profiles.base import Profile
 
 __all__ = ["preintegrated", "profile_taps"]
@@ -45,7 +45,8 @@ def profile_taps(
     total = profile.total()
     if bool((total <= 0).any()):
         raise ValueError(
-            f"profile total must be > 0 in every channel to normalise the kernel, got {total.tolist()}"
+            "profile total must be > 0 in every channel to normalise the kernel, "
+            f"got {total.tolist()}"
         )
     if extent is None and sampling != "importance":
         extent = profile.radius()
@@ -55,7 +56,7 @@ def profile_taps(
         return profile.preintegrated_cdf(x)[..., d] / total[d]
 
     centres, edges = tap_positions(samples, sampling, extent, cdf=cdf)
-    weights = profile.preintegrated_interval(edges[:-1], edges[1:]) / total  # 000 eq. 5
+    weights = interval_weights(edges, profile.preintegrated_interval, total)  # 000 eq. 5
     return Kernel1D(centres, weights)
 
 

@@ -14,7 +14,15 @@ import torch
 
 from sssbench._checks import check_choice, check_int, check_scalar
 
-__all__ = ["SAMPLINGS", "MAX_SAMPLES", "tap_positions", "inverse_cdf"]
+__all__ = [
+    "SAMPLINGS",
+    "MAX_SAMPLES",
+    "tap_positions",
+    "inverse_cdf",
+    "interval_weights",
+    "gaussian_mixture_interval",
+    "gaussian_mixture_cdf",
+]
 
 SAMPLINGS = ("uniform", "power", "importance")
 #: largest supported tap count (000 Fig. 12 uses 513 uniform taps as its ground truth)
@@ -94,7 +102,11 @@ def tap_positions(
         centres = 0.5 * (centres - centres.flip(0))
         inner_edges = 0.5 * (inner_edges - inner_edges.flip(0))
     else:
-        t = torch.linspace(-1.0, 1.0, k, dtype=torch.float64) if k > 1 else torch.zeros(1, dtype=torch.float64)
+        t = (
+            torch.linspace(-1.0, 1.0, k, dtype=torch.float64)
+            if k > 1
+            else torch.zeros(1, dtype=torch.float64)
+        )
         if sampling == "power":
             exponent = check_scalar("exponent", exponent, 0.0, low_inclusive=False)
             t = torch.sign(t) * t.abs() ** exponent
@@ -103,6 +115,74 @@ def tap_positions(
     inf = torch.tensor([float("inf")], dtype=torch.float64)
     edges = torch.cat([-inf, inner_edges, inf])
     return centres, edges
+
+
+def interval_weights(
+    edges: torch.Tensor,
+    interval: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
+    normaliser: torch.Tensor | None = None,
+) -> torch.Tensor:
+    """Integrate a 1D kernel over tap intervals: THE one place that does it (000 §7).
+
+    Every kernel builder turns tap edges into weights here, so "area integration" means the
+    same thing for every method: weight ``i`` is ``∫_{edges[i]}^{edges[i+1]} a(x) dx`` per
+    channel, optionally divided by ``normaliser`` (e.g. the kernel's total, 000 eq. 5).
+
+    Args:
+        edges: ``(K+1,)`` non-decreasing interval edges in mm (the ends may be ±inf).
+        interval: ``interval(a, b) -> (K, 3)``, the per-channel integral of the 1D kernel
+            over ``[a, b]`` (closed form where one exists, e.g. :func:`gaussian_mixture_interval`).
+        normaliser: optional ``(3,)`` divisor per channel, or ``None`` for raw integrals.
+
+    Returns:
+        ``(K, 3)`` float64 weights.
+
+    Example:
+        >>> e = torch.tensor([-float("inf"), 0.0, float("inf")], dtype=torch.float64)
+        >>> f = lambda a, b: gaussian_mixture_interval(a, b, torch.ones(1, 3), torch.ones(1, 3))
+        >>> interval_weights(e, f)[:, 0].tolist()
+        [0.5, 0.5]
+    """
+    w = interval(edges[:-1], edges[1:])
+    if normaliser is not None:
+        w = w / normaliser
+    return w
+
+
+def gaussian_mixture_interval(
+    a: torch.Tensor, b: torch.Tensor, sigmas: torch.Tensor, weights: torch.Tensor
+) -> torch.Tensor:
+    """``∫_a^b Σ_j w_j N(x; 0, σ_j²) dx`` per channel for unit-mass 1D Gaussians.
+
+    Args:
+        a, b: ``(K,)`` interval ends in mm (may be ±inf).
+        sigmas: ``(J, 3)`` or ``(J,)`` standard deviations in mm, > 0.
+        weights: ``(J, 3)`` mass of each Gaussian per channel.
+
+    Returns:
+        ``(K, 3)`` float64, via :func:`~sssbench.profiles.sum_of_gaussians.interval_mass`
+        (no cancellation in the tails).
+    """
+    from sssbench.profiles.sum_of_gaussians import interval_mass
+
+    s = sigmas.to(torch.float64)
+    if s.ndim == 1:
+        s = s[:, None].expand(-1, 3)
+    w = weights.to(torch.float64)
+    a = a.to(torch.float64)[:, None, None]
+    b = b.to(torch.float64)[:, None, None]
+    return (interval_mass(a / s, b / s) * w).sum(1)
+
+
+def gaussian_mixture_cdf(
+    x: torch.Tensor, sigmas: torch.Tensor, weights: torch.Tensor
+) -> torch.Tensor:
+    """``∫_{-∞}^x Σ_j w_j N(t; 0, σ_j²) dt`` per channel, ``(*x.shape, 3)``."""
+    s = sigmas.to(torch.float64)
+    if s.ndim == 1:
+        s = s[:, None].expand(-1, 3)
+    phi = torch.special.ndtr(x.to(torch.float64)[..., None, None] / s)  # (..., J, 3)
+    return (phi * weights.to(torch.float64)).sum(-2)
 
 
 def _bracket(cdf: Callable[[torch.Tensor], torch.Tensor]) -> float:
