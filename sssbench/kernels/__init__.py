@@ -1,5 +1,12 @@
 """Discretisation of profiles into 1D taps (DESIGN §1, second layer)."""
 
+from sssbench.kernels.artist import (
+    ARTIST_PRESETS,
+    ArtistParams,
+    artist,
+    artist_preset,
+    artist_sigmas,
+)
 from sssbench.kernels.kernel1d import Kernel1D
 from sssbench.kernels.low_rank import LowRankKernel, low_rank, reconstruct, singular_energy
 from sssbench.kernels.matrix import MAX_MATRIX_SIZE, cell_centres, kernel_matrix
@@ -32,4 +39,9 @@ __all__ = [
     "LowRankKernel",
     "reconstruct",
     "singular_energy",
+    "artist",
+    "artist_preset",
+    "artist_sigmas",
+    "ArtistParams",
+    "ARTIST_PRESETS",
 ]
