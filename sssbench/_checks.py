@@ -44,9 +44,7 @@ def check_tensor(
             )
         raise TypeError(f"{name} must be float32 or float64, got dtype {value.dtype}")
     if ndim is not None and value.ndim != ndim:
-        raise ValueError(
-            f"{name} must have {ndim} dimensions, got shape {tuple(value.shape)}"
-        )
+        raise ValueError(f"{name} must have {ndim} dimensions, got shape {tuple(value.shape)}")
     if channels is not None:
         allowed = (channels,) if isinstance(channels, int) else tuple(channels)
         if value.ndim < 2 or value.shape[1] not in allowed:

@@ -65,14 +65,17 @@ class GBuffer:
     light_dir: torch.Tensor | None = None
 
     def __post_init__(self) -> None:
-        fov = check_scalar("fov_y", self.fov_y, 0.0, math.pi, low_inclusive=False,
-                           high_inclusive=False)
+        fov = check_scalar(
+            "fov_y", self.fov_y, 0.0, math.pi, low_inclusive=False, high_inclusive=False
+        )
         object.__setattr__(self, "fov_y", fov)
         diffuse = check_tensor("diffuse", self.diffuse, ndim=4, channels=3)
         check_range("diffuse", diffuse, 0.0)
         b, _, h, w = diffuse.shape
         if h < 1 or w < 1 or b < 1:
-            raise ValueError(f"diffuse must have non-empty B, H, W, got shape {tuple(diffuse.shape)}")
+            raise ValueError(
+                f"diffuse must have non-empty B, H, W, got shape {tuple(diffuse.shape)}"
+            )
         for name, channels in _IMAGE_FIELDS.items():
             value = getattr(self, name)
             if value is None:

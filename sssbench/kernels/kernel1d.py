@@ -40,7 +40,8 @@ class Kernel1D:
             raise ValueError("offsets must hold at least one tap, got shape (0,)")
         if self.weights.shape != (k, 3):
             raise ValueError(
-                f"weights must have shape ({k}, 3) to match offsets, got {tuple(self.weights.shape)}"
+                f"weights must have shape ({k}, 3) to match offsets, "
+                f"got {tuple(self.weights.shape)}"
             )
         if k > 1 and bool((self.offsets[1:] < self.offsets[:-1]).any()):
             raise ValueError(f"offsets must be sorted ascending, got {self.offsets.tolist()}")

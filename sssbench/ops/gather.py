@@ -1,0 +1,364 @@
+"""The one gather primitive: a depth-aware separable blur pass (DESIGN §4).
+
+Every separable method of the papers (pre-integrated, artist, 2012, SVD rank-N, sum of
+Gaussians) is a kernel builder plus a schedule of calls to :func:`separable_pass`; the papers'
+variants are options of this function, not copies of its loop.
+
+The loop is the CPU counterpart of the papers' blur shader (002 appendix, 003 Listing 7.1):
+for each active pixel, step along the pass axis by ``offset × width × (pixels per mm at this
+pixel's depth)``, fetch the neighbour with linear interpolation along the axis (bilinear when
+stochastic rotation turns the axis), clamp at the image border, and accumulate
+``weight × sample``.
+
+Implementation: pixels with ``mask > 0`` are compacted into one flat list (stencil: masked-out
+pixels are never computed, 002 §4 / 003 §7.3.1), their index arithmetic is shared by all
+channels, and colour, depth and guide channels are fetched together with one ``index_select``
+from a channels-last table.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import torch
+
+from sssbench._checks import check_choice, check_scalar, check_tensor
+from sssbench.gbuffer import GBuffer
+from sssbench.kernels.kernel1d import Kernel1D
+from sssbench.ops.timing import timed_pass
+
+__all__ = ["separable_pass", "Stretch", "Rotation", "FOLLOW_SURFACE"]
+
+FOLLOW_SURFACE = (None, "lerp", "gaussian")
+
+#: ``sample_weight(centre_guide (N, G), sample_guide (N, G)) -> (N, 1) or (N, 3)``
+SampleWeight = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
+
+
+@dataclass(frozen=True)
+class Stretch:
+    """JG10 stretch factors (003 §7.3.1) in millimetre units.
+
+    003 computes ``s_x = ssslevel / (d + correction · min(|ddx d|, maxdd))`` with depth in
+    "units" of a head one unit tall, 20° fov and 720 px. Here the pinhole mapping already turns
+    mm into pixels, so ``ssslevel`` is a dimensionless multiplier of the physical scale (1.0 =
+    physically sized kernel); ``correction`` keeps its unit, pixels (003: 800), and ``maxdd`` is
+    in mm of depth per pixel: 003's 0.001 head units per pixel × a 230 mm head = 0.23 mm/px.
+    The resulting factor multiplies the pinhole pixels-per-mm:
+    ``ssslevel · d / (d + correction · min(|∂d/∂axis|, maxdd))``.
+    """
+
+    ssslevel: float = 1.0
+    correction: float = 800.0
+    maxdd: float = 0.23
+
+
+@dataclass(frozen=True)
+class Rotation:
+    """Stochastic kernel rotation (000 §6).
+
+    Attributes:
+        angles: per-pixel rotation of the sampling axis in radians, ``(B, 1, H, W)``.
+        radius: fraction of the kernel extent within which taps are rotated (000 §6: 0.1;
+            0.3 for extreme close-ups). Taps farther out stay on the axis (cache friendly in
+            the paper; here it keeps their 1D interpolation).
+    """
+
+    angles: torch.Tensor
+    radius: float = 0.1
+
+
+def _axis_derivative(depth: torch.Tensor, axis: int) -> torch.Tensor:
+    """|∂depth/∂axis| in mm per pixel by central differences (one-sided at the border).
+
+    003 uses the shader's ``ddx``, a forward difference within a 2×2 quad; a central
+    difference is its symmetric counterpart and does not shift silhouettes by half a pixel.
+    """
+    d = torch.gradient(depth, dim=axis)[0]
+    return d.abs()
+
+
+def _check_pass_inputs(
+    image: torch.Tensor,
+    kernel: Kernel1D,
+    direction: str,
+    gbuffer: GBuffer,
+    width: float | torch.Tensor,
+    follow_surface: str | None,
+    surface_scale: float | None,
+) -> None:
+    check_tensor("image", image, ndim=4, channels=3)
+    if not isinstance(gbuffer, GBuffer):
+        raise TypeError(f"gbuffer must be a GBuffer, got {type(gbuffer).__name__}")
+    if not isinstance(kernel, Kernel1D):
+        raise TypeError(f"kernel must be a Kernel1D, got {type(kernel).__name__}")
+    if image.shape != gbuffer.diffuse.shape:
+        raise ValueError(
+            f"image must have the G-buffer's shape {tuple(gbuffer.diffuse.shape)}, "
+            f"got {tuple(image.shape)}"
+        )
+    if image.dtype != gbuffer.dtype:
+        raise TypeError(f"image dtype {image.dtype} must match the G-buffer's {gbuffer.dtype}")
+    check_choice("direction", direction, ("x", "y"))
+    check_choice("follow_surface", follow_surface, FOLLOW_SURFACE)
+    if isinstance(width, torch.Tensor):
+        check_tensor("width", width, ndim=4, channels=1)
+        if width.shape != gbuffer.depth.shape:
+            raise ValueError(
+                f"width must be a scalar or have shape {tuple(gbuffer.depth.shape)}, "
+                f"got {tuple(width.shape)}"
+            )
+        if bool((width < 0).any()):
+            raise ValueError(f"width must be >= 0 mm, got min {float(width.min()):g}")
+    else:
+        check_scalar("width", width, 0.0, low_inclusive=False)
+    if surface_scale is not None:
+        check_scalar("surface_scale", surface_scale, 0.0, low_inclusive=False)
+
+
+def separable_pass(
+    image: torch.Tensor,
+    kernel: Kernel1D,
+    direction: str,
+    gbuffer: GBuffer,
+    *,
+    width: float | torch.Tensor = 1.0,
+    follow_surface: str | None = None,
+    surface_scale: float | None = None,
+    stretch: Stretch | None = None,
+    use_mask: bool = True,
+    rotation: Rotation | None = None,
+    guide: torch.Tensor | None = None,
+    sample_weight: SampleWeight | None = None,
+    name: str | None = None,
+) -> torch.Tensor:
+    """One depth-aware 1D gather pass over the active pixels (DESIGN §4).
+
+    Args:
+        image: the image to blur, ``(B, 3, H, W)``, the G-buffer's dtype.
+        kernel: taps; ``offsets`` in mm (times ``width``), ``weights (K, 3)``.
+        direction: ``"x"`` (along rows) or ``"y"`` (along columns).
+        gbuffer: supplies ``depth`` (mm), ``fov_y`` and ``mask``.
+        width: multiplier of the kernel offsets (mm per offset unit): a scalar > 0 or a
+            per-pixel ``(B, 1, H, W)`` tensor >= 0 (curvature modulation). Kernels built in mm
+            use 1.0; the 2012 kernel is built in units of its ``width``.
+        follow_surface: ``None``; ``"lerp"``: lerp each sample back to the centre colour by
+            ``clamp(|Δz| / surface_scale, 0, 1)`` (002 appendix shader); ``"gaussian"``:
+            multiply the tap weight by ``exp(-Δz² / 2 surface_scale²)`` with ``surface_scale =
+            σ_max`` (000 eq. 7).
+        surface_scale: mm; default: the kernel's reach ``kernel.extent × width`` (the 2012
+            shader's constant ``300 · distToProjWindow · sssWidth`` makes a sample fully
+            replaced at a depth step of about the kernel's width; we tie it to the kernel's
+            extent in mm so that it needs no tuning per scene scale).
+        stretch: JG10 stretch factors (003 §7.3.1), see :class:`Stretch`.
+        use_mask: use ``gbuffer.mask`` as stencil and strength: pixels with mask 0 are not
+            computed (copied through), others have their step scaled by the mask (003 §7.3.1
+            ``s' = s · alpha``; the 2012 shader's ``finalStep *= SSSS_STRENGTH_SOURCE``).
+        rotation: stochastic rotation of the inner taps (000 §6), see :class:`Rotation`.
+        guide: ``(B, G, H, W)`` auxiliary image fetched with the samples for ``sample_weight``.
+        sample_weight: bilateral weight ``f(centre_guide (N, G), sample_guide (N, G))`` ->
+            ``(N, 1)`` or ``(N, 3)`` (004 §3.3); the result is renormalised by the summed weights.
+        name: name of the :class:`~sssbench.ops.timing.PassRecord` (default ``"pass.<dir>"``).
+
+    Returns:
+        ``(B, 3, H, W)``: blurred where active, ``image`` elsewhere.
+
+    Shape:
+        - image: ``(B, 3, H, W)``
+        - output: ``(B, 3, H, W)``
+
+    Example:
+        >>> g = GBuffer(torch.rand(1, 3, 8, 8), torch.full((1, 1, 8, 8), 100.0), 0.5)
+        >>> k = Kernel1D(torch.tensor([-1.0, 0.0, 1.0]), torch.full((3, 3), 1 / 3))
+        >>> separable_pass(g.diffuse, k, "x", g).shape
+        torch.Size([1, 3, 8, 8])
+    """
+    _check_pass_inputs(image, kernel, direction, gbuffer, width, follow_surface, surface_scale)
+    if (guide is None) != (sample_weight is None):
+        raise ValueError("guide and sample_weight must be given together")
+    if guide is not None:
+        check_tensor("guide", guide, ndim=4)
+        if guide.shape[0] != image.shape[0] or guide.shape[2:] != image.shape[2:]:
+            raise ValueError(
+                f"guide must have shape (B, G, H, W) = ({image.shape[0]}, G, "
+                f"{image.shape[2]}, {image.shape[3]}), got {tuple(guide.shape)}"
+            )
+    if rotation is not None:
+        check_tensor("rotation.angles", rotation.angles, ndim=4, channels=1)
+        if rotation.angles.shape != gbuffer.depth.shape:
+            raise ValueError(
+                f"rotation.angles must have shape {tuple(gbuffer.depth.shape)}, "
+                f"got {tuple(rotation.angles.shape)}"
+            )
+        check_scalar("rotation.radius", rotation.radius, 0.0, 1.0)
+
+    b_, c_, h_, w_ = image.shape
+    dtype = image.dtype
+    depth = gbuffer.depth
+    strength = gbuffer.mask if (use_mask and gbuffer.mask is not None) else None
+
+    # ---- per-pixel scale: pixels per offset unit (DESIGN §2: a pixel covers 2 z tan(fov/2)/H mm)
+    focal_px = h_ / (2.0 * math.tan(gbuffer.fov_y / 2.0))  # pixels per mm at depth 1 mm
+    axis = 3 if direction == "x" else 2
+    denom = depth
+    if stretch is not None:  # 003 §7.3.1
+        dd = _axis_derivative(depth, axis).clamp_max(stretch.maxdd)
+        denom = depth + stretch.correction * dd
+        focal_px = focal_px * stretch.ssslevel
+    scale = focal_px / denom * width  # (B,1,H,W) pixels per kernel-offset unit
+    if strength is not None:
+        scale = scale * strength
+
+    # ---- stencil compaction: only pixels with strength > 0 are computed
+    flat_scale = scale.reshape(-1)
+    if strength is not None:
+        active = torch.nonzero(strength.reshape(-1) > 0).squeeze(1)
+    else:
+        active = None
+    n_active = flat_scale.numel() if active is None else active.numel()
+    out = image.clone()
+    if n_active == 0:
+        return out
+
+    with timed_pass(name or f"pass.{direction}", len(kernel), n_active):
+        result = _gather(
+            image,
+            depth,
+            guide,
+            kernel.to(dtype),
+            direction,
+            flat_scale,
+            active,
+            follow_surface,
+            surface_scale,
+            width,
+            rotation,
+            sample_weight,
+        )
+        out_cl = out.permute(0, 2, 3, 1).reshape(-1, c_)
+        if active is None:
+            out_cl = result
+        else:
+            out_cl = out_cl.index_copy(0, active, result)
+        out = out_cl.reshape(b_, h_, w_, c_).permute(0, 3, 1, 2).contiguous()
+    return out
+
+
+def _gather(
+    image: torch.Tensor,
+    depth: torch.Tensor,
+    guide: torch.Tensor | None,
+    kernel: Kernel1D,
+    direction: str,
+    flat_scale: torch.Tensor,
+    active: torch.Tensor | None,
+    follow_surface: str | None,
+    surface_scale: float | None,
+    width: float | torch.Tensor,
+    rotation: Rotation | None,
+    sample_weight: SampleWeight | None,
+) -> torch.Tensor:
+    """The accumulation loop over taps; returns ``(N, 3)`` for the active pixels."""
+    b_, c_, h_, w_ = image.shape
+    dtype = image.dtype
+    device = image.device
+    # channels-last table: colour | depth | guide, fetched with one index_select per corner
+    parts = [image, depth]
+    if guide is not None:
+        parts.append(guide.to(dtype))
+    table = torch.cat(parts, 1).permute(0, 2, 3, 1).reshape(b_ * h_ * w_, -1)
+
+    hw = h_ * w_
+    if active is None:
+        lin = torch.arange(b_ * hw, device=device)
+    else:
+        lin = active
+    base = lin - lin % hw  # b * H * W
+    row = (lin % hw) // w_
+    col = lin % w_
+    scale = flat_scale if active is None else flat_scale[lin]
+    centre = table[lin]
+    centre_rgb = centre[:, :c_]
+    centre_z = centre[:, c_]
+    centre_guide = centre[:, c_ + 1 :]
+
+    if direction == "x":
+        pos, fixed, n_axis, stride_axis, stride_fixed = col, row, w_, 1, w_
+    else:
+        pos, fixed, n_axis, stride_axis, stride_fixed = row, col, h_, w_, 1
+    pos_f = pos.to(dtype)
+    fixed_lin = base + fixed * stride_fixed
+
+    if follow_surface is not None and surface_scale is None:
+        wmax = float(width.max()) if isinstance(width, torch.Tensor) else float(width)
+        surface_scale = max(kernel.extent * wmax, 1e-12)
+
+    rotated_limit = -1.0
+    if rotation is not None:
+        rotated_limit = rotation.radius * kernel.extent
+        ang = rotation.angles.reshape(-1)
+        ang = ang if active is None else ang[lin]
+        # the x pass turns (1, 0) by the angle, the y pass turns (0, 1) by the same angle
+        if direction == "x":
+            dcol, drow = torch.cos(ang), torch.sin(ang)
+        else:
+            dcol, drow = -torch.sin(ang), torch.cos(ang)
+        row_f, col_f = row.to(dtype), col.to(dtype)
+
+    acc = torch.zeros(lin.numel(), c_, dtype=dtype, device=device)
+    wsum = torch.zeros_like(acc) if sample_weight is not None else None
+    for k in range(len(kernel)):
+        off = float(kernel.offsets[k])
+        w_k = kernel.weights[k]  # (3,)
+        if off == 0.0:
+            sample = centre
+        elif abs(off) <= rotated_limit:
+            step = off * scale
+            sample = _bilinear(table, base, row_f + step * drow, col_f + step * dcol, h_, w_)
+        else:
+            p = (pos_f + off * scale).clamp(0, n_axis - 1)  # border clamp
+            p0 = p.floor()
+            frac = (p - p0)[:, None]
+            i0 = p0.long()
+            i1 = (i0 + 1).clamp_max(n_axis - 1)
+            s0 = table[fixed_lin + i0 * stride_axis]
+            s1 = table[fixed_lin + i1 * stride_axis]
+            sample = s0 + frac * (s1 - s0)
+        rgb = sample[:, :c_]
+        weight = w_k.expand(lin.numel(), c_)
+        if follow_surface is not None and off != 0.0:
+            dz = (sample[:, c_] - centre_z).abs()[:, None]
+            if follow_surface == "lerp":  # 002 appendix shader
+                s = (dz / surface_scale).clamp(0.0, 1.0)
+                rgb = rgb + s * (centre_rgb - rgb)
+            else:  # 000 eq. 7: one exp with sigma_max
+                weight = weight * torch.exp(-(dz**2) / (2.0 * surface_scale**2))
+        if sample_weight is not None:
+            weight = weight * sample_weight(centre_guide, sample[:, c_ + 1 :])
+            wsum = wsum + weight
+        acc = acc + weight * rgb
+    if wsum is not None:
+        acc = acc / wsum.clamp_min(torch.finfo(dtype).tiny)
+    return acc
+
+
+def _bilinear(
+    table: torch.Tensor,
+    base: torch.Tensor,
+    row: torch.Tensor,
+    col: torch.Tensor,
+    h: int,
+    w: int,
+) -> torch.Tensor:
+    """Bilinear fetch at fractional (row, col), clamped to the image (rotated taps)."""
+    row = row.clamp(0, h - 1)
+    col = col.clamp(0, w - 1)
+    r0f, c0f = row.floor(), col.floor()
+    fr, fc = (row - r0f)[:, None], (col - c0f)[:, None]
+    r0, c0 = r0f.long(), c0f.long()
+    r1, c1 = (r0 + 1).clamp_max(h - 1), (c0 + 1).clamp_max(w - 1)
+    top = table[base + r0 * w + c0] * (1 - fc) + table[base + r0 * w + c1] * fc
+    bot = table[base + r1 * w + c0] * (1 - fc) + table[base + r1 * w + c1] * fc
+    return top * (1 - fr) + bot * fr

@@ -1,0 +1,49 @@
+"""GBuffer validation: every bad input names its argument."""
+
+import math
+
+import pytest
+import torch
+
+from sssbench.gbuffer import GBuffer, pixel_size_mm, view_positions
+
+
+def good(**kw):
+    args = dict(diffuse=torch.ones(1, 3, 4, 5), depth=torch.full((1, 1, 4, 5), 100.0), fov_y=0.5)
+    args.update(kw)
+    return args
+
+
+@pytest.mark.parametrize(
+    "kw, exc, match",
+    [
+        (dict(diffuse=torch.full((1, 3, 4, 5), float("nan"))), ValueError, "diffuse"),
+        (dict(depth=torch.zeros(1, 1, 4, 5)), ValueError, "depth"),
+        (dict(depth=torch.full((1, 1, 4, 5), -1.0)), ValueError, "depth"),
+        (dict(depth=torch.full((1, 1, 4, 5), float("inf"))), ValueError, "depth"),
+        (dict(depth=torch.ones(1, 1, 4, 6)), ValueError, "depth"),
+        (dict(mask=torch.full((1, 1, 4, 5), 1.5)), ValueError, "mask"),
+        (dict(fov_y=math.pi), ValueError, "fov_y"),
+        (dict(fov_y=0.0), ValueError, "fov_y"),
+        (dict(diffuse=torch.ones(1, 3, 4, 5, dtype=torch.int32)), TypeError, "diffuse"),
+        (dict(diffuse=torch.ones(1, 4, 4, 5)), ValueError, "diffuse"),
+        (dict(albedo=torch.ones(2, 3, 4, 5)), ValueError, "albedo"),
+        (dict(thickness=torch.ones(1, 1, 4, 5, dtype=torch.float64)), TypeError, "thickness"),
+        (dict(diffuse=torch.ones(1, 3, 4, 5, dtype=torch.float16)), TypeError, "diffuse"),
+    ],
+)
+def test_bad_inputs(kw, exc, match):
+    with pytest.raises(exc, match=match):
+        GBuffer(**good(**kw))
+
+
+def test_pixel_size_and_positions_follow_the_pinhole_model():
+    depth = torch.full((1, 1, 4, 6), 200.0, dtype=torch.float64)
+    fov = math.radians(40)
+    p = 2 * 200 * math.tan(fov / 2) / 4
+    assert float(pixel_size_mm(torch.tensor(200.0), fov, 4)) == pytest.approx(p)
+    pos = view_positions(depth, fov)
+    # neighbouring pixel centres are one pixel footprint apart; the image centre is on axis
+    assert float(pos[0, 0, 0, 1] - pos[0, 0, 0, 0]) == pytest.approx(p)
+    assert float(pos[0, 1, 0, 0] - pos[0, 1, 1, 0]) == pytest.approx(p)
+    assert float(pos[0, 0, 0, 2] + pos[0, 0, 0, 3]) == pytest.approx(0.0, abs=1e-9)
