@@ -7,6 +7,7 @@ from sssbench.kernels.artist import (
     artist_preset,
     artist_sigmas,
 )
+from sssbench.kernels.jimenez2012 import JIMENEZ2012_PRESETS, jimenez2012, jimenez2012_preset
 from sssbench.kernels.kernel1d import Kernel1D
 from sssbench.kernels.low_rank import LowRankKernel, low_rank, reconstruct, singular_energy
 from sssbench.kernels.matrix import MAX_MATRIX_SIZE, cell_centres, kernel_matrix
@@ -44,4 +45,7 @@ __all__ = [
     "artist_sigmas",
     "ArtistParams",
     "ARTIST_PRESETS",
+    "jimenez2012",
+    "jimenez2012_preset",
+    "JIMENEZ2012_PRESETS",
 ]

@@ -37,8 +37,10 @@ _SIGMA_FLOOR = 1e-9
 _EXTENT_SIGMAS = 4.0
 
 
-def _per_channel(name: str, value: object) -> torch.Tensor:
-    """A scalar or a (3,) sequence/tensor in [0, 1] -> (3,) float64."""
+def _per_channel(
+    name: str, value: object, low: float | None = 0.0, high: float | None = 1.0
+) -> torch.Tensor:
+    """A scalar or a (3,) sequence/tensor in [low, high] -> (3,) float64."""
     if isinstance(value, (int, float)) and not isinstance(value, bool):
         t = torch.full((3,), float(value), dtype=torch.float64)
     elif isinstance(value, torch.Tensor):
@@ -60,7 +62,7 @@ def _per_channel(name: str, value: object) -> torch.Tensor:
         t = t.expand(3)
     if t.shape != (3,):
         raise ValueError(f"{name} must have shape (3,) (R, G, B), got {tuple(t.shape)}")
-    check_range(name, t, 0.0, 1.0)
+    check_range(name, t, low, high)
     return t.double()
 
 
