@@ -1,6 +1,15 @@
 """Radial diffusion profiles R(r) per RGB channel (DESIGN §1, first layer)."""
 
 from sssbench.profiles.base import Profile
+from sssbench.profiles.burley import BurleyNormalized
+from sssbench.profiles.dipole import MATERIALS, Dipole
 from sssbench.profiles.sum_of_gaussians import SOG_TABLES, SumOfGaussians
 
-__all__ = ["Profile", "SumOfGaussians", "SOG_TABLES"]
+__all__ = [
+    "Profile",
+    "SumOfGaussians",
+    "SOG_TABLES",
+    "Dipole",
+    "MATERIALS",
+    "BurleyNormalized",
+]

@@ -41,7 +41,9 @@ def as_r(r: torch.Tensor | float | np.ndarray, *, allow_inf: bool = False) -> to
     t = torch.as_tensor(r, dtype=torch.float64)
     bad = torch.isnan(t) if allow_inf else ~torch.isfinite(t)
     if bool(bad.any()):
-        raise ValueError(f"r must be {'non-NaN' if allow_inf else 'finite'}, got {t[bad][:3].tolist()}")
+        raise ValueError(
+            f"r must be {'non-NaN' if allow_inf else 'finite'}, got {t[bad][:3].tolist()}"
+        )
     return t
 
 
@@ -101,8 +103,9 @@ class Profile:
 
         ``total/2 ± ∫_0^{|x|} a_p``, the integral by Gauss–Legendre panels on a geometric grid
         from ``lo/64`` to ``hi·64`` (``lo, hi`` = :meth:`length_scales`) clipped at ``|x|``,
-        continued geometrically (ratio 2) beyond ``hi·64`` for far-out ``x``. All ``x`` are
-        integrated in one vectorised call (in chunks), not one Python loop per ``x``.
+        continued geometrically (ratio 2) beyond ``hi·64`` for far-out ``x``. The full panels
+        are integrated once and accumulated; each ``x`` adds only its partial panel, all ``x``
+        in one vectorised call (the same nodes as integrating every ``x`` separately).
         """
         xt = as_r(x, allow_inf=True)
         flat = xt.reshape(-1)
@@ -122,26 +125,34 @@ class Profile:
                 base = np.concatenate([base, base[-1] * 2.0 ** np.arange(1, k + 1)])
             edges = np.concatenate([[0.0], base])
             gx, gw = _gauss_legendre(_GL_ORDER)
-            lo_e = np.minimum(edges[None, :-1], af[:, None])  # (n, P) panels clipped at |x|
-            hi_e = np.minimum(edges[None, 1:], af[:, None])
-            half_w = (hi_e - lo_e) / 2
-            nodes = ((hi_e + lo_e) / 2)[..., None] + half_w[..., None] * gx  # (n, P, Q)
-            wts = half_w[..., None] * gw
-            nodes = nodes.reshape(af.shape[0], -1)
-            wts = wts.reshape(af.shape[0], -1)
-            keep = wts.max(0) > 0  # drop panels that are empty for every x
-            nodes, wts = nodes[:, keep], wts[:, keep]
-            # chunk so that a numeric preintegrated (itself a quadrature) stays in memory
-            chunk = max(1, 4_000_000 // (nodes.shape[1] * self._preintegrated_cost))
-            parts = []
-            for s in range(0, af.shape[0], chunk):
-                nd = torch.from_numpy(np.ascontiguousarray(nodes[s : s + chunk]))
-                vals = self.preintegrated(nd)  # (c, m, 3)
-                parts.append((vals * torch.from_numpy(wts[s : s + chunk])[..., None]).sum(1))
-            part = torch.cat(parts, 0)
+            # full panels once: cum[k] = ∫_0^{edges[k]} a_p
+            nodes, wts = _panel_nodes(edges)
+            full = self._weighted_sum(nodes[None, :], wts[None, :])[0]  # (P*Q, 3) summed below
+            per_panel = full.reshape(len(edges) - 1, _GL_ORDER, 3).sum(1)
+            cum = torch.cat([torch.zeros(1, 3, dtype=torch.float64), per_panel.cumsum(0)])
+            # partial panel [edges[k], |x|] of each x (same nodes as clipping the panels at |x|)
+            k = np.searchsorted(edges, af, side="right") - 1
+            lo_e = edges[k]
+            half_w = (af - lo_e) / 2
+            pnodes = ((af + lo_e) / 2)[:, None] + half_w[:, None] * gx
+            pwts = half_w[:, None] * gw
+            part = cum[torch.from_numpy(k)] + self._weighted_sum(pnodes, pwts).sum(1)
             sign = torch.sign(flat[finite])[:, None]
             out[finite] = half + sign * part
         return out.reshape(*xt.shape, 3)
+
+    def _weighted_sum(self, nodes: np.ndarray, wts: np.ndarray) -> torch.Tensor:
+        """``wts · a_p(nodes)`` for ``(n, m)`` arrays -> ``(n, m, 3)``, in memory-bounded chunks
+        (a numeric :meth:`preintegrated` is itself a quadrature)."""
+        chunk = max(1, 4_000_000 // (nodes.shape[1] * self._preintegrated_cost))
+        parts = []
+        for s in range(0, nodes.shape[0], chunk):
+            nd = torch.from_numpy(np.ascontiguousarray(nodes[s : s + chunk]))
+            vals = self.preintegrated(nd)
+            parts.append(
+                vals * torch.from_numpy(np.ascontiguousarray(wts[s : s + chunk]))[..., None]
+            )
+        return torch.cat(parts, 0)
 
     def preintegrated_interval(self, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
         """``∫_a^b a_p(x) dx`` per channel, ``(..., 3)``; ``a`` and ``b`` may be ±inf."""
