@@ -7,6 +7,7 @@ from sssbench.kernels.artist import (
     artist_preset,
     artist_sigmas,
 )
+from sssbench.kernels.guided import GuidedFactor, guide_function, guided, guided_factor
 from sssbench.kernels.jimenez2012 import JIMENEZ2012_PRESETS, jimenez2012, jimenez2012_preset
 from sssbench.kernels.kernel1d import Kernel1D
 from sssbench.kernels.low_rank import LowRankKernel, low_rank, reconstruct, singular_energy
@@ -48,4 +49,8 @@ __all__ = [
     "jimenez2012",
     "jimenez2012_preset",
     "JIMENEZ2012_PRESETS",
+    "guided",
+    "guided_factor",
+    "guide_function",
+    "GuidedFactor",
 ]
