@@ -3,6 +3,7 @@
 from sssbench.profiles.base import Profile
 from sssbench.profiles.burley import BurleyNormalized
 from sssbench.profiles.dipole import MATERIALS, Dipole
+from sssbench.profiles.fit import FitResult, fit_sum_of_gaussians, rel_rms_power
 from sssbench.profiles.sum_of_gaussians import SOG_TABLES, SumOfGaussians
 
 __all__ = [
@@ -12,4 +13,7 @@ __all__ = [
     "Dipole",
     "MATERIALS",
     "BurleyNormalized",
+    "FitResult",
+    "fit_sum_of_gaussians",
+    "rel_rms_power",
 ]
