@@ -3,6 +3,7 @@
 from sssbench.profiles.base import Profile
 from sssbench.profiles.burley import BurleyNormalized
 from sssbench.profiles.dipole import MATERIALS, Dipole
+from sssbench.profiles.empirical import empirical_dipole_fit, empirical_pole_fit
 from sssbench.profiles.fit import FitResult, fit_sum_of_gaussians, rel_rms_power
 from sssbench.profiles.sum_of_gaussians import SOG_TABLES, SumOfGaussians
 
@@ -13,6 +14,8 @@ __all__ = [
     "Dipole",
     "MATERIALS",
     "BurleyNormalized",
+    "empirical_dipole_fit",
+    "empirical_pole_fit",
     "FitResult",
     "fit_sum_of_gaussians",
     "rel_rms_power",
