@@ -30,7 +30,15 @@ import pandas as pd
 
 from sssbench.tracking import METRIC_COLUMNS, RunStore
 
-__all__ = ["load_runs", "summary_table", "pareto_front", "write_report", "Report", "main"]
+__all__ = [
+    "load_runs",
+    "summary_table",
+    "pareto_front",
+    "write_report",
+    "Report",
+    "ReportCallback",
+    "main",
+]
 
 POINT_COLUMNS = ["scene", "method", "profile", "sampling", "samples"]
 SUMMARY_COLUMNS = [
@@ -364,6 +372,31 @@ def print_report(report: Report, file: Any = None) -> None:
     print("", file=file)
     for p in report.paths():
         print(f"report: {p}", file=file)
+
+
+try:
+    from hydra.experimental.callback import Callback as _HydraCallback
+except ImportError:  # pragma: no cover
+    _HydraCallback = object  # type: ignore[assignment,misc]
+
+
+class ReportCallback(_HydraCallback):
+    """Hydra callback: at the end of a multirun, write the report of the sweep directory and
+    print the summary table and the report paths (``hydra.callbacks.report`` in a preset)."""
+
+    def on_multirun_end(self, config: Any, **kwargs: Any) -> None:
+        sweep_dir = Path(str(config.hydra.sweep.dir)).resolve()
+        try:
+            report = write_report(sweep_dir)
+        except Exception as exc:  # the report must never hide the sweep's own outcome
+            print(
+                f"sssbench-report: could not write the report of {sweep_dir}: {exc}",
+                file=sys.stderr,
+            )
+            return
+        print("", flush=True)
+        print_report(report)
+        sys.stdout.flush()
 
 
 def main(argv: list[str] | None = None) -> int:
