@@ -506,7 +506,10 @@ def execute(spec: RunSpec, run_dir: str | Path, sweep_dir: str | Path | None = N
     store = RunStore(spec.store, journal_mode=spec.store_journal)
     point = spec.point()
     h = config_hash(point)
-    label = f"{spec.scene}/{spec.method}/{spec.profile}/{spec.sampling}/{spec.samples}"
+    label = "/".join(
+        str(v) if v is not None else "-"
+        for v in (spec.scene, spec.method, spec.profile, spec.sampling, spec.samples)
+    )
     point_file = run_dir / "point.json"
     info = {"config_hash": h, "store": str(store.path), "config": point, "status": "running"}
     _write_json(point_file, info)

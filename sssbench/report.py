@@ -40,7 +40,7 @@ __all__ = [
     "main",
 ]
 
-POINT_COLUMNS = ["scene", "method", "profile", "sampling", "samples"]
+POINT_COLUMNS = ["scene", "method", "profile", "sampling", "samples", "resolution"]
 SUMMARY_COLUMNS = [
     *POINT_COLUMNS,
     "status",
@@ -120,13 +120,25 @@ def load_runs(
 def summary_table(runs: pd.DataFrame) -> pd.DataFrame:
     """One row per point, columns :data:`SUMMARY_COLUMNS`, sorted by scene, method, samples."""
     table = runs.rename(columns={"id": "run_id"})
+    if "config" in table.columns:
+        table["resolution"] = [_resolution(c) for c in table["config"]]
     for col in SUMMARY_COLUMNS:
         if col not in table.columns:
             table[col] = None
-    table = table[SUMMARY_COLUMNS]
+    table = table[SUMMARY_COLUMNS].copy()
+    table["samples"] = pd.array(
+        [None if pd.isna(v) else int(v) for v in table["samples"]], dtype="Int64"
+    )
     return table.sort_values(["scene", "method", "profile", "sampling", "samples"]).reset_index(
         drop=True
     )
+
+
+def _resolution(config: Any) -> str | None:
+    res = config.get("resolution") if isinstance(config, dict) else None
+    if isinstance(res, list) and len(res) == 2:
+        return f"{res[0]}x{res[1]}"
+    return None if res is None else str(res)
 
 
 # ----------------------------------------------------------------------------- analysis
@@ -181,6 +193,7 @@ def _markdown(df: pd.DataFrame) -> str:
 
 MD_COLUMNS = [
     "method",
+    "resolution",
     "profile",
     "sampling",
     "samples",
@@ -357,10 +370,22 @@ def write_report(
 
 def format_console(table: pd.DataFrame) -> str:
     """A compact text table for the terminal."""
-    cols = ["scene", "method", "samples", "passes", "time_ms", "rel_rms", "psnr", "flip", "status"]
+    cols = [
+        "scene",
+        "method",
+        "samples",
+        "resolution",
+        "passes",
+        "time_ms",
+        "rel_rms",
+        "psnr",
+        "flip",
+        "status",
+    ]
     if table.empty:
         return "(no runs)"
     shown = table[cols].copy()
+    shown["samples"] = ["–" if pd.isna(v) else str(int(v)) for v in shown["samples"]]
     for c in ("time_ms", "rel_rms", "psnr", "flip"):
         shown[c] = [_fmt(None if pd.isna(v) else float(v)) for v in shown[c]]
     return shown.to_string(index=False)
