@@ -123,7 +123,7 @@ def _writer(args):
 def test_parallel_writers(tmp_path):
     path = str(tmp_path / "s.sqlite")
     RunStore(path)
-    with mp.get_context("spawn").Pool(4) as pool:
+    with mp.get_context("fork").Pool(4) as pool:
         done = pool.map(_writer, [(path, w, 15) for w in range(4)])
     assert sum(done) == 60
     store = RunStore(path)
