@@ -611,7 +611,12 @@ def task(cfg: Any) -> str:
         _record_invalid(cfg, run_dir, sweep_dir, message)
         _STATE["failed"] += 1
         return "failed"
-    outcome = execute(spec, run_dir, sweep_dir)
+    try:
+        outcome = execute(spec, run_dir, sweep_dir)
+    except Exception as exc:  # e.g. the store is unwritable: report, never abort the sweep
+        log.error("failed: could not run or record the point: %s: %s", type(exc).__name__, exc)
+        _STATE["failed"] += 1
+        return "failed"
     if outcome.status in ("failed", "timeout"):
         _STATE["failed"] += 1
     return outcome.status
