@@ -14,7 +14,9 @@ previews):
   function (IEC 61966-2-1, ``kornia.color.linear_rgb_to_rgb``). Reinhard never clips, so two
   different HDR values never map to the same display value.
 * :func:`rmse`, :func:`rel_rms`, :func:`psnr`, :func:`ssim` work on the *linear* values.
-* :func:`delta_e` and :func:`flip` work on the tone-mapped sRGB values, as a viewer sees them.
+* :func:`delta_e` and :func:`flip` work on the tone-mapped sRGB values, as a viewer sees them;
+  negative values (e.g. ringing of a low-rank kernel with negative weights) are clamped to 0
+  first, as a display would.
 
 Example:
     >>> ref = torch.full((1, 3, 8, 8), 0.5)
@@ -241,8 +243,7 @@ def delta_e(
     """
     res, ref, m = _check_pair(result, reference, mask)
     check_choice("formula", formula, ("cie76", "ciede2000"))
-    check_range("result", res, 0.0)
-    check_range("reference", ref, 0.0)
+    res, ref = res.clamp(min=0.0), ref.clamp(min=0.0)  # a display shows no negative light
     lab_res = kornia.color.rgb_to_lab(tonemap(res, exposure))
     lab_ref = kornia.color.rgb_to_lab(tonemap(ref, exposure))
     fn = deltaE_cie76 if formula == "cie76" else deltaE_ciede2000
@@ -271,8 +272,7 @@ def flip(
     import flip_evaluator  # imported lazily: the extension is only needed for this metric
 
     res, ref, m = _check_pair(result, reference, mask)
-    check_range("result", res, 0.0)
-    check_range("reference", ref, 0.0)
+    res, ref = res.clamp(min=0.0), ref.clamp(min=0.0)  # a display shows no negative light
     ppd = check_scalar("ppd", ppd, 0.0, low_inclusive=False)
     t_res = tonemap(res, exposure)
     t_ref = tonemap(ref, exposure)

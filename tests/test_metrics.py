@@ -137,3 +137,13 @@ def test_compute_all_keys():
     out = metrics.compute_all(ref * 1.05, ref)
     assert set(out) == {"rmse", "rel_rms", "psnr", "ssim", "delta_e", "flip"}
     assert all(isinstance(v, float) for v in out.values())
+
+
+def test_display_metrics_clamp_negative_light():
+    ref = _ramp()
+    neg = ref.clone()
+    neg[..., 0, 0] = -0.5
+    clamped = neg.clamp(min=0)
+    assert delta_e(neg, ref) == pytest.approx(delta_e(clamped, ref))
+    assert flip(neg, ref) == pytest.approx(flip(clamped, ref))
+    assert rmse(neg, ref) > rmse(clamped, ref)  # the linear metrics see the negative value
