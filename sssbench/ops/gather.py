@@ -114,6 +114,10 @@ def _check_pass_inputs(
             raise ValueError(f"width must be >= 0 mm, got min {float(width.min()):g}")
     else:
         check_scalar("width", width, 0.0, low_inclusive=False)
+    if follow_surface is not None and surface_scale is None:
+        raise ValueError(
+            f"surface_scale (mm, > 0) must be given with follow_surface={follow_surface!r}"
+        )
     if surface_scale is not None:
         check_scalar("surface_scale", surface_scale, 0.0, low_inclusive=False)
 
@@ -148,10 +152,11 @@ def separable_pass(
             ``clamp(|Δz| / surface_scale, 0, 1)`` (002 appendix shader); ``"gaussian"``:
             multiply the tap weight by ``exp(-Δz² / 2 surface_scale²)`` with ``surface_scale =
             σ_max`` (000 eq. 7).
-        surface_scale: mm; default: the kernel's reach ``kernel.extent × width`` (the 2012
-            shader's constant ``300 · distToProjWindow · sssWidth`` makes a sample fully
-            replaced at a depth step of about the kernel's width; we tie it to the kernel's
-            extent in mm so that it needs no tuning per scene scale).
+        surface_scale: mm, required with ``follow_surface``: the depth step at which a
+            sample is fully replaced (lerp) or the σ_max of eq. 7 (gaussian). The methods
+            pass their profile's widest length scale (the 2012 shader's constant
+            ``300 · distToProjWindow · sssWidth`` likewise replaces a sample fully at a depth
+            step of about the kernel's width).
         stretch: JG10 stretch factors (003 §7.3.1), see :class:`Stretch`.
         use_mask: use ``gbuffer.mask`` as stencil and strength: pixels with mask 0 are not
             computed (copied through), others have their step scaled by the mask (003 §7.3.1
@@ -290,10 +295,6 @@ def _gather(
         pos, fixed, n_axis, stride_axis, stride_fixed = row, col, h_, w_, 1
     pos_f = pos.to(dtype)
     fixed_lin = base + fixed * stride_fixed
-
-    if follow_surface is not None and surface_scale is None:
-        wmax = float(width.max()) if isinstance(width, torch.Tensor) else float(width)
-        surface_scale = max(kernel.extent * wmax, 1e-12)
 
     rotated_limit = -1.0
     if rotation is not None:

@@ -89,6 +89,9 @@ class PreintegratedSSS(nn.Module):
         self.samples = samples
         self.sampling = sampling
         self.follow_surface = follow_surface
+        #: σ_max of 000 eq. 7 / the lerp's full-replacement depth step: the profile's widest
+        #: length scale (mm), a property of the material, not of where the taps sit
+        self.surface_scale = profile.length_scales()[1]
 
     def forward(self, gbuffer: GBuffer) -> torch.Tensor:
         return two_pass(
@@ -97,4 +100,5 @@ class PreintegratedSSS(nn.Module):
             gbuffer,
             name="preintegrated",
             follow_surface=self.follow_surface,
+            surface_scale=self.surface_scale,
         )
