@@ -4,6 +4,7 @@ methods built from it."""
 from sssbench.ops.gather import FOLLOW_SURFACE, Rotation, Stretch, separable_pass
 from sssbench.ops.preintegrated import PreintegratedSSS, preintegrated_sss, two_pass
 from sssbench.ops.reference import ReferenceSSS, reference_sss
+from sssbench.ops.rotation import random_rotation
 from sssbench.ops.timing import PassRecord, record_passes
 
 __all__ = [
@@ -16,6 +17,7 @@ __all__ = [
     "preintegrated_sss",
     "ReferenceSSS",
     "reference_sss",
+    "random_rotation",
     "PassRecord",
     "record_passes",
 ]

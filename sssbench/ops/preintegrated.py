@@ -10,6 +10,7 @@ from sssbench.gbuffer import GBuffer
 from sssbench.kernels.kernel1d import Kernel1D
 from sssbench.kernels.preintegrated import preintegrated
 from sssbench.ops.gather import FOLLOW_SURFACE, separable_pass
+from sssbench.ops.rotation import random_rotation
 from sssbench.profiles.base import Profile
 
 __all__ = ["PreintegratedSSS", "preintegrated_sss", "two_pass"]
@@ -68,6 +69,9 @@ class PreintegratedSSS(nn.Module):
         samples: taps per pass (default 7, 000 §7).
         sampling: tap placement, one of ``uniform``, ``power``, ``importance``.
         follow_surface: ``None``, ``"lerp"`` or ``"gaussian"``.
+        rotation: stochastic rotation radius fraction (000 §6: 0.1; 0.3 close-ups), or
+            ``None`` for none.
+        seed: seed of the rotation angles.
 
     Shape:
         - forward(gbuffer): ``(B, 3, H, W)``.
@@ -81,6 +85,8 @@ class PreintegratedSSS(nn.Module):
         samples: int = 7,
         sampling: str = "importance",
         follow_surface: str | None = None,
+        rotation: float | None = None,
+        seed: int = 0,
     ) -> None:
         super().__init__()
         check_choice("follow_surface", follow_surface, FOLLOW_SURFACE)
@@ -92,8 +98,11 @@ class PreintegratedSSS(nn.Module):
         #: σ_max of 000 eq. 7 / the lerp's full-replacement depth step: the profile's widest
         #: length scale (mm), a property of the material, not of where the taps sit
         self.surface_scale = profile.length_scales()[1]
+        self.rotation = rotation
+        self.seed = seed
 
     def forward(self, gbuffer: GBuffer) -> torch.Tensor:
+        rot = None if self.rotation is None else random_rotation(gbuffer, self.rotation, self.seed)
         return two_pass(
             gbuffer.diffuse,
             self.kernel,
@@ -101,4 +110,5 @@ class PreintegratedSSS(nn.Module):
             name="preintegrated",
             follow_surface=self.follow_surface,
             surface_scale=self.surface_scale,
+            rotation=rot,
         )
