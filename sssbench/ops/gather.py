@@ -87,7 +87,7 @@ def _check_pass_inputs(
     gbuffer: GBuffer,
     width: float | torch.Tensor,
     follow_surface: str | None,
-    surface_scale: float | None,
+    surface_scale: float | torch.Tensor | None,
 ) -> None:
     check_tensor("image", image, ndim=4, channels=3)
     if not isinstance(gbuffer, GBuffer):
@@ -118,7 +118,14 @@ def _check_pass_inputs(
         raise ValueError(
             f"surface_scale (mm, > 0) must be given with follow_surface={follow_surface!r}"
         )
-    if surface_scale is not None:
+    if isinstance(surface_scale, torch.Tensor):
+        check_tensor("surface_scale", surface_scale, ndim=1)
+        if surface_scale.shape != (3,) or not bool((surface_scale > 0).all()):
+            raise ValueError(
+                "surface_scale must be a scalar > 0 or a (3,) tensor of per-channel mm > 0, "
+                f"got {surface_scale.tolist()}"
+            )
+    elif surface_scale is not None:
         check_scalar("surface_scale", surface_scale, 0.0, low_inclusive=False)
 
 
@@ -130,7 +137,7 @@ def separable_pass(
     *,
     width: float | torch.Tensor = 1.0,
     follow_surface: str | None = None,
-    surface_scale: float | None = None,
+    surface_scale: float | torch.Tensor | None = None,
     stretch: Stretch | None = None,
     use_mask: bool = True,
     rotation: Rotation | None = None,
@@ -153,7 +160,8 @@ def separable_pass(
             multiply the tap weight by ``exp(-Δz² / 2 surface_scale²)`` with ``surface_scale =
             σ_max`` (000 eq. 7).
         surface_scale: mm, required with ``follow_surface``: the depth step at which a
-            sample is fully replaced (lerp) or the σ_max of eq. 7 (gaussian). The methods
+            sample is fully replaced (lerp) or the σ_max of eq. 7 (gaussian); a scalar or a
+            ``(3,)`` tensor of per-channel values (the artist model's σ_f). The methods
             pass their profile's widest length scale (the 2012 shader's constant
             ``300 · distToProjWindow · sssWidth`` likewise replaces a sample fully at a depth
             step of about the kernel's width).
@@ -201,6 +209,8 @@ def separable_pass(
 
     b_, c_, h_, w_ = image.shape
     dtype = image.dtype
+    if isinstance(surface_scale, torch.Tensor):
+        surface_scale = surface_scale.to(dtype=dtype, device=image.device)
     depth = gbuffer.depth
     strength = gbuffer.mask if (use_mask and gbuffer.mask is not None) else None
 
@@ -260,7 +270,7 @@ def _gather(
     flat_scale: torch.Tensor,
     active: torch.Tensor | None,
     follow_surface: str | None,
-    surface_scale: float | None,
+    surface_scale: float | torch.Tensor | None,
     width: float | torch.Tensor,
     rotation: Rotation | None,
     sample_weight: SampleWeight | None,

@@ -132,3 +132,15 @@ def test_bad_arguments(kw, exc, match):
     args.update(kw)
     with pytest.raises(exc, match=match):
         separable_pass(**args)
+
+
+@pytest.mark.parametrize("follow", ["lerp", "gaussian"])
+def test_per_channel_surface_scale_equals_three_scalar_passes(follow):
+    g = make()
+    scales = torch.tensor([2.0, 7.0, 30.0], dtype=torch.float64)
+    got = separable_pass(g.diffuse, KERNEL, "x", g, follow_surface=follow, surface_scale=scales)
+    for c, s in enumerate(scales.tolist()):
+        one = separable_pass(g.diffuse, KERNEL, "x", g, follow_surface=follow, surface_scale=s)
+        torch.testing.assert_close(got[:, c], one[:, c], rtol=1e-12, atol=1e-12)
+    with pytest.raises(ValueError, match="surface_scale"):
+        separable_pass(g.diffuse, KERNEL, "x", g, follow_surface=follow, surface_scale=-scales)
