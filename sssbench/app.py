@@ -237,7 +237,15 @@ def build_method(spec: RunSpec, profile: Any) -> torch.nn.Module:
         kwargs["samples"] = spec.samples
     if spec.sampling is not None:
         kwargs["sampling"] = spec.sampling
+    if "seed" not in kwargs and _takes(cls, "seed"):
+        kwargs["seed"] = spec.seed  # stochastic methods (rotation) follow the run's seed
     return cls(profile, **kwargs)
+
+
+def _default_params(cls: type, params: dict[str, Any]) -> bool:
+    """Whether every given keyword equals the constructor's default."""
+    sig = inspect.signature(cls.__init__).parameters
+    return all(k in sig and sig[k].default == v for k, v in params.items())
 
 
 def build_scene(spec: RunSpec, fields: tuple[str, ...]) -> Any:
@@ -432,11 +440,7 @@ def _measure(spec: RunSpec, run_dir: Path) -> tuple[dict[str, Any], list[PassSta
             records.append(out.records)
         result = out.image
         cache_dir = spec.reference_cache or spec.store.parent / "reference_cache"
-        if (
-            is_reference
-            and not spec.method_params.keys() - {"tol"}
-            and (method.tol == ReferenceSSS(profile).tol)
-        ):
+        if is_reference and _default_params(ReferenceSSS, spec.method_params):
             reference, hit = result, False
             ref_ms = sum(p.ms for p in out.records)
             _save_reference(
