@@ -29,7 +29,7 @@ from sssbench.gbuffer import GBuffer
 from sssbench.kernels.kernel1d import Kernel1D
 from sssbench.ops.timing import timed_pass
 
-__all__ = ["separable_pass", "Stretch", "Rotation", "FOLLOW_SURFACE"]
+__all__ = ["separable_pass", "set_compiled", "Stretch", "Rotation", "FOLLOW_SURFACE"]
 
 FOLLOW_SURFACE = (None, "lerp", "gaussian")
 
@@ -295,9 +295,6 @@ def _gather(
     col = lin % w_
     scale = flat_scale if active is None else flat_scale[lin]
     centre = table[lin]
-    centre_rgb = centre[:, :c_]
-    centre_z = centre[:, c_]
-    centre_guide = centre[:, c_ + 1 :]
 
     if direction == "x":
         pos, fixed, n_axis, stride_axis, stride_fixed = col, row, w_, 1, w_
@@ -306,9 +303,8 @@ def _gather(
     pos_f = pos.to(dtype)
     fixed_lin = base + fixed * stride_fixed
 
-    rotated_limit = -1.0
+    rot = None
     if rotation is not None:
-        rotated_limit = rotation.radius * kernel.extent
         ang = rotation.angles.reshape(-1)
         ang = ang if active is None else ang[lin]
         # the x pass turns (1, 0) by the angle, the y pass turns (0, 1) by the same angle
@@ -316,20 +312,69 @@ def _gather(
             dcol, drow = torch.cos(ang), torch.sin(ang)
         else:
             dcol, drow = -torch.sin(ang), torch.cos(ang)
-        row_f, col_f = row.to(dtype), col.to(dtype)
+        rot = (rotation.radius * kernel.extent, base, row.to(dtype), col.to(dtype), drow, dcol)
 
-    acc = torch.zeros(lin.numel(), c_, dtype=dtype, device=device)
+    follow = FOLLOW_SURFACE.index(follow_surface)
+    inv_scale = torch.zeros(c_, dtype=dtype, device=device)
+    if surface_scale is not None:
+        inv_scale = 1.0 / torch.as_tensor(surface_scale, dtype=dtype, device=device).expand(c_)
+    fn = _accumulate
+    if _COMPILE["on"] and rot is None and sample_weight is None:
+        fn = _compiled_accumulate()
+    return fn(
+        table,
+        fixed_lin,
+        pos_f,
+        scale,
+        centre,
+        kernel.offsets,
+        kernel.weights,
+        n_axis,
+        stride_axis,
+        (h_, w_),
+        follow,
+        inv_scale,
+        rot,
+        sample_weight,
+    )
+
+
+def _accumulate(
+    table: torch.Tensor,
+    fixed_lin: torch.Tensor,
+    pos_f: torch.Tensor,
+    scale: torch.Tensor,
+    centre: torch.Tensor,
+    offsets: torch.Tensor,
+    weights: torch.Tensor,
+    n_axis: int,
+    stride_axis: int,
+    hw: tuple[int, int],
+    follow: int,
+    inv_scale: torch.Tensor,
+    rot: tuple | None,
+    sample_weight: SampleWeight | None,
+) -> torch.Tensor:
+    """The one accumulation loop over taps (DESIGN §4), ``(N, 3)`` for the active pixels.
+
+    ``table`` rows are channels-last ``colour | depth | guide``; ``fixed_lin + i·stride_axis``
+    addresses the i-th pixel along the pass axis. ``follow``: index into
+    :data:`FOLLOW_SURFACE`. ``rot``: ``(radius_mm, base, row, col, drow, dcol)`` for rotated
+    inner taps. Written with tensors only when ``rot`` and ``sample_weight`` are ``None`` so
+    that ``torch.compile`` can fuse the whole loop (see :func:`set_compiled`).
+    """
+    c_ = weights.shape[1]
+    centre_rgb = centre[:, :c_]
+    centre_z = centre[:, c_]
+    acc = torch.zeros(centre.shape[0], c_, dtype=table.dtype, device=table.device)
     wsum = torch.zeros_like(acc) if sample_weight is not None else None
-    for k in range(len(kernel)):
-        off = float(kernel.offsets[k])
-        w_k = kernel.weights[k]  # (3,)
-        if off == 0.0:
-            sample = centre
-        elif abs(off) <= rotated_limit:
-            step = off * scale
-            sample = _bilinear(table, base, row_f + step * drow, col_f + step * dcol, h_, w_)
+    for k in range(offsets.shape[0]):
+        step = offsets[k] * scale
+        if rot is not None and abs(float(offsets[k])) <= rot[0]:
+            _, base, row_f, col_f, drow, dcol = rot
+            sample = _bilinear(table, base, row_f + step * drow, col_f + step * dcol, *hw)
         else:
-            p = (pos_f + off * scale).clamp(0, n_axis - 1)  # border clamp
+            p = (pos_f + step).clamp(0, n_axis - 1)  # border clamp
             p0 = p.floor()
             frac = (p - p0)[:, None]
             i0 = p0.long()
@@ -338,21 +383,39 @@ def _gather(
             s1 = table[fixed_lin + i1 * stride_axis]
             sample = s0 + frac * (s1 - s0)
         rgb = sample[:, :c_]
-        weight = w_k.expand(lin.numel(), c_)
-        if follow_surface is not None and off != 0.0:
-            dz = (sample[:, c_] - centre_z).abs()[:, None]
-            if follow_surface == "lerp":  # 002 appendix shader
-                s = (dz / surface_scale).clamp(0.0, 1.0)
-                rgb = rgb + s * (centre_rgb - rgb)
+        weight = weights[k]
+        if follow:
+            dz = (sample[:, c_] - centre_z).abs()[:, None] * inv_scale  # |Δz| / scale
+            if follow == 1:  # 002 appendix shader: lerp back to the centre colour
+                rgb = rgb + dz.clamp(0.0, 1.0) * (centre_rgb - rgb)
             else:  # 000 eq. 7: one exp with sigma_max
-                weight = weight * torch.exp(-(dz**2) / (2.0 * surface_scale**2))
+                weight = weight * torch.exp(-0.5 * dz * dz)
         if sample_weight is not None:
-            weight = weight * sample_weight(centre_guide, sample[:, c_ + 1 :])
+            weight = weight * sample_weight(centre[:, c_ + 1 :], sample[:, c_ + 1 :])
             wsum = wsum + weight
         acc = acc + weight * rgb
     if wsum is not None:
-        acc = acc / wsum.clamp_min(torch.finfo(dtype).tiny)
+        acc = acc / wsum.clamp_min(torch.finfo(acc.dtype).tiny)
     return acc
+
+
+_COMPILE: dict[str, object] = {"on": False, "fn": None}
+
+
+def set_compiled(enabled: bool) -> None:
+    """Run the accumulation loop through ``torch.compile`` (inductor: one fused C++ loop).
+
+    Off by default: the first call per (dtype, direction, follow-surface mode) compiles for
+    tens of seconds (cached on disk by torch afterwards). Results equal the eager loop to
+    float rounding (tested). Rotated taps and ``sample_weight`` always run eagerly.
+    """
+    _COMPILE["on"] = bool(enabled)
+
+
+def _compiled_accumulate():
+    if _COMPILE["fn"] is None:
+        _COMPILE["fn"] = torch.compile(_accumulate, dynamic=True)
+    return _COMPILE["fn"]
 
 
 def _bilinear(

@@ -144,3 +144,18 @@ def test_per_channel_surface_scale_equals_three_scalar_passes(follow):
         torch.testing.assert_close(got[:, c], one[:, c], rtol=1e-12, atol=1e-12)
     with pytest.raises(ValueError, match="surface_scale"):
         separable_pass(g.diffuse, KERNEL, "x", g, follow_surface=follow, surface_scale=-scales)
+
+
+def test_compiled_loop_equals_eager_loop():
+    """torch.compile fuses the tap loop (issue 7); results must equal the eager loop."""
+    from sssbench.ops.gather import set_compiled
+
+    g = make(dtype=torch.float32, h=12, w=17)
+    kernel = KERNEL.to(torch.float32)
+    eager = separable_pass(g.diffuse, kernel, "x", g, follow_surface="lerp", surface_scale=5.0)
+    set_compiled(True)
+    try:
+        fused = separable_pass(g.diffuse, kernel, "x", g, follow_surface="lerp", surface_scale=5.0)
+    finally:
+        set_compiled(False)
+    torch.testing.assert_close(fused, eager, rtol=1e-5, atol=1e-6)
