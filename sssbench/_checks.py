@@ -101,10 +101,13 @@ def check_scalar(
             raise TypeError(f"{name} must be a real number, got {type(value).__name__}")
     value = float(value)
     if not math.isfinite(value):
-        raise ValueError(f"{name} must be finite, got {value}")
+        raise ValueError(
+            f"{name} must be a finite number{_interval(low, high, low_inclusive, high_inclusive)}"
+            f", got {value}"
+        )
     check_range(
         name,
-        torch.tensor([value]),
+        torch.tensor([value], dtype=torch.float64),  # float64: 1e-300 must not round to 0
         low,
         high,
         low_inclusive=low_inclusive,
@@ -116,12 +119,29 @@ def check_scalar(
 def check_int(name: str, value: object, low: int | None = None, high: int | None = None) -> int:
     """Check an integer (not bool, not float) in [low, high] and return it."""
     if isinstance(value, bool) or not isinstance(value, int):
-        raise TypeError(f"{name} must be an integer, got {type(value).__name__} {value!r}")
+        lo = "-inf" if low is None else str(low)
+        hi = "inf" if high is None else str(high)
+        raise TypeError(
+            f"{name} must be an integer in [{lo}, {hi}], got {type(value).__name__} {value!r}"
+        )
     if (low is not None and value < low) or (high is not None and value > high):
         lo = "-inf" if low is None else str(low)
         hi = "inf" if high is None else str(high)
         raise ValueError(f"{name} must be an integer in [{lo}, {hi}], got {value}")
     return value
+
+
+def _interval(
+    low: float | None, high: float | None, low_inclusive: bool, high_inclusive: bool
+) -> str:
+    """`` in [low, high]`` (with open ends as given), or ``""`` when unbounded."""
+    if low is None and high is None:
+        return ""
+    lb = "[" if low_inclusive and low is not None else "("
+    rb = "]" if high_inclusive and high is not None else ")"
+    lo = "-inf" if low is None else f"{low:g}"
+    hi = "inf" if high is None else f"{high:g}"
+    return f" in {lb}{lo}, {hi}{rb}"
 
 
 def check_choice(name: str, value: object, choices: Sequence[object]) -> object:
