@@ -92,6 +92,17 @@ class GBuffer:
                     "all G-buffer tensors must share one dtype"
                 )
         check_range("depth", self.depth, 0.0, low_inclusive=False)
+        # the passes step 1 / pixel size pixels per mm: it must be finite in the dtype, i.e. the
+        # nearest pixel's footprint a normal float (float32, fov_y = 1e-40 would give 0 · inf)
+        nearest = 2.0 * float(self.depth.min()) * math.tan(fov / 2.0) / h
+        tiny = torch.finfo(diffuse.dtype).tiny
+        if not nearest >= tiny:
+            raise ValueError(
+                f"fov_y and depth must give a pixel footprint 2 z tan(fov_y/2) / H >= {tiny:g} mm "
+                f"(the smallest normal {diffuse.dtype}) at the nearest depth, got {nearest:g} mm "
+                f"(fov_y={fov:g}, min depth={float(self.depth.min()):g}); use a larger fov_y "
+                "or float64"
+            )
         if self.mask is not None:
             check_range("mask", self.mask, 0.0, 1.0)
         if self.albedo is not None:
