@@ -74,13 +74,8 @@ def check_range(
     lo_ok = low is None or (vmin >= low if low_inclusive else vmin > low)
     hi_ok = high is None or (vmax <= high if high_inclusive else vmax < high)
     if not (lo_ok and hi_ok):
-        lb = "[" if low_inclusive else "("
-        rb = "]" if high_inclusive else ")"
-        lo = "-inf" if low is None else f"{low:g}"
-        hi = "inf" if high is None else f"{high:g}"
-        raise ValueError(
-            f"{name} must lie in {lb}{lo}, {hi}{rb}, got values in [{vmin:g}, {vmax:g}]"
-        )
+        interval = _interval(low, high, low_inclusive, high_inclusive)
+        raise ValueError(f"{name} must lie{interval}, got values in [{vmin:g}, {vmax:g}]")
     return value
 
 
