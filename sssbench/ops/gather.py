@@ -10,15 +10,17 @@ pixel's depth)``, fetch the neighbour with linear interpolation along the axis (
 stochastic rotation turns the axis), clamp at the image border, and accumulate
 ``weight × sample``.
 
-Implementation: pixels with ``mask > 0`` are compacted into one flat list (stencil: masked-out
-pixels are never computed, 002 §4 / 003 §7.3.1), their index arithmetic is shared by all
-channels, and colour, depth and guide channels are fetched together with one ``index_select``
-from a channels-last table.
+Implementation: per image, pixels with ``mask > 0`` are compacted into one flat list (stencil:
+masked-out pixels are never computed, 002 §4 / 003 §7.3.1), their index arithmetic is shared
+by all channels, and samples are fetched straight from views of the ``(C, H·W)`` planes, so a
+pass touches the full image only to copy it once (time follows covered pixels). The tap loop
+is tensor-only and can be fused by ``torch.compile`` (:func:`set_compiled`).
 """
 
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -27,7 +29,7 @@ import torch
 from sssbench._checks import check_choice, check_scalar, check_tensor
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.kernel1d import Kernel1D
-from sssbench.ops.timing import timed_pass
+from sssbench.ops.timing import PassRecord, add_record
 
 __all__ = ["separable_pass", "set_compiled", "Stretch", "Rotation", "FOLLOW_SURFACE"]
 
@@ -209,142 +211,103 @@ def separable_pass(
 
     b_, c_, h_, w_ = image.shape
     dtype = image.dtype
-    if isinstance(surface_scale, torch.Tensor):
-        surface_scale = surface_scale.to(dtype=dtype, device=image.device)
-    depth = gbuffer.depth
     strength = gbuffer.mask if (use_mask and gbuffer.mask is not None) else None
-
-    # ---- per-pixel scale: pixels per offset unit (DESIGN §2: a pixel covers 2 z tan(fov/2)/H mm)
-    focal_px = h_ / (2.0 * math.tan(gbuffer.fov_y / 2.0))  # pixels per mm at depth 1 mm
+    focal_px = h_ / (2.0 * math.tan(gbuffer.fov_y / 2.0))  # pixels per mm at 1 mm depth
     axis = 3 if direction == "x" else 2
-    denom = depth
-    if stretch is not None:  # 003 §7.3.1
-        dd = _axis_derivative(depth, axis).clamp_max(stretch.maxdd)
-        denom = depth + stretch.correction * dd
-        focal_px = focal_px * stretch.ssslevel
-    scale = focal_px / denom * width  # (B,1,H,W) pixels per kernel-offset unit
-    if strength is not None:
-        scale = scale * strength
+    follow = FOLLOW_SURFACE.index(follow_surface)
+    inv_scale = torch.zeros(c_, dtype=dtype, device=image.device)
+    if surface_scale is not None:
+        inv_scale = 1.0 / torch.as_tensor(surface_scale, dtype=dtype, device=image.device)
+        inv_scale = inv_scale.expand(c_)
+    offsets = kernel.offsets.to(dtype)
+    weights = kernel.weights.to(dtype)
+    fn = _accumulate
+    if _COMPILE["on"] and rotation is None and sample_weight is None:
+        fn = _compiled_accumulate()
 
-    # ---- stencil compaction: only pixels with strength > 0 are computed
-    flat_scale = scale.reshape(-1)
-    if strength is not None:
-        active = torch.nonzero(strength.reshape(-1) > 0).squeeze(1)
-    else:
-        active = None
-    n_active = flat_scale.numel() if active is None else active.numel()
+    start = time.perf_counter()
     out = image.clone()
-    if n_active == 0:
-        return out
-
-    with timed_pass(name or f"pass.{direction}", len(kernel), n_active):
-        result = _gather(
-            image,
+    n_total = 0
+    for bi in range(b_):  # per image: every tensor below is a view of one (C, H·W) plane set
+        depth = gbuffer.depth[bi].reshape(-1)
+        lin = None
+        if strength is not None:  # stencil compaction: only pixels with strength > 0
+            m = strength[bi].reshape(-1)
+            lin = torch.nonzero(m > 0).squeeze(1)
+            if lin.numel() == 0:
+                continue
+        else:
+            lin = torch.arange(h_ * w_, device=image.device)
+        z = depth[lin]
+        # ---- pixels per kernel-offset unit (DESIGN §2: a pixel covers 2 z tan(fov/2)/H mm)
+        denom = z
+        f_px = focal_px
+        if stretch is not None:  # 003 §7.3.1
+            dd = _axis_derivative(gbuffer.depth[bi : bi + 1], axis).reshape(-1)[lin]
+            denom = z + stretch.correction * dd.clamp_max(stretch.maxdd)
+            f_px = focal_px * stretch.ssslevel
+        scale = f_px / denom
+        if isinstance(width, torch.Tensor):
+            scale = scale * width[bi].reshape(-1)[lin]
+        else:
+            scale = scale * width
+        if strength is not None:
+            scale = scale * m[lin]  # 003 §7.3.1 s' = s · alpha
+        row, col = lin // w_, lin % w_
+        if direction == "x":
+            pos, fixed_lin, n_axis, stride_axis = col, row * w_, w_, 1
+        else:
+            pos, fixed_lin, n_axis, stride_axis = row, col, h_, w_
+        rot = None
+        if rotation is not None:
+            ang = rotation.angles[bi].reshape(-1)[lin]
+            # the x pass turns (1, 0) by the angle, the y pass turns (0, 1) by the same angle
+            if direction == "x":
+                dcol, drow = torch.cos(ang), torch.sin(ang)
+            else:
+                dcol, drow = -torch.sin(ang), torch.cos(ang)
+            rot = (rotation.radius * kernel.extent, row.to(dtype), col.to(dtype), drow, dcol)
+        planes = image[bi].reshape(c_, -1)
+        guide_planes = None if guide is None else guide[bi].to(dtype).reshape(guide.shape[1], -1)
+        acc = fn(
+            planes,
             depth,
-            guide,
-            kernel.to(dtype),
-            direction,
-            flat_scale,
-            active,
-            follow_surface,
-            surface_scale,
-            width,
-            rotation,
+            guide_planes,
+            lin,
+            fixed_lin,
+            pos.to(dtype),
+            scale,
+            offsets,
+            weights,
+            n_axis,
+            stride_axis,
+            (h_, w_),
+            follow,
+            inv_scale,
+            rot,
             sample_weight,
         )
-        out_cl = out.permute(0, 2, 3, 1).reshape(-1, c_)
-        if active is None:
-            out_cl = result
-        else:
-            out_cl = out_cl.index_copy(0, active, result)
-        out = out_cl.reshape(b_, h_, w_, c_).permute(0, 3, 1, 2).contiguous()
+        out[bi].view(c_, -1)[:, lin] = acc
+        n_total += int(lin.numel())
+    ms = (time.perf_counter() - start) * 1e3
+    add_record(PassRecord(name or f"pass.{direction}", len(kernel), n_total, ms))
     return out
 
 
-def _gather(
-    image: torch.Tensor,
-    depth: torch.Tensor,
-    guide: torch.Tensor | None,
-    kernel: Kernel1D,
-    direction: str,
-    flat_scale: torch.Tensor,
-    active: torch.Tensor | None,
-    follow_surface: str | None,
-    surface_scale: float | torch.Tensor | None,
-    width: float | torch.Tensor,
-    rotation: Rotation | None,
-    sample_weight: SampleWeight | None,
-) -> torch.Tensor:
-    """The accumulation loop over taps; returns ``(N, 3)`` for the active pixels."""
-    b_, c_, h_, w_ = image.shape
-    dtype = image.dtype
-    device = image.device
-    # channels-last table: colour | depth | guide, fetched with one index_select per corner
-    parts = [image, depth]
-    if guide is not None:
-        parts.append(guide.to(dtype))
-    table = torch.cat(parts, 1).permute(0, 2, 3, 1).reshape(b_ * h_ * w_, -1)
-
-    hw = h_ * w_
-    if active is None:
-        lin = torch.arange(b_ * hw, device=device)
-    else:
-        lin = active
-    base = lin - lin % hw  # b * H * W
-    row = (lin % hw) // w_
-    col = lin % w_
-    scale = flat_scale if active is None else flat_scale[lin]
-    centre = table[lin]
-
-    if direction == "x":
-        pos, fixed, n_axis, stride_axis, stride_fixed = col, row, w_, 1, w_
-    else:
-        pos, fixed, n_axis, stride_axis, stride_fixed = row, col, h_, w_, 1
-    pos_f = pos.to(dtype)
-    fixed_lin = base + fixed * stride_fixed
-
-    rot = None
-    if rotation is not None:
-        ang = rotation.angles.reshape(-1)
-        ang = ang if active is None else ang[lin]
-        # the x pass turns (1, 0) by the angle, the y pass turns (0, 1) by the same angle
-        if direction == "x":
-            dcol, drow = torch.cos(ang), torch.sin(ang)
-        else:
-            dcol, drow = -torch.sin(ang), torch.cos(ang)
-        rot = (rotation.radius * kernel.extent, base, row.to(dtype), col.to(dtype), drow, dcol)
-
-    follow = FOLLOW_SURFACE.index(follow_surface)
-    inv_scale = torch.zeros(c_, dtype=dtype, device=device)
-    if surface_scale is not None:
-        inv_scale = 1.0 / torch.as_tensor(surface_scale, dtype=dtype, device=device).expand(c_)
-    fn = _accumulate
-    if _COMPILE["on"] and rot is None and sample_weight is None:
-        fn = _compiled_accumulate()
-    return fn(
-        table,
-        fixed_lin,
-        pos_f,
-        scale,
-        centre,
-        kernel.offsets,
-        kernel.weights,
-        n_axis,
-        stride_axis,
-        (h_, w_),
-        follow,
-        inv_scale,
-        rot,
-        sample_weight,
-    )
+def _lerp_fetch(planes: torch.Tensor, a: torch.Tensor, b: torch.Tensor, f: torch.Tensor):
+    """``planes[:, a] + f (planes[:, b] − planes[:, a])`` for ``(C, HW)`` planes."""
+    pa = planes[:, a]
+    return pa + f * (planes[:, b] - pa)
 
 
 def _accumulate(
-    table: torch.Tensor,
+    planes: torch.Tensor,
+    depth: torch.Tensor,
+    guide: torch.Tensor | None,
+    lin: torch.Tensor,
     fixed_lin: torch.Tensor,
     pos_f: torch.Tensor,
     scale: torch.Tensor,
-    centre: torch.Tensor,
     offsets: torch.Tensor,
     weights: torch.Tensor,
     n_axis: int,
@@ -355,43 +318,49 @@ def _accumulate(
     rot: tuple | None,
     sample_weight: SampleWeight | None,
 ) -> torch.Tensor:
-    """The one accumulation loop over taps (DESIGN §4), ``(N, 3)`` for the active pixels.
+    """The one accumulation loop over taps (DESIGN §4), ``(C, N)`` for the active pixels.
 
-    ``table`` rows are channels-last ``colour | depth | guide``; ``fixed_lin + i·stride_axis``
-    addresses the i-th pixel along the pass axis. ``follow``: index into
-    :data:`FOLLOW_SURFACE`. ``rot``: ``(radius_mm, base, row, col, drow, dcol)`` for rotated
-    inner taps. Written with tensors only when ``rot`` and ``sample_weight`` are ``None`` so
-    that ``torch.compile`` can fuse the whole loop (see :func:`set_compiled`).
+    ``planes`` ``(C, H·W)``, ``depth`` ``(H·W,)`` and ``guide`` ``(G, H·W)`` are views of one
+    image; ``lin`` are the active pixels; ``fixed_lin + i·stride_axis`` addresses the i-th
+    pixel along the pass axis. ``follow``: index into :data:`FOLLOW_SURFACE`. ``rot``:
+    ``(radius_mm, row, col, drow, dcol)`` for rotated inner taps. Written with tensors only
+    when ``rot`` and ``sample_weight`` are ``None`` so that ``torch.compile`` can fuse the
+    whole loop (see :func:`set_compiled`).
     """
-    c_ = weights.shape[1]
-    centre_rgb = centre[:, :c_]
-    centre_z = centre[:, c_]
-    acc = torch.zeros(centre.shape[0], c_, dtype=table.dtype, device=table.device)
+    centre_rgb = planes[:, lin]
+    centre_z = depth[lin]
+    centre_guide = None if guide is None else guide[:, lin]
+    acc = torch.zeros_like(centre_rgb)
     wsum = torch.zeros_like(acc) if sample_weight is not None else None
     for k in range(offsets.shape[0]):
         step = offsets[k] * scale
         if rot is not None and abs(float(offsets[k])) <= rot[0]:
-            _, base, row_f, col_f, drow, dcol = rot
-            sample = _bilinear(table, base, row_f + step * drow, col_f + step * dcol, *hw)
+            _, row_f, col_f, drow, dcol = rot
+            idx, wts = _bilinear_corners(row_f + step * drow, col_f + step * dcol, *hw)
+            rgb = sum(wt * planes[:, i] for i, wt in zip(idx, wts, strict=True))
+            zs = sum(wt * depth[i] for i, wt in zip(idx, wts, strict=True))
+            gs = None
+            if guide is not None:
+                gs = sum(wt * guide[:, i] for i, wt in zip(idx, wts, strict=True))
         else:
             p = (pos_f + step).clamp(0, n_axis - 1)  # border clamp
             p0 = p.floor()
-            frac = (p - p0)[:, None]
+            frac = p - p0
             i0 = p0.long()
-            i1 = (i0 + 1).clamp_max(n_axis - 1)
-            s0 = table[fixed_lin + i0 * stride_axis]
-            s1 = table[fixed_lin + i1 * stride_axis]
-            sample = s0 + frac * (s1 - s0)
-        rgb = sample[:, :c_]
-        weight = weights[k]
+            a = fixed_lin + i0 * stride_axis
+            b = fixed_lin + (i0 + 1).clamp_max(n_axis - 1) * stride_axis
+            rgb = _lerp_fetch(planes, a, b, frac)
+            zs = depth[a] + frac * (depth[b] - depth[a])
+            gs = None if guide is None else _lerp_fetch(guide, a, b, frac)
+        weight = weights[k][:, None]
         if follow:
-            dz = (sample[:, c_] - centre_z).abs()[:, None] * inv_scale  # |Δz| / scale
+            dz = (zs - centre_z).abs()[None, :] * inv_scale[:, None]  # |Δz| / scale
             if follow == 1:  # 002 appendix shader: lerp back to the centre colour
                 rgb = rgb + dz.clamp(0.0, 1.0) * (centre_rgb - rgb)
             else:  # 000 eq. 7: one exp with sigma_max
                 weight = weight * torch.exp(-0.5 * dz * dz)
         if sample_weight is not None:
-            weight = weight * sample_weight(centre[:, c_ + 1 :], sample[:, c_ + 1 :])
+            weight = weight * sample_weight(centre_guide.T, gs.T).T
             wsum = wsum + weight
         acc = acc + weight * rgb
     if wsum is not None:
@@ -418,21 +387,17 @@ def _compiled_accumulate():
     return _COMPILE["fn"]
 
 
-def _bilinear(
-    table: torch.Tensor,
-    base: torch.Tensor,
-    row: torch.Tensor,
-    col: torch.Tensor,
-    h: int,
-    w: int,
-) -> torch.Tensor:
-    """Bilinear fetch at fractional (row, col), clamped to the image (rotated taps)."""
+def _bilinear_corners(
+    row: torch.Tensor, col: torch.Tensor, h: int, w: int
+) -> tuple[list[torch.Tensor], list[torch.Tensor]]:
+    """Flat indices and weights of the four bilinear corners at fractional (row, col), clamped
+    to the image (rotated taps)."""
     row = row.clamp(0, h - 1)
     col = col.clamp(0, w - 1)
     r0f, c0f = row.floor(), col.floor()
-    fr, fc = (row - r0f)[:, None], (col - c0f)[:, None]
+    fr, fc = row - r0f, col - c0f
     r0, c0 = r0f.long(), c0f.long()
     r1, c1 = (r0 + 1).clamp_max(h - 1), (c0 + 1).clamp_max(w - 1)
-    top = table[base + r0 * w + c0] * (1 - fc) + table[base + r0 * w + c1] * fc
-    bot = table[base + r1 * w + c0] * (1 - fc) + table[base + r1 * w + c1] * fc
-    return top * (1 - fr) + bot * fr
+    idx = [r0 * w + c0, r0 * w + c1, r1 * w + c0, r1 * w + c1]
+    wts = [(1 - fr) * (1 - fc), (1 - fr) * fc, fr * (1 - fc), fr * fc]
+    return idx, wts
