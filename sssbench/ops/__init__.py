@@ -1,11 +1,35 @@
-"""Torch operators on a G-buffer (DESIGN §1, third layer): the one gather pass and the
-methods built from it."""
+"""Torch operators on a G-buffer (DESIGN §1, third layer): the one gather pass, the
+methods built from it, and the extensions (translucency, curvature, halo, texturing)."""
 
+from sssbench.ops.curvature import (
+    CURVATURE_MODES,
+    CURVATURE_STRATEGIES,
+    CurvatureModulation,
+    curvature_width,
+    screen_space_curvature,
+)
 from sssbench.ops.gather import FOLLOW_SURFACE, Rotation, Stretch, separable_pass
+from sssbench.ops.halo import HALO_KINDS, halo_guide, halo_weight, lab_guide, range_weight
 from sssbench.ops.preintegrated import PreintegratedSSS, preintegrated_sss, two_pass
 from sssbench.ops.reference import ReferenceSSS, reference_sss
 from sssbench.ops.rotation import random_rotation
+from sssbench.ops.sum_of_gaussians import (
+    SoGStep,
+    SumOfGaussiansSSS,
+    blend_weights,
+    incremental_variances,
+    jg10_stretch,
+    sum_of_gaussians_sss,
+)
+from sssbench.ops.texturing import TEXTURING_MODES, Texturing, texture_after, texture_before
 from sssbench.ops.timing import PassRecord, record_passes
+from sssbench.ops.translucency import (
+    TRANSLUCENCY_FORMS,
+    Translucency,
+    back_light,
+    translucency,
+    transmittance,
+)
 
 __all__ = [
     "separable_pass",
@@ -18,6 +42,31 @@ __all__ = [
     "ReferenceSSS",
     "reference_sss",
     "random_rotation",
+    "SumOfGaussiansSSS",
+    "sum_of_gaussians_sss",
+    "blend_weights",
+    "incremental_variances",
+    "jg10_stretch",
+    "SoGStep",
     "PassRecord",
     "record_passes",
+    "Translucency",
+    "translucency",
+    "transmittance",
+    "back_light",
+    "TRANSLUCENCY_FORMS",
+    "CurvatureModulation",
+    "screen_space_curvature",
+    "curvature_width",
+    "CURVATURE_MODES",
+    "CURVATURE_STRATEGIES",
+    "HALO_KINDS",
+    "halo_guide",
+    "lab_guide",
+    "range_weight",
+    "halo_weight",
+    "Texturing",
+    "texture_before",
+    "texture_after",
+    "TEXTURING_MODES",
 ]
