@@ -51,7 +51,8 @@ def test_extreme_case(case):
 def test_tolerances_are_the_documented_ones():
     assert stability.CONST_TOL == {torch.float32: 1e-5, torch.float64: 1e-12}
     doc = (Path(__file__).resolve().parents[2] / "docs" / "numerics.md").read_text()
-    assert f"{stability.F32_TOL:g}" in doc and "ulp" in doc
+    assert "| 1e-5 | 1e-12 |" in doc and stability.F32_TOL == 1e-5
+    assert f"{stability.F32_DEPTH_FACTOR:g} · ulp32(max depth) / surface_scale" in doc
 
 
 def test_c_curves_continuous_at_zero():
