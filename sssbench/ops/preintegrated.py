@@ -9,7 +9,8 @@ from sssbench._checks import check_choice
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.kernel1d import Kernel1D
 from sssbench.kernels.preintegrated import preintegrated
-from sssbench.ops.gather import FOLLOW_SURFACE, separable_pass
+from sssbench.ops.gather import FOLLOW_SURFACE, SampleWeight, separable_pass
+from sssbench.ops.halo import HALO_KINDS, halo_weight
 from sssbench.ops.rotation import random_rotation
 from sssbench.profiles.base import Profile
 
@@ -72,9 +73,15 @@ class PreintegratedSSS(nn.Module):
         rotation: stochastic rotation radius fraction (000 §6: 0.1; 0.3 close-ups), or
             ``None`` for none.
         seed: seed of the rotation angles.
+        halo: ``None``, ``"bilateral"`` (halo reduction, 004 §3.3.1) or ``"lab"`` (skin /
+            non-skin colour weights, 004 §3.3.2), see :func:`~sssbench.ops.halo.halo_weight`.
+        halo_sigma: range σ of ``halo`` (``None``: its default).
 
     Shape:
         - forward(gbuffer): ``(B, 3, H, W)``.
+        - forward(gbuffer, width=w, guide=g, sample_weight=f): a per-pixel width multiplier
+          ``w (B, 1, H, W)`` (curvature modulation, 004 §3.3.3) and an explicit bilateral
+          weight (overrides ``halo``).
     """
 
     needs = ("mask",)
@@ -87,9 +94,12 @@ class PreintegratedSSS(nn.Module):
         follow_surface: str | None = None,
         rotation: float | None = None,
         seed: int = 0,
+        halo: str | None = None,
+        halo_sigma: float | None = None,
     ) -> None:
         super().__init__()
         check_choice("follow_surface", follow_surface, FOLLOW_SURFACE)
+        check_choice("halo", halo, (None, *HALO_KINDS))
         self.profile = profile
         self.kernel = preintegrated(profile, samples, sampling)
         self.samples = samples
@@ -100,9 +110,24 @@ class PreintegratedSSS(nn.Module):
         self.surface_scale = profile.length_scales()[1]
         self.rotation = rotation
         self.seed = seed
+        self.halo = halo
+        self.halo_sigma = halo_sigma
+        if halo == "bilateral":
+            self.needs = ("mask", "normal")
+        elif halo == "lab":
+            self.needs = ("mask", "albedo")
 
-    def forward(self, gbuffer: GBuffer) -> torch.Tensor:
+    def forward(
+        self,
+        gbuffer: GBuffer,
+        *,
+        width: torch.Tensor | None = None,
+        guide: torch.Tensor | None = None,
+        sample_weight: SampleWeight | None = None,
+    ) -> torch.Tensor:
         rot = None if self.rotation is None else random_rotation(gbuffer, self.rotation, self.seed)
+        if sample_weight is None and self.halo is not None:
+            guide, sample_weight = halo_weight(gbuffer, self.halo, self.halo_sigma)
         return two_pass(
             gbuffer.diffuse,
             self.kernel,
@@ -111,4 +136,7 @@ class PreintegratedSSS(nn.Module):
             follow_surface=self.follow_surface,
             surface_scale=self.surface_scale,
             rotation=rot,
+            width=1.0 if width is None else width,
+            guide=guide,
+            sample_weight=sample_weight,
         )
