@@ -8,7 +8,7 @@ writes ``experiments/sections/stability.md``); every case is one parametrised te
 
 from __future__ import annotations
 
-import importlib.util
+import importlib
 import math
 import sys
 from pathlib import Path
@@ -16,11 +16,10 @@ from pathlib import Path
 import pytest
 import torch
 
-_PATH = Path(__file__).resolve().parents[2] / "experiments" / "stability.py"
-_spec = importlib.util.spec_from_file_location("sssbench_stability", _PATH)
-stability = importlib.util.module_from_spec(_spec)
-sys.modules[_spec.name] = stability
-_spec.loader.exec_module(stability)
+_ROOT = Path(__file__).resolve().parents[2]
+if str(_ROOT) not in sys.path:  # the experiments package lives beside sssbench, not installed
+    sys.path.insert(0, str(_ROOT))
+stability = importlib.import_module("experiments.stability")
 
 CASES = stability.cases(quick=True)
 _IDS: dict[str, int] = {}
