@@ -2,6 +2,12 @@
 
 Each helper raises ``ValueError`` or ``TypeError`` whose message names the argument, what was
 expected and what was received. Internals trust data that passed these checks.
+
+Half-precision policy (``docs/numerics.md``): tensors must be float32 or float64. float16 and
+bfloat16 are rejected by :func:`check_tensor` with a ``TypeError`` naming the argument and
+asking for float32 — a pass accumulates up to ``MAX_SAMPLES`` weighted taps, and at a unit
+roundoff of 2⁻¹¹ / 2⁻⁸ a normalised kernel no longer sums to 1 to within its own tails; nothing
+is cast silently. Tested in ``tests/reliability/test_half_precision.py``.
 """
 
 from __future__ import annotations
