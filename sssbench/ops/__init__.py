@@ -10,6 +10,7 @@ from sssbench.ops.curvature import (
 )
 from sssbench.ops.gather import FOLLOW_SURFACE, Rotation, Stretch, separable_pass
 from sssbench.ops.halo import HALO_KINDS, halo_guide, halo_weight, lab_guide, range_weight
+from sssbench.ops.low_rank import LowRankSSS, low_rank_sss
 from sssbench.ops.preintegrated import PreintegratedSSS, preintegrated_sss, two_pass
 from sssbench.ops.reference import ReferenceSSS, reference_sss
 from sssbench.ops.rotation import random_rotation
@@ -39,6 +40,8 @@ __all__ = [
     "two_pass",
     "PreintegratedSSS",
     "preintegrated_sss",
+    "LowRankSSS",
+    "low_rank_sss",
     "ReferenceSSS",
     "reference_sss",
     "random_rotation",
