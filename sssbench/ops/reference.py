@@ -188,37 +188,42 @@ def reference_sss(
     xp, yp, zp = _padded_positions(g.depth, g.fov_y, k)
     stencil = (mask > 0).double()
     src = torch.nn.functional.pad(g.diffuse * stencil, pad, mode="replicate")
-    src_mask = torch.nn.functional.pad(stencil, pad, mode="replicate") > 0
-    half = 0.5 * pixel_size_mm(zp, g.fov_y, h)
+    src_mask = torch.nn.functional.pad(stencil, pad, mode="replicate")
+    # a neighbour off the surface gets a zero-size cell: no weight, and it does not drive the
+    # quadrature order of the cells that matter
+    half = 0.5 * pixel_size_mm(zp, g.fov_y, h) * src_mask
     slope_x = _minmod_slope(zp, xp, 3)
     slope_y = _minmod_slope(zp, yp, 2)
-    xc, yc, zc = (t[..., k : k + h, k : k + w] for t in (xp, yp, zp))
-
-    active = mask > 0
-    n_active = int(active.sum())
-    acc = torch.zeros(b, h, w, 3, dtype=torch.float64)
-    wsum = torch.zeros(b, h, w, 3, dtype=torch.float64)
+    # one channels-last table of everything a neighbour contributes, fetched per offset
+    fields = torch.cat([xp, yp, zp, half, slope_x, slope_y, src_mask, src], 1)
+    hp, wp = fields.shape[-2:]
+    table = fields.permute(0, 2, 3, 1).reshape(b * hp * wp, -1)
+    # stencil compaction: only centres on the surface are computed
+    active = torch.nonzero(mask.reshape(-1) > 0).squeeze(1)
+    bi, rem = active // (h * w), active % (h * w)
+    centre = bi * hp * wp + (rem // w + k) * wp + (rem % w + k)  # flat index in the padding
+    xc, yc, zc = table[centre, 0], table[centre, 1], table[centre, 2]
+    acc = torch.zeros(active.numel(), 3, dtype=torch.float64)
+    wsum = torch.zeros_like(acc)
     radius_mm = profile.radius(tol)
-    with timed_pass("reference", (2 * k + 1) ** 2, n_active):
+    with timed_pass("reference", (2 * k + 1) ** 2, int(active.numel())):
         for dv in range(-k, k + 1):
             for du in range(-k, k + 1):
-                sl = (..., slice(k + dv, k + dv + h), slice(k + du, k + du + w))
-                dx = xp[sl] - xc
-                dy = yp[sl] - yc
+                nb = table[centre + dv * wp + du]
+                dx, dy, hh = nb[:, 0] - xc, nb[:, 1] - yc, nb[:, 3]
                 # skip offsets whose nearest cell edge is beyond the support everywhere
-                near = torch.sqrt(
-                    (dx.abs() - half[sl]).clamp_min(0) ** 2
-                    + (dy.abs() - half[sl]).clamp_min(0) ** 2
-                )
-                if float(near.min()) > radius_mm:  # same rule as _flat_fft
-                    continue
-                wgt = profile.cell_integral(  # (B, 1, H, W, 3)
-                    dx, dy, zp[sl] - zc, half[sl], half[sl], slope_x[sl], slope_y[sl]
-                )
-                wgt = torch.where(src_mask[sl][:, 0, ..., None], wgt[:, 0], 0.0)
-                acc += wgt * src[sl].permute(0, 2, 3, 1)
+                near2 = (dx.abs() - hh).clamp_min(0) ** 2 + (dy.abs() - hh).clamp_min(0) ** 2
+                on = nb[:, 6] > 0
+                if not bool(on.any()) or float(near2[on].min()) > radius_mm**2:
+                    continue  # same rule as _flat_fft
+                wgt = profile.cell_integral(dx, dy, nb[:, 2] - zc, hh, hh, nb[:, 4], nb[:, 5])
+                wgt = wgt * nb[:, 6:7]
+                acc += wgt * nb[:, 7:10]
                 wsum += wgt
-    num, den = acc.permute(0, 3, 1, 2), wsum.permute(0, 3, 1, 2)
+    num = torch.zeros(b * h * w, 3, dtype=torch.float64).index_copy(0, active, acc)
+    den = torch.ones(b * h * w, 3, dtype=torch.float64).index_copy(0, active, wsum)
+    num = num.reshape(b, h, w, 3).permute(0, 3, 1, 2)
+    den = den.reshape(b, h, w, 3).permute(0, 3, 1, 2)
     return _finish(g, mask, num, den).to(gbuffer.dtype)
 
 

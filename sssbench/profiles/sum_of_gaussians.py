@@ -181,12 +181,14 @@ class SumOfGaussians(Profile):
         Tilted cell (the planar patch ``(dx+s, dy+t, dz + slope_x s + slope_y t)``):
 
         - Gaussians at least a quarter pixel wide (σ ≥ half/2) use an n×n Gauss–Legendre rule
-          on the patch with its area element √(1 + slope_x² + slope_y²) (n = 4, 6 or 10 as the
-          cell is ≤ 1, ≤ 2 or ≤ 4 σ wide; relative error below 1e-6, tested).
+          on the patch with its area element √(1 + slope_x² + slope_y²) (n = 2, 3, 4 or 6 as
+          the cell is ≤ ½, ≤ 1, ≤ 2 or ≤ 4 σ wide, four more where the peak lies within σ of a
+          cell: relative error below 1e-6 near the peak and 5e-5 on far cells whose values are
+          tiny; tested against ``scipy.integrate.dblquad``).
         - Narrower Gaussians sit inside the pixel they start from; they use the closed form of
           the patch with its two tangents treated as orthogonal (completing the square along
-          each axis): exact for an axis-aligned tilt and at the cell centre, approximate in the
-          cross term ``slope_x · slope_y`` elsewhere, where such a Gaussian has no mass left.
+          each axis): exact for an axis-aligned tilt, approximate in the cross term
+          ``slope_x · slope_y`` (measured: 1e-4 of the cell's weight at slopes 0.3 and 0.3).
         """
         v = self.variances.to(dx)
         s = torch.sqrt(v)
@@ -196,8 +198,8 @@ class SumOfGaussians(Profile):
         near2_min = float(near2.min()) if near2.numel() else 0.0
         shape = torch.broadcast_shapes(dx.shape, dy.shape, dz.shape, half_x.shape, half_y.shape)
         out = torch.zeros(*shape, 3, dtype=dx.dtype)
-        tilted = slope_x is not None or slope_y is not None
-        if tilted:
+        tilted = any(t is not None and bool((t != 0).any()) for t in (slope_x, slope_y))
+        if tilted:  # a fronto-parallel patch keeps the exact closed form below
             sx = torch.zeros_like(dx) if slope_x is None else slope_x
             sy = torch.zeros_like(dy) if slope_y is None else slope_y
             cx, cy = 1 + sx**2, 1 + sy**2
@@ -213,7 +215,10 @@ class SumOfGaussians(Profile):
                 my = interval_mass((dy - half_y) / si, (dy + half_y) / si)
                 term = torch.exp(-(dz**2) / (2 * v[i])) * mx * my
             elif float(si) >= 0.5 * h_max:
-                n = 4 if h_max <= 0.5 * float(si) else 6 if h_max <= float(si) else 10
+                ratio = h_max / float(si)
+                n = 2 if ratio <= 0.25 else 3 if ratio <= 0.5 else 4 if ratio <= 1 else 6
+                if near2_min < float(v[i]):  # the peak lies within σ of a cell: resolve it
+                    n += 4
                 term = _tilted_gauss_legendre(dx, dy, dz, half_x, half_y, sx, sy, float(v[i]), n)
             else:
                 resid = (dist2 - bx**2 / cx - by**2 / cy).clamp_min(0)

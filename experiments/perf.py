@@ -1,0 +1,267 @@
+"""Performance benchmark (issue 7): cost of the depth-aware separable passes, as ratios.
+
+    python experiments/perf.py            # full: 512² and 1080p, taps 7/17/33 (~10 min)
+    python experiments/perf.py --quick    # CI: 128², 7 taps, no compilation (seconds)
+
+Writes ``experiments/sections/perf.md`` (and ``experiments/figures/perf.png``). Every time is
+the median of repeats of one operator call after a warm-up, measured in this one process with
+``torch.set_num_threads(2)`` (the machine's cores; ``--threads`` to change), and reported next to two baselines taken
+in the same process: ``kornia.filters.gaussian_blur2d`` with a 7×7 kernel (a fixed separable
+blur) and a plain read-and-write of the image (``clone``, the memory floor). Speed is never
+asserted by tests; this table is where it is measured.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import torch
+
+HERE = Path(__file__).resolve().parent
+RESOLUTIONS = {"512²": (512, 512), "1080p": (1080, 1920)}
+
+
+def median_ms(fn: Callable[[], object], repeats: int, warmup: int = 1) -> float:
+    """Median wall time of ``fn()`` in ms over ``repeats`` calls after ``warmup`` calls."""
+    for _ in range(warmup):
+        fn()
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        times.append((time.perf_counter() - start) * 1e3)
+    return statistics.median(times)
+
+
+def methods(taps: int) -> dict[str, Callable[[], torch.nn.Module]]:
+    """Operators to time, each at ``taps`` taps per pass (follow-surface on, stencil on)."""
+    from sssbench import ops
+    from sssbench.profiles import SumOfGaussians
+
+    skin = SumOfGaussians.from_table("skin_deon6")
+    out = {
+        "preintegrated": lambda: ops.PreintegratedSSS(skin, taps, follow_surface="lerp"),
+    }
+    if hasattr(ops, "SumOfGaussiansSSS"):
+        out["sum_of_gaussians"] = lambda: ops.SumOfGaussiansSSS(skin, samples=taps)
+    if hasattr(ops, "Jimenez2012SSS"):
+        out["jimenez2012"] = lambda: ops.Jimenez2012SSS(samples=taps)
+    if hasattr(ops, "ArtistSSS"):
+        out["artist"] = lambda: ops.ArtistSSS.preset("multi_layer_close_fit", samples=taps)
+    return out
+
+
+def time_method(op: torch.nn.Module, g, repeats: int) -> tuple[float, list[tuple[str, float]]]:
+    """Median total ms of ``op(g)`` and the median ms of each of its passes."""
+    from sssbench.ops import record_passes
+
+    totals, per_pass = [], {}
+    op(g)  # warm-up (and compilation when enabled)
+    for _ in range(repeats):
+        with record_passes() as records:
+            start = time.perf_counter()
+            op(g)
+            totals.append((time.perf_counter() - start) * 1e3)
+        for r in records:
+            per_pass.setdefault(r.name, []).append(r.ms)
+    return statistics.median(totals), [(k, statistics.median(v)) for k, v in per_pass.items()]
+
+
+def peak_memory_mb(
+    scene: str, resolution: tuple[int, int], taps: int, threads: int
+) -> tuple[float, float]:
+    """(peak extra resident memory of one operator call, G-buffer tensor size), in MB.
+
+    Measured in a fresh interpreter: ``ru_maxrss`` after building the scene and the operator
+    is subtracted from ``ru_maxrss`` after one call.
+    """
+    code = f"""
+import resource, torch, json, data_synth
+from sssbench.ops import PreintegratedSSS
+from sssbench.profiles import SumOfGaussians
+torch.set_num_threads({threads})
+g = data_synth.make_scene({scene!r}, resolution={resolution!r})
+op = PreintegratedSSS(SumOfGaussians.from_table("skin_deon6"), {taps}, follow_surface="lerp")
+size = sum(t.numel() * t.element_size() for t in
+           (g.diffuse, g.depth, g.albedo, g.specular, g.normal, g.mask, g.thickness)
+           if t is not None)
+before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+op(g)
+after = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+print(json.dumps([(after - before) / 1024, size / 2**20]))
+"""
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    peak, size = json.loads(res.stdout.strip().splitlines()[-1])
+    return peak, size
+
+
+def run(quick: bool, out_dir: Path, threads: int) -> str:
+    import kornia
+
+    import data_synth
+    from sssbench.ops import ReferenceSSS, gather
+    from sssbench.profiles import SumOfGaussians
+
+    torch.set_num_threads(threads)
+    repeats = 3 if quick else 5
+    resolutions = {"128²": (128, 128)} if quick else RESOLUTIONS
+    taps_list = [7] if quick else [7, 17, 33]
+    lines = []
+    rows = []
+    t_start = time.perf_counter()
+    modes = [False] if quick else [False, True]
+    for res_name, res in resolutions.items():
+        g = data_synth.make_scene("head_close", resolution=res)
+        coverage = float((g.mask > 0).float().mean())
+        kornia_ms = median_ms(
+            lambda g=g: kornia.filters.gaussian_blur2d(g.diffuse, (7, 7), (1.5, 1.5)), repeats
+        )
+        floor_ms = median_ms(lambda g=g: g.diffuse.clone(), repeats)
+        for compiled in modes:
+            gather.set_compiled(compiled)
+            for taps in taps_list:
+                for name, make in methods(taps).items():
+                    if compiled and name != "preintegrated":
+                        continue  # compile the headline method only (tens of s per variant)
+                    total, passes = time_method(make(), g, repeats)
+                    rows.append(
+                        dict(
+                            method=name + (" (compiled)" if compiled else ""),
+                            resolution=res_name,
+                            taps=taps,
+                            passes=len(passes),
+                            ms_per_pass=total / max(len(passes), 1),
+                            total_ms=total,
+                            vs_kornia=total / kornia_ms,
+                            vs_floor=total / floor_ms,
+                            coverage=coverage,
+                        )
+                    )
+                    print(f"perf: {rows[-1]}", flush=True)
+        gather.set_compiled(False)
+        lines.append(
+            f"- {res_name} (`head_close`, {coverage:.0%} of pixels masked): kornia "
+            f"`gaussian_blur2d` 7×7 {kornia_ms:.1f} ms; read+write floor {floor_ms:.1f} ms."
+        )
+
+    # time follows covered pixels: far vs close at the largest resolution, 7 taps
+    res = list(resolutions.values())[-1]
+    cover = {}
+    skin = SumOfGaussians.from_table("skin_deon6")
+    from sssbench.ops import PreintegratedSSS
+
+    for scene in ("head_close", "head_far"):
+        g = data_synth.make_scene(scene, resolution=res)
+        op = PreintegratedSSS(skin, 7, follow_surface="lerp")
+        cover[scene] = (int((g.mask > 0).sum()), time_method(op, g, repeats)[0])
+    share = cover["head_far"][0] / cover["head_close"][0]
+    t_ratio = cover["head_far"][1] / cover["head_close"][1]
+
+    # the reference on a 512² head (cold: no cache)
+    ref_res = (128, 128) if quick else (512, 512)
+    g = data_synth.make_scene("head", resolution=ref_res, dtype=torch.float64)
+    start = time.perf_counter()
+    ReferenceSSS(skin)(g)
+    ref_s = time.perf_counter() - start
+
+    peak, size = peak_memory_mb("head_close", list(resolutions.values())[-1], 7, threads)
+
+    def ratio(method: str, taps: int, res_name: str) -> float | None:
+        for r in rows:
+            if r["method"] == method and r["taps"] == taps and r["resolution"] == res_name:
+                return r["total_ms"]
+        return None
+
+    big = list(resolutions)[-1]
+    text = ["## Performance (issue 7)", ""]
+    text.append(
+        "Command: `python experiments/perf.py"
+        + (" --quick`" if quick else "`")
+        + f" ({time.perf_counter() - t_start:.0f} s). Medians of {repeats} calls after a "
+        f"warm-up, {threads} thread(s), float32, follow-surface lerp, stencil on."
+    )
+    text.append("")
+    text.extend(lines)
+    text.append("")
+    text.append(
+        "| method | resolution | taps | passes | ms / pass | total ms "
+        "| × kornia 7×7 | × read+write |"
+    )
+    text.append("|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        text.append(
+            f"| {r['method']} | {r['resolution']} | {r['taps']} | {r['passes']} | "
+            f"{r['ms_per_pass']:.1f} | {r['total_ms']:.1f} | {r['vs_kornia']:.2f} | "
+            f"{r['vs_floor']:.1f} |"
+        )
+    text.append("")
+    text.append("Targets:")
+    for mode in ("preintegrated", "preintegrated (compiled)"):
+        t7 = ratio(mode, 7, big)
+        if t7 is None:
+            continue
+        k = next(
+            r["vs_kornia"]
+            for r in rows
+            if r["method"] == mode and r["taps"] == 7 and r["resolution"] == big
+        )
+        text.append(f"- two-pass, 7 taps, {big}, {mode}: {k:.2f}× kornia (target ≤ 4×).")
+        t33 = ratio(mode, 33, big)
+        if t33 is not None:
+            text.append(
+                f"- taps 7 → 33, {mode}: ×{t33 / t7:.2f} (33/7 = 4.71; target within 25%: "
+                f"{4.71 * 0.75:.2f}–{4.71 * 1.25:.2f})."
+            )
+    for taps in taps_list:
+        sog, pre = ratio("sum_of_gaussians", taps, big), ratio("preintegrated", taps, big)
+        if sog is not None and pre is not None:
+            text.append(
+                f"- sum of Gaussians / pre-integrated at {taps} taps: ×{sog / pre:.2f} "
+                "(target 5–7×; papers ≈ 6×, 004: 5.2× close-up)."
+            )
+    text.append(
+        f"- covered pixels: `head_far` has {share:.2%} of `head_close`'s masked pixels and costs "
+        f"{t_ratio:.2%} of its time = {t_ratio / share:.2f}× its share (target ≤ 1.5×)."
+    )
+    text.append(
+        f"- `ReferenceSSS` on a {ref_res[0]}² `head` (float64, cold): {ref_s:.1f} s "
+        "(target ≤ 20 s at 512²); the app caches it per (scene, profile, resolution, seed, dtype)."
+    )
+    text.append(
+        f"- peak extra memory of one {big} pre-integrated call: {peak:.0f} MB for "
+        f"{size:.0f} MB of G-buffer tensors = {peak / size:.1f}× (target < 10×)."
+    )
+    text.append("")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    section = "\n".join(text)
+    (out_dir / "perf.md").write_text(section + "\n")
+    return section
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="tiny sizes, for CI")
+    parser.add_argument(
+        "--out", type=Path, default=HERE / "sections", help="directory of the section file"
+    )
+    parser.add_argument(
+        "--threads",
+        type=int,
+        default=None,
+        help="torch threads (default: 2, the machine's cores; 1 with --quick)",
+    )
+    args = parser.parse_args(argv)
+    threads = args.threads or (1 if args.quick else 2)
+    print(run(args.quick, args.out, threads))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
