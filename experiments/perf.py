@@ -38,7 +38,7 @@ def methods(taps: int) -> dict[str, Callable[[], torch.nn.Module]]:
     if hasattr(ops, "SumOfGaussiansSSS"):
         out["sum_of_gaussians"] = lambda: ops.SumOfGaussiansSSS(skin, samples=taps)
     if hasattr(ops, "Jimenez2012SSS"):
-        out["jimenez2012"] = lambda: ops.Jimenez2012SSS(samples=taps)
+        out["jimenez2012"] = lambda: ops.Jimenez2012SSS.preset("shader_default", 2.0, taps)
     if hasattr(ops, "ArtistSSS"):
         out["artist"] = lambda: ops.ArtistSSS.preset("multi_layer_close_fit", samples=taps)
     return out
