@@ -177,3 +177,66 @@ def execute(name: str, run: Callable[[Context], Section], ctx: Context) -> Path:
 def main(name: str, run: Callable[[Context], Section], argv: Sequence[str] | None = None) -> int:
     execute(name, run, parse_args(name, argv))
     return 0
+
+
+# ----------------------------------------------------------------------------- scenes
+#: on-disk cache of exact references (outside the repository)
+CACHE_DIR = Path.home() / ".cache" / "sssbench-experiments"
+
+
+def scene(name: str, resolution: tuple[int, int], fields: Sequence[str] | None = None, **params):
+    """``data_synth.make_scene`` in float32 with seed 0."""
+    import data_synth
+
+    return data_synth.make_scene(name, resolution, 0, fields=fields, **params)
+
+
+def reference(name: str, resolution: tuple[int, int], profile: Any, **params) -> torch.Tensor:
+    """The exact :class:`~sssbench.ops.ReferenceSSS` image of a scene (all fields), cached on
+    disk by (scene, resolution, params, profile) — the reference is the expensive part."""
+    import hashlib
+    import json
+
+    from sssbench.ops import ReferenceSSS
+
+    key = json.dumps(
+        [name, list(resolution), params, repr(profile), _profile_digest(profile)],
+        sort_keys=True,
+        default=str,
+    )
+    path = CACHE_DIR / f"ref_{hashlib.sha1(key.encode()).hexdigest()[:16]}.pt"
+    if path.is_file():
+        return torch.load(path, weights_only=True)
+    g = scene(name, resolution, **params)
+    with torch.inference_mode():
+        img = ReferenceSSS(profile)(g)
+    CACHE_DIR.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(f".{time.time_ns()}.tmp")
+    torch.save(img, tmp)
+    tmp.replace(path)
+    return img
+
+
+def _profile_digest(profile: Any) -> str:
+    parts = []
+    for attr in ("variances", "weights", "sigma_s_prime", "sigma_a"):
+        v = getattr(profile, attr, None)
+        if isinstance(v, torch.Tensor):
+            parts.append(",".join(f"{x:.12g}" for x in v.reshape(-1).tolist()))
+    return "|".join(parts)
+
+
+def errors(result: torch.Tensor, ref: torch.Tensor, g: Any) -> dict[str, float]:
+    """``rel_rms`` and ``psnr`` over the SSS region (mask > 0, or everything)."""
+    from sssbench.metrics import psnr, rel_rms
+
+    mask = None if g.mask is None else (g.mask > 0).to(result.dtype)
+    ref = ref.to(result.dtype)
+    return {"rel_rms": rel_rms(result, ref, mask), "psnr": psnr(result, ref, mask)}
+
+
+def op_available(name: str) -> bool:
+    """Whether ``sssbench.ops`` has landed ``name`` yet."""
+    import sssbench.ops
+
+    return hasattr(sssbench.ops, name)
