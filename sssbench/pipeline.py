@@ -1,21 +1,53 @@
 """Compose operators, decide what a scene needs, time each pass (DESIGN §5).
 
+The pipeline is the SSS stage of a deferred renderer:
+
+    translucency -> texturing (before) -> blur method -> texturing (after) -> specular add
+                                   ^ curvature width, halo weights
+
+- translucency (004 §3.2): transmitted back light added to the irradiance before the blur, so
+  it scatters with its neighbours;
+- texturing (001 §5.3): ``pre`` / ``post`` / ``sqrt``, split around the blur (the method never
+  sees the mode, so every method gets every mode);
+- curvature modulation (004 §3.3.3): a per-pixel width multiplier passed to the method as
+  ``width=``; halo reduction (004 §3.3.1 / §3.3.2): ``guide=`` and ``sample_weight=`` for the
+  method's gather passes;
+- specular (001 §5.4): added after scattering.
+
 ``Pipeline.plan(gbuffer)`` decides per stage whether it runs and records why not;
 ``Pipeline.run(gbuffer)`` executes the plan and returns the image with one
 :class:`~sssbench.ops.timing.PassRecord` per executed pass.
+
+Stencil: every per-pixel stage (translucency, texturing, the gather passes, specular) computes
+only where ``mask > 0`` and records that pixel count; pixels outside the mask keep
+``gbuffer.diffuse`` (they are not the SSS stage's business). The curvature map and the halo
+guide are image filters whose values the gather also reads at neighbours outside the mask, so
+they are computed (and recorded) over the full frame.
 """
 
 from __future__ import annotations
 
+import inspect
 from dataclasses import dataclass, field
 
 import torch
 from torch import nn
 
+from sssbench._checks import check_choice
 from sssbench.gbuffer import GBuffer
+from sssbench.ops._stencil import active_pixels, apply_on_active
+from sssbench.ops.curvature import CurvatureModulation
+from sssbench.ops.halo import HALO_KINDS, halo_weight
+from sssbench.ops.texturing import TEXTURING_MODES, Texturing
 from sssbench.ops.timing import PassRecord, record_passes, timed_pass
+from sssbench.ops.translucency import Translucency, back_light
 
-__all__ = ["Pipeline", "PipelineResult", "PlanEntry", "PassRecord"]
+__all__ = ["Pipeline", "PipelineResult", "PlanEntry", "PassRecord", "STAGES"]
+
+#: stages in execution order
+STAGES = ("translucency", "texturing", "curvature", "halo", "sss", "specular")
+
+_ZERO_MASK = "mask is zero everywhere (stencil)"
 
 
 @dataclass(frozen=True)
@@ -46,11 +78,29 @@ class PipelineResult:
         return [(e.stage, e.reason) for e in self.plan if not e.runs]
 
 
+def _accepts(method: nn.Module, names: tuple[str, ...]) -> bool:
+    params = inspect.signature(method.forward).parameters
+    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+        return True
+    return all(n in params for n in names)
+
+
 class Pipeline(nn.Module):
-    """blur method -> specular add.
+    """translucency -> texturing -> blur method -> texturing -> specular add (module docstring).
 
     Args:
-        method: an SSS operator, ``forward(gbuffer) -> (B, 3, H, W)`` scattered diffuse.
+        method: an SSS operator, ``forward(gbuffer) -> (B, 3, H, W)`` scattered diffuse. With
+            ``curvature`` it must accept ``forward(gbuffer, width=(B, 1, H, W))`` (a multiplier
+            of its kernel width), with ``halo`` ``forward(gbuffer, guide=..., sample_weight=...)``
+            (forwarded to :func:`~sssbench.ops.separable_pass`).
+        translucency: a :class:`~sssbench.ops.Translucency` (004 §3.2), or ``None``. The
+            pipeline applies albedo in its texturing stage, so a translucency built with
+            ``apply_albedo=True`` is copied with ``apply_albedo=False``.
+        texturing: ``None`` (the blur scatters ``diffuse`` as given; default, which keeps the
+            output comparable with earlier runs), ``"pre"``, ``"post"`` or ``"sqrt"`` (001 §5.3).
+        curvature: a :class:`~sssbench.ops.CurvatureModulation` (004 §3.3.3), or ``None``.
+        halo: ``None``, ``"bilateral"`` (004 §3.3.1) or ``"lab"`` (004 §3.3.2).
+        halo_sigma: range σ of ``halo`` (``None``: :data:`~sssbench.ops.halo.DEFAULT_SIGMA`).
         add_specular: add ``gbuffer.specular`` after scattering (DESIGN §5: only if present).
 
     Example:
@@ -62,48 +112,181 @@ class Pipeline(nn.Module):
         ['sss']
     """
 
-    def __init__(self, method: nn.Module, *, add_specular: bool = True) -> None:
+    def __init__(
+        self,
+        method: nn.Module,
+        *,
+        translucency: Translucency | None = None,
+        texturing: str | None = None,
+        curvature: CurvatureModulation | None = None,
+        halo: str | None = None,
+        halo_sigma: float | None = None,
+        add_specular: bool = True,
+    ) -> None:
         super().__init__()
         if not isinstance(method, nn.Module):
             raise TypeError(f"method must be an nn.Module, got {type(method).__name__}")
+        if translucency is not None and not isinstance(translucency, Translucency):
+            raise TypeError(
+                f"translucency must be a Translucency or None, got {type(translucency).__name__}"
+            )
+        check_choice("texturing", texturing, (None, *TEXTURING_MODES))
+        if curvature is not None and not isinstance(curvature, CurvatureModulation):
+            raise TypeError(
+                f"curvature must be a CurvatureModulation or None, got {type(curvature).__name__}"
+            )
+        check_choice("halo", halo, (None, *HALO_KINDS))
+        if curvature is not None and not _accepts(method, ("width",)):
+            raise TypeError(
+                f"curvature needs a method whose forward accepts width=; "
+                f"{type(method).__name__}.forward does not"
+            )
+        if halo is not None and not _accepts(method, ("guide", "sample_weight")):
+            raise TypeError(
+                f"halo needs a method whose forward accepts guide= and sample_weight=; "
+                f"{type(method).__name__}.forward does not"
+            )
         self.method = method
+        if translucency is not None and translucency.apply_albedo:
+            translucency = Translucency(
+                translucency.profile,
+                translucency.translucency,
+                translucency.width,
+                form=translucency.form,
+                intensity=translucency.intensity,
+                apply_albedo=False,
+            )
+        self.translucency = translucency
+        self.texturing = None if texturing is None else Texturing(texturing)
+        self.curvature = curvature
+        self.halo = halo
+        self.halo_sigma = halo_sigma
         self.add_specular = add_specular
 
     @property
     def needs(self) -> tuple[str, ...]:
-        """Optional G-buffer fields the pipeline can use (scenes build only these)."""
+        """Optional G-buffer fields the configured pipeline uses (scenes build only these)."""
         fields = set(getattr(self.method, "needs", ()))
+        for stage in (self.translucency, self.texturing, self.curvature):
+            if stage is not None:
+                fields |= set(stage.needs)
+        if self.halo == "bilateral":
+            fields.add("normal")
+        elif self.halo == "lab":
+            fields.add("albedo")
         if self.add_specular:
             fields.add("specular")
         return tuple(sorted(fields))
 
+    # ------------------------------------------------------------------ plan
+    def _plan_translucency(self, g: GBuffer, covered: bool) -> PlanEntry:
+        if self.translucency is None:
+            return PlanEntry("translucency", False, "disabled")
+        for name in ("thickness", "normal", "light_dir"):
+            if getattr(g, name) is None:
+                return PlanEntry("translucency", False, f"no {name} in the G-buffer")
+        if not covered:
+            return PlanEntry("translucency", False, _ZERO_MASK)
+        # the stage is non-zero where its cosine term is: clamp(0.3 + n·(−l)) > 0 (004 Fig.
+        # 3.11) or n·(−l) > 0 (deon)
+        wrap = 0.3 if self.translucency.form == "jimenez2012" else 0.0
+        lit = (back_light(g) + wrap > 0) & (g.mask_or_ones() > 0)
+        if not bool(lit.any()):
+            bound = "-0.3" if wrap else "0"
+            return PlanEntry(
+                "translucency",
+                False,
+                f"no back light: n·(-l) <= {bound} at every masked pixel (light in front)",
+            )
+        return PlanEntry("translucency", True)
+
     def plan(self, gbuffer: GBuffer) -> list[PlanEntry]:
-        """Decide which stages run on ``gbuffer`` and why the others do not."""
+        """Decide which stages run on ``gbuffer`` and why the others do not (DESIGN §5).
+
+        Returns:
+            one :class:`PlanEntry` per stage of :data:`STAGES`, in execution order.
+        """
         if not isinstance(gbuffer, GBuffer):
             raise TypeError(f"gbuffer must be a GBuffer, got {type(gbuffer).__name__}")
-        entries = []
-        if gbuffer.mask is not None and not bool((gbuffer.mask > 0).any()):
-            entries.append(PlanEntry("sss", False, "mask is zero everywhere (stencil)"))
+        g = gbuffer
+        covered = g.mask is None or bool((g.mask > 0).any())
+        entries = [self._plan_translucency(g, covered)]
+
+        if self.texturing is None:
+            entries.append(PlanEntry("texturing", False, "disabled"))
+        elif g.albedo is None:
+            entries.append(PlanEntry("texturing", False, "no albedo in the G-buffer"))
+        elif not covered:
+            entries.append(PlanEntry("texturing", False, _ZERO_MASK))
         else:
-            entries.append(PlanEntry("sss", True))
+            entries.append(PlanEntry("texturing", True))
+
+        if self.curvature is None:
+            entries.append(PlanEntry("curvature", False, "disabled"))
+        elif g.normal is None:
+            entries.append(PlanEntry("curvature", False, "no normals in the G-buffer"))
+        elif not covered:
+            entries.append(PlanEntry("curvature", False, _ZERO_MASK))
+        else:
+            entries.append(PlanEntry("curvature", True))
+
+        if self.halo is None:
+            entries.append(PlanEntry("halo", False, "disabled"))
+        elif self.halo == "bilateral" and g.normal is None:
+            entries.append(PlanEntry("halo", False, "no normals in the G-buffer"))
+        elif not covered:
+            entries.append(PlanEntry("halo", False, _ZERO_MASK))
+        else:
+            entries.append(PlanEntry("halo", True))
+
+        entries.append(PlanEntry("sss", True) if covered else PlanEntry("sss", False, _ZERO_MASK))
+
         if not self.add_specular:
             entries.append(PlanEntry("specular", False, "disabled"))
-        elif gbuffer.specular is None:
+        elif g.specular is None:
             entries.append(PlanEntry("specular", False, "no specular in the G-buffer"))
+        elif not covered:
+            entries.append(PlanEntry("specular", False, _ZERO_MASK))
         else:
             entries.append(PlanEntry("specular", True))
         return entries
 
+    # ------------------------------------------------------------------ run
     def run(self, gbuffer: GBuffer) -> PipelineResult:
-        """Execute the plan; every executed pass leaves a record."""
+        """Execute the plan; every executed pass leaves a record.
+
+        Returns:
+            :class:`PipelineResult` with the ``(B, 3, H, W)`` image, the pass records and the
+            plan.
+        """
         plan = self.plan(gbuffer)
         runs = {e.stage for e in plan if e.runs}
+        g = gbuffer
+        b, h, w = g.shape
         with record_passes() as records:
-            image = self.method(gbuffer) if "sss" in runs else gbuffer.diffuse
+            image = g.diffuse
+            if "translucency" in runs:
+                image = self.translucency(g, add_to=image)
+            if "texturing" in runs:
+                image = self.texturing.before(image, g)
+            extras: dict[str, object] = {}
+            if "curvature" in runs:
+                extras["width"] = self.curvature(g)
+            if "halo" in runs:
+                with timed_pass(f"halo.{self.halo}", 1, b * h * w):
+                    extras["guide"], extras["sample_weight"] = halo_weight(
+                        g, self.halo, self.halo_sigma
+                    )
+            if "sss" in runs:
+                src = g if image is g.diffuse else g.replace(diffuse=image)
+                image = self.method(src, **extras)
+            if "texturing" in runs:
+                image = self.texturing.after(image, g)
             if "specular" in runs:
-                b, h, w = gbuffer.shape
-                with timed_pass("specular", 1, b * h * w):
-                    image = image + gbuffer.specular
+                active = active_pixels(g.mask, g.depth.numel())
+                n = b * h * w if active is None else active.numel()
+                with timed_pass("specular", 1, n):
+                    image = apply_on_active(lambda x, s: x + s, image, [image, g.specular], active)
         return PipelineResult(image, list(records), plan)
 
     def forward(self, gbuffer: GBuffer) -> torch.Tensor:
