@@ -230,7 +230,9 @@ def build_profile(spec: RunSpec) -> Any:
 
 
 def build_method(spec: RunSpec, profile: Any) -> torch.nn.Module:
-    """``METHODS[spec.method](profile, samples=..., sampling=..., **params)``."""
+    """``METHODS[spec.method](profile, samples=..., sampling=..., **params)``; a ``preset``
+    param calls ``cls.preset(name, ...)`` instead, and classes whose first argument is not
+    ``profile`` (parametric kernels) are built from their params alone."""
     cls = _method_class(spec.method)
     kwargs = dict(spec.method_params)
     if spec.samples is not None:
@@ -239,7 +241,13 @@ def build_method(spec: RunSpec, profile: Any) -> torch.nn.Module:
         kwargs["sampling"] = spec.sampling
     if "seed" not in kwargs and _takes(cls, "seed"):
         kwargs["seed"] = spec.seed  # stochastic methods (rotation) follow the run's seed
-    return cls(profile, **kwargs)
+    preset = kwargs.pop("preset", None)
+    if preset is not None:  # e.g. ArtistSSS.preset("production"), Jimenez2012SSS.preset(...)
+        return cls.preset(preset, **kwargs)
+    first = next(iter(list(inspect.signature(cls.__init__).parameters)[1:]), None)
+    if first == "profile":  # methods built from the run's diffusion profile
+        return cls(profile, **kwargs)
+    return cls(**kwargs)  # parametric kernels (artist, 2012) carry their own profile
 
 
 def _default_params(cls: type, params: dict[str, Any]) -> bool:
