@@ -1,6 +1,7 @@
 """Torch operators on a G-buffer (DESIGN §1, third layer): the one gather pass, the
 methods built from it, and the extensions (translucency, curvature, halo, texturing)."""
 
+from sssbench.ops.artist import ArtistSSS, artist_sss
 from sssbench.ops.curvature import (
     CURVATURE_MODES,
     CURVATURE_STRATEGIES,
@@ -10,6 +11,7 @@ from sssbench.ops.curvature import (
 )
 from sssbench.ops.gather import FOLLOW_SURFACE, Rotation, Stretch, separable_pass
 from sssbench.ops.halo import HALO_KINDS, halo_guide, halo_weight, lab_guide, range_weight
+from sssbench.ops.jimenez2012 import Jimenez2012SSS, jimenez2012_sss
 from sssbench.ops.low_rank import LowRankSSS, low_rank_sss
 from sssbench.ops.preintegrated import PreintegratedSSS, preintegrated_sss, two_pass
 from sssbench.ops.reference import ReferenceSSS, reference_sss
@@ -40,6 +42,10 @@ __all__ = [
     "two_pass",
     "PreintegratedSSS",
     "preintegrated_sss",
+    "ArtistSSS",
+    "artist_sss",
+    "Jimenez2012SSS",
+    "jimenez2012_sss",
     "LowRankSSS",
     "low_rank_sss",
     "ReferenceSSS",

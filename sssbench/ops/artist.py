@@ -1,0 +1,129 @@
+"""The artist-friendly separable model (000 §5 eq. 6) rendered with the depth correction of
+000 §7 eq. 7: two passes."""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from sssbench._checks import check_choice, check_scalar
+from sssbench.gbuffer import GBuffer
+from sssbench.kernels.artist import ArtistParams
+from sssbench.ops.gather import FOLLOW_SURFACE
+from sssbench.ops.preintegrated import two_pass
+from sssbench.ops.rotation import random_rotation
+
+__all__ = ["ArtistSSS", "artist_sss"]
+
+
+class ArtistSSS(nn.Module):
+    """Artist-friendly two-Gaussian separable SSS (000 §5, §7).
+
+    The kernel is ``a'_m(d_xy) = w N(σ_n) + (1 − w) N(σ_f)`` (000 eq. 6, normalised to one)
+    with ``σ = σ' · s``, discretised over the screen plane only (importance-sampled,
+    area-integrated taps, 000 §7; :meth:`~sssbench.kernels.ArtistParams.kernel`). The depth
+    is resolved analytically per sample by the correction factor of 000 eq. 7,
+    ``exp(−d_z² / 2σ_max²)``: ``follow_surface="gaussian"`` with ``surface_scale = σ_max``
+    (:attr:`~sssbench.kernels.ArtistParams.sigma_max`, = σ_f, per channel — a choice: 000
+    counts "a single exp" per sample; with a ``(3,)`` argument that is one exp per channel,
+    and one shared σ_max = max over channels would leave green and blue, whose σ_f is 3–7×
+    smaller in Table 2, almost uncorrected). The corrected weights are not renormalised
+    (000 eq. 7 multiplies them), so a sample across a depth step loses its energy rather
+    than passing it to the others.
+
+    Args:
+        near: σ'_n, scalar or ``(3,)`` in [0, 1].
+        far: σ'_f, scalar or ``(3,)`` in [0, 1].
+        weight: w in [0, 1] (scalar or per channel).
+        scale: s in mm, > 0.
+        samples: taps per pass (000 §7: 7).
+        sampling: ``"importance"``, ``"uniform"`` or ``"power"``.
+        follow_surface: ``"gaussian"`` (000 eq. 7, default), ``"lerp"`` (2012 shader, with
+            the same scale) or ``None``.
+        rotation: stochastic rotation radius fraction (000 §6), or ``None``.
+        seed: rotation seed (one :class:`Rotation` for both passes).
+
+    Shape:
+        - forward(gbuffer): ``(B, 3, H, W)``.
+
+    Example:
+        >>> op = ArtistSSS.preset("production")
+        >>> g = GBuffer(torch.ones(1, 3, 8, 8), torch.full((1, 1, 8, 8), 500.0), 0.4)
+        >>> bool(torch.allclose(op(g), g.diffuse)), len(op.kernel)
+        (True, 7)
+    """
+
+    needs = ("mask",)
+
+    def __init__(
+        self,
+        near: object,
+        far: object,
+        weight: object,
+        scale: float,
+        samples: int = 7,
+        sampling: str = "importance",
+        follow_surface: str | None = "gaussian",
+        rotation: float | None = None,
+        seed: int = 0,
+    ) -> None:
+        super().__init__()
+        check_choice("follow_surface", follow_surface, FOLLOW_SURFACE)
+        if rotation is not None:
+            check_scalar("rotation", rotation, 0.0, 1.0)
+        self.params = ArtistParams.make(near, far, weight, scale)
+        self.kernel = self.params.kernel(samples, sampling)
+        self.samples = samples
+        self.sampling = sampling
+        self.follow_surface = follow_surface
+        #: σ_max of 000 eq. 7 per channel (mm), floored so a zero σ' stays a valid scale
+        self.surface_scale = self.params.sigma_max.clamp_min(1e-9)
+        self.rotation = rotation
+        self.seed = seed
+
+    @classmethod
+    def preset(
+        cls,
+        name: str,
+        samples: int = 7,
+        sampling: str = "importance",
+        **options: object,
+    ) -> ArtistSSS:
+        """A row of 000 Table 2 (``"single_layer_close_fit"``, ``"multi_layer_close_fit"``,
+        ``"production"``); ``options`` are the other keyword arguments."""
+        p = ArtistParams.preset(name)
+        return cls(p.near, p.far, p.weight, p.scale, samples, sampling, **options)
+
+    def forward(self, gbuffer: GBuffer) -> torch.Tensor:
+        if not isinstance(gbuffer, GBuffer):
+            raise TypeError(f"gbuffer must be a GBuffer, got {type(gbuffer).__name__}")
+        rot = None if self.rotation is None else random_rotation(gbuffer, self.rotation, self.seed)
+        return two_pass(
+            gbuffer.diffuse,
+            self.kernel,
+            gbuffer,
+            name="artist",
+            follow_surface=self.follow_surface,
+            surface_scale=self.surface_scale,  # 000 eq. 7: σ_max
+            rotation=rot,
+        )
+
+
+def artist_sss(
+    gbuffer: GBuffer,
+    near: object,
+    far: object,
+    weight: object,
+    scale: float,
+    samples: int = 7,
+    sampling: str = "importance",
+    **options: object,
+) -> torch.Tensor:
+    """Functional twin of :class:`ArtistSSS` (``options``: its keyword arguments).
+
+    Example:
+        >>> g = GBuffer(torch.ones(1, 3, 8, 8), torch.full((1, 1, 8, 8), 500.0), 0.4)
+        >>> artist_sss(g, 0.1, 0.5, 0.5, 10.0).shape
+        torch.Size([1, 3, 8, 8])
+    """
+    return ArtistSSS(near, far, weight, scale, samples, sampling, **options)(gbuffer)
