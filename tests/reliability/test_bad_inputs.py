@@ -507,22 +507,40 @@ CASES: list[tuple[str, Callable[[], object], type, list[str]]] = [
         ["minimum", "[0, 1]"],
     ),
     (
-        "artist_sss_strength",
-        lambda: _method_op("sssbench.ops.artist", "ArtistSSS", "production", samples=0),
+        "artist_sss_samples",
+        lambda: _method_op("sssbench.ops.artist", "ArtistSSS", 0.1, 0.5, 0.5, 5.0, samples=0),
         ValueError,
         ["samples", f"[1, {MAX_SAMPLES}]"],
     ),
     (
+        "artist_sss_near",
+        lambda: _method_op("sssbench.ops.artist", "ArtistSSS", 1.5, 0.5, 0.5, 5.0),
+        ValueError,
+        ["near", "[0, 1]"],
+    ),
+    (
+        "jimenez2012_sss_strength",
+        lambda: _method_op("sssbench.ops.jimenez2012", "Jimenez2012SSS", 1.2, 0.5, 2.0),
+        ValueError,
+        ["strength", "[0, 1]", "1.2"],
+    ),
+    (
+        "jimenez2012_sss_width",
+        lambda: _method_op("sssbench.ops.jimenez2012", "Jimenez2012SSS", 0.5, 0.5, 0.0),
+        ValueError,
+        ["width", "(0, inf)"],
+    ),
+    (
         "jimenez2012_sss_samples",
-        lambda: _method_op("sssbench.ops.jimenez2012", "Jimenez2012SSS", "table1", samples=0),
+        lambda: _method_op("sssbench.ops.jimenez2012", "Jimenez2012SSS", 0.5, 0.5, 2.0, samples=0),
         ValueError,
         ["samples", f"[1, {MAX_SAMPLES}]"],
     ),
     (
         "low_rank_sss_rank",
-        lambda: _method_op("sssbench.ops.low_rank", "LowRankSSS", SOG, rank=0),
+        lambda: _method_op("sssbench.ops.low_rank", "LowRankSSS", SOG, rank=0, n=11),
         ValueError,
-        ["rank"],
+        ["rank", "[1, 11]"],
     ),
 ]
 
