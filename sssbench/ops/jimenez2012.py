@@ -1,0 +1,138 @@
+"""The 2012 separable SSS (002 §3–4 and appendix shader): two passes of the width / strength /
+falloff kernel with the shader's follow-surface lerp and per-pixel strength."""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from sssbench._checks import check_choice, check_scalar
+from sssbench.gbuffer import GBuffer
+from sssbench.kernels.jimenez2012 import JIMENEZ2012_PRESETS, jimenez2012
+from sssbench.ops.preintegrated import two_pass
+from sssbench.ops.rotation import random_rotation
+from sssbench.profiles.sum_of_gaussians import SumOfGaussians
+
+__all__ = ["Jimenez2012SSS", "jimenez2012_sss"]
+
+
+class Jimenez2012SSS(nn.Module):
+    """Separable SSS of 002 (2012): ``s(w, t, f)`` (002 eq. 1) applied by the appendix shader.
+
+    Mapping of ``SSSSBlurPS`` (002 appendix) onto :func:`~sssbench.ops.separable_pass`:
+
+    - ``finalStep = sssWidth · distToProjWindow / depthM · dir / 3`` with ``kernel.a`` in
+      [−3, 3]: the kernel builder returns offsets in widths
+      (:func:`~sssbench.kernels.jimenez2012`), the pass ``width`` is ``width`` in mm and the
+      pinhole mapping gives pixels per mm at each pixel's depth (DESIGN §2).
+    - ``finalStep *= SSSS_STRENGTH_SOURCE``: the G-buffer ``mask`` scales each pixel's step
+      (``separable_pass`` multiplies its pixels-per-offset scale by the mask) and a mask of 0
+      is not computed (the shader's ``discard`` with ``initStencil``). So a mask of ½ blurs
+      exactly like half the width (tested).
+    - ``SSSS_FOLLOW_SURFACE``: ``s = saturate(300 · distToProjWindow · sssWidth · |Δz|)``,
+      ``color = lerp(color, colorM, s)``: ``follow_surface="lerp"`` with ``s = |Δz| /
+      surface_scale``. The shader's constant is not unit-consistent (``s`` grows with
+      width × depth step); we keep its meaning, "a sample is replaced once the depth step
+      reaches the order of the kernel's size", with ``surface_scale = width`` mm by default.
+
+    Args:
+        strength: ``t`` per channel, scalar or ``(3,)`` in [0, 1].
+        falloff: ``f`` per channel, scalar or ``(3,)`` >= 0.
+        width: the global width in mm, > 0.
+        samples: taps per pass (002: 9, 17 or 33; an even count gets a centre tap added).
+        follow_surface: apply the shader's depth lerp.
+        surface_scale: depth step (mm) of full replacement; default ``width``.
+        profile: base profile (its red channel), a table name or a :class:`SumOfGaussians`.
+        quadrature: ``"shader"`` or ``"integrated"`` tap weights.
+        rotation: stochastic rotation radius fraction (000 §6), or ``None``.
+        seed: rotation seed (one :class:`Rotation` for both passes).
+
+    Shape:
+        - forward(gbuffer): ``(B, 3, H, W)``.
+
+    Example:
+        >>> op = Jimenez2012SSS.preset("shader_default", width=3.0)
+        >>> g = GBuffer(torch.ones(1, 3, 8, 8), torch.full((1, 1, 8, 8), 200.0), 0.4)
+        >>> bool(torch.allclose(op(g), g.diffuse)), len(op.kernel)
+        (True, 17)
+    """
+
+    needs = ("mask",)
+
+    def __init__(
+        self,
+        strength: object,
+        falloff: object,
+        width: float,
+        samples: int = 17,
+        follow_surface: bool = True,
+        surface_scale: float | None = None,
+        profile: str | SumOfGaussians = "skin_deon6",
+        quadrature: str = "shader",
+        rotation: float | None = None,
+        seed: int = 0,
+    ) -> None:
+        super().__init__()
+        self.width = check_scalar("width", width, 0.0, low_inclusive=False)
+        if not isinstance(follow_surface, bool):
+            raise TypeError(f"follow_surface must be a bool, got {type(follow_surface).__name__}")
+        if rotation is not None:
+            check_scalar("rotation", rotation, 0.0, 1.0)
+        self.kernel = jimenez2012(
+            strength, falloff, samples, profile=profile, quadrature=quadrature
+        )
+        self.samples = samples
+        self.follow_surface = follow_surface
+        self.surface_scale = (
+            self.width
+            if surface_scale is None
+            else check_scalar("surface_scale", surface_scale, 0.0, low_inclusive=False)
+        )
+        self.rotation = rotation
+        self.seed = seed
+
+    @classmethod
+    def preset(
+        cls, name: str, width: float | None = None, samples: int = 17, **options: object
+    ) -> Jimenez2012SSS:
+        """A preset of :data:`~sssbench.kernels.JIMENEZ2012_PRESETS`; ``width`` (mm) is
+        required for ``"shader_default"`` (its width is a scene parameter) and for
+        ``"table1"`` (002 Table 1's 0.014 is in the paper's unstated scene units)."""
+        check_choice("name", name, sorted(JIMENEZ2012_PRESETS))
+        if width is None:
+            raise ValueError(f"width (mm, > 0) must be given for preset {name!r}")
+        p = JIMENEZ2012_PRESETS[name]
+        return cls(p["strength"], p["falloff"], width, samples, **options)
+
+    def forward(self, gbuffer: GBuffer) -> torch.Tensor:
+        if not isinstance(gbuffer, GBuffer):
+            raise TypeError(f"gbuffer must be a GBuffer, got {type(gbuffer).__name__}")
+        rot = None if self.rotation is None else random_rotation(gbuffer, self.rotation, self.seed)
+        return two_pass(
+            gbuffer.diffuse,
+            self.kernel,
+            gbuffer,
+            name="jimenez2012",
+            width=self.width,  # kernel offsets are in widths (002 appendix: sssWidth)
+            follow_surface="lerp" if self.follow_surface else None,
+            surface_scale=self.surface_scale,
+            rotation=rot,
+        )
+
+
+def jimenez2012_sss(
+    gbuffer: GBuffer,
+    strength: object,
+    falloff: object,
+    width: float,
+    samples: int = 17,
+    **options: object,
+) -> torch.Tensor:
+    """Functional twin of :class:`Jimenez2012SSS` (``options``: its keyword arguments).
+
+    Example:
+        >>> g = GBuffer(torch.ones(1, 3, 8, 8), torch.full((1, 1, 8, 8), 200.0), 0.4)
+        >>> jimenez2012_sss(g, (0.48, 0.41, 0.28), (1.0, 0.37, 0.3), 3.0).shape
+        torch.Size([1, 3, 8, 8])
+    """
+    return Jimenez2012SSS(strength, falloff, width, samples, **options)(gbuffer)
