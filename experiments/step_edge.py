@@ -1,0 +1,103 @@
+"""Claim 2 — the step edge (000 Fig. 7): profiles across a vertical shadow boundary.
+
+On ``step_edge`` (a camera-facing plane, irradiance 0.1 | 1.0) with the six-Gaussian skin,
+compares with the exact reference: the pre-integrated kernel (exact for an axis-aligned step
+up to its tap discretisation), the artist model's close fit (000 Table 2), one Gaussian
+(001 eq. 6 fit), the 12-pass sum of six Gaussians, and SVD rank 1 and 3.
+
+    python -m experiments.run step_edge [--quick]
+"""
+
+from __future__ import annotations
+
+import sys
+
+import matplotlib.pyplot as plt
+import torch
+
+from experiments.common import Context, Section, errors, main, md_table, op_available, reference
+from experiments.common import scene as make
+from sssbench.profiles import SumOfGaussians, fit_sum_of_gaussians
+
+TITLE = "2. The step edge (000 Fig. 7)"
+
+
+def methods(prof: SumOfGaussians, taps: int) -> dict:
+    import sssbench.ops as ops
+
+    one = fit_sum_of_gaussians(prof, 1, shared_variances=True).profile
+    ext = 4 * float(prof.length_scales()[1])
+    out = {
+        f"pre-integrated ({taps} taps)": lambda: ops.PreintegratedSSS(prof, taps),
+        "one Gaussian": lambda: ops.PreintegratedSSS(one, taps),
+        "sum of 6 Gaussians (12 passes)": lambda: ops.SumOfGaussiansSSS(prof, taps),
+        "SVD rank 1": lambda: ops.LowRankSSS(prof, 1, n=101, extent=ext),
+        "SVD rank 3": lambda: ops.LowRankSSS(prof, 3, n=101, extent=ext),
+    }
+    if op_available("ArtistSSS"):
+        out["artist close fit"] = lambda: ops.ArtistSSS.preset("multi_layer_close_fit", taps)
+    return out
+
+
+def run(ctx: Context) -> Section:
+    prof = SumOfGaussians.from_table("skin_deon6")
+    res = (8, 96) if ctx.quick else (16, 256)
+    taps = 17 if ctx.quick else 33
+    g = make("step_edge", res, fields=["mask"])
+    ref = reference("step_edge", res, prof)
+    px = 0.2  # mm per pixel (step_edge default)
+    x = (torch.arange(res[1]) + 0.5 - res[1] / 2) * px
+    row = res[0] // 2
+    fig, axes = plt.subplots(1, 2, figsize=(9, 3.3))
+    rows, data = [], {}
+    for c, ax in zip((0, 2), axes, strict=True):
+        ax.plot(x, ref[0, c, row], "k", lw=2.5, label="reference")
+    for name, build in methods(prof, taps).items():
+        with torch.inference_mode():
+            out = build()(g)
+        e = errors(out, ref, g)
+        ksum = float((out[0, :, row] - ref[0, :, row]).abs().max())
+        rows.append([name, e["rel_rms"], e["psnr"], ksum])
+        data[name] = e
+        for c, ax in zip((0, 2), axes, strict=True):
+            ax.plot(x, out[0, c, row], "--", lw=1, label=name)
+    for c, ax in zip(("red", "blue"), axes, strict=True):
+        ax.set_xlim(-6, 6)
+        ax.set_xlabel("x (mm)")
+        ax.set_title(f"{c} channel across the edge")
+    axes[0].legend(fontsize=6)
+    link = ctx.figure(fig)
+
+    pre = data[f"pre-integrated ({taps} taps)"]["rel_rms"]
+    best_other = min(v["rel_rms"] for k, v in data.items() if not k.startswith("pre-"))
+    ordered = data["SVD rank 1"]["rel_rms"] > data["SVD rank 3"]["rel_rms"]
+    ok = pre <= best_other * 1.05 and ordered
+    measured = (
+        "Relative RMS error against the exact reference: "
+        + "; ".join(f"{k} {v['rel_rms']:.3g}" for k, v in data.items())
+        + "."
+    )
+    return Section(
+        TITLE,
+        "“A_p reproduces the exact 2D convolution with R_d in the presence of additively "
+        "separable irradiance signals, such as straight shadow boundaries” (000 §4); Fig. 7: "
+        "SVD converges rapidly (rank 3 close to the true kernel), the sum of Gaussians needs "
+        "several convolutions, the artist close fit is perceptually close.",
+        measured,
+        "reproduced" if ok else "partly reproduced",
+        (
+            "The pre-integrated kernel is the most accurate two-pass method and matches the "
+            "reference up to its tap discretisation; rank 1 is clearly worse than rank 3; one "
+            "Gaussian misses the profile's long tail and sharp peak."
+        )
+        if ok
+        else "The pre-integrated kernel is not the most accurate here (see table): its "
+        "remaining error is the discretisation of the 1D kernel into taps.",
+        body=md_table(rows, ["method", "rel_rms", "PSNR (dB)", "max |error| on the row"]),
+        figures=[link],
+        data=data,
+    )
+
+
+if __name__ == "__main__":
+    sys.exit(main("step_edge", run))
