@@ -56,7 +56,7 @@ def run(ctx: Context) -> Section:
     methods = available()
     scenes = ("step_edge", "head_close") if ctx.quick else SCENES
     samples = (5, 9) if ctx.quick else SAMPLES
-    res = (24, 24) if ctx.quick else (64, 64)
+    res = (16, 16) if ctx.quick else (64, 64)
     repeats = 1 if ctx.quick else 3
     points = []
     for sc in scenes:

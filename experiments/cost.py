@@ -28,7 +28,7 @@ def run(ctx: Context) -> Section:
     methods = available()
     scenes = ("head_close", "head_far") if ctx.quick else ("head_close", "head_mid", "head_far")
     samples = (7, 9) if ctx.quick else SAMPLES
-    res = (32, 32) if ctx.quick else (192, 192)
+    res = (16, 16) if ctx.quick else (192, 192)
     repeats = 1 if ctx.quick else 7
     t: dict[tuple[str, str, int], float] = {}
     for sc in scenes:

@@ -101,8 +101,8 @@ def _rel(a: np.ndarray, b: np.ndarray, r: np.ndarray) -> np.ndarray:
 
 def run(ctx: Context) -> Section:
     v = 0.05  # mm², 001 §5: about the squared smallest mean free path
-    degree = 120 if ctx.quick else 500
-    n, h = (256, 0.1) if ctx.quick else (1024, 0.05)
+    degree = 60 if ctx.quick else 500
+    n, h = (128, 0.2) if ctx.quick else (1024, 0.05)
     profs = _profiles(v)
     t0 = time.perf_counter()
     r1c = fit_powers_nnls(profs["r1"], v, degree)

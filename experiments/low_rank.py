@@ -25,7 +25,7 @@ RANKS = (1, 3, 6)
 
 
 def energy_part(ctx: Context) -> tuple[dict, plt.Figure]:
-    n = 41 if ctx.quick else 101
+    n = 21 if ctx.quick else 101
     out = {}
     fig, axes = plt.subplots(1, 2, figsize=(9, 3.2))
     for ax, (label, prof) in zip(
@@ -57,7 +57,7 @@ def energy_part(ctx: Context) -> tuple[dict, plt.Figure]:
 def error_part(ctx: Context) -> tuple[list, dict]:
     prof = SumOfGaussians.from_table("skin_deon6")
     cases = (
-        [("step_edge", (8, 64)), ("head_close", (24, 24))]
+        [("step_edge", (4, 48)), ("head_close", (16, 16))]
         if ctx.quick
         else [("step_edge", (32, 256)), ("head_close", (96, 96))]
     )
@@ -68,14 +68,14 @@ def error_part(ctx: Context) -> tuple[list, dict]:
         from sssbench.ops import LowRankSSS, PreintegratedSSS
 
         for rank in RANKS:
-            op = LowRankSSS(prof, rank, n=61, extent=4 * 7.41**0.5)
+            op = LowRankSSS(prof, rank, n=21 if ctx.quick else 61, extent=4 * 7.41**0.5)
             with torch.inference_mode():
                 e = errors(op(g), ref, g)
             ksum = [round(float(x), 3) for x in op.kernel_sum]
             rows.append([name, f"SVD rank {rank}", 2 * rank, e["rel_rms"], e["psnr"], str(ksum)])
             data[f"{name}_rank{rank}"] = e
         with torch.inference_mode():
-            e = errors(PreintegratedSSS(prof, 33)(g), ref, g)
+            e = errors(PreintegratedSSS(prof, 9 if ctx.quick else 33)(g), ref, g)
         rows.append([name, "pre-integrated (33 taps)", 2, e["rel_rms"], e["psnr"], "[1, 1, 1]"])
         data[f"{name}_preint"] = e
     return rows, data

@@ -48,7 +48,7 @@ def best_weights_error(x: float) -> float:
 
 
 def run(ctx: Context) -> Section:
-    n = 9 if ctx.quick else 36
+    n = 6 if ctx.quick else 36
     axis = np.geomspace(1e-3, 15.0, n)
     sig, zz = np.meshgrid(axis, axis, indexing="ij")
     flat_s, flat_z = sig.ravel(), zz.ravel()
@@ -64,7 +64,7 @@ def run(ctx: Context) -> Section:
     below = emap < THRESHOLD
     frac = float(below.mean())
 
-    xs = np.geomspace(1e-6, 225.0, 12 if ctx.quick else 60)
+    xs = np.geomspace(1e-6, 225.0, 6 if ctx.quick else 60)
     e_emp = [100 * float(pole_fit_error(torch.tensor([x, x, x]), torch.ones(3))[0]) for x in xs]
     e_best = [100 * best_weights_error(x) for x in xs]
 
