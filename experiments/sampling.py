@@ -47,7 +47,7 @@ def run(ctx: Context) -> Section:
         data_a[k] = {"vs513": vs_gt[0], "vs_ref": e["rel_rms"]}
 
     counts = (9, 17) if ctx.quick else COUNTS
-    res = (32, 32) if ctx.quick else (128, 128)
+    res = (16, 16) if ctx.quick else (96, 96)
     rows_b, curves = [], {}
     for name in ("light_dot", "pores"):
         gs = make(name, res, fields=["mask"])
