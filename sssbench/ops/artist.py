@@ -9,7 +9,7 @@ from torch import nn
 from sssbench._checks import check_choice, check_scalar
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.artist import ArtistParams
-from sssbench.ops.gather import FOLLOW_SURFACE
+from sssbench.ops.gather import FOLLOW_SURFACE, SampleWeight
 from sssbench.ops.preintegrated import two_pass
 from sssbench.ops.rotation import random_rotation
 
@@ -94,7 +94,16 @@ class ArtistSSS(nn.Module):
         p = ArtistParams.preset(name)
         return cls(p.near, p.far, p.weight, p.scale, samples, sampling, **options)
 
-    def forward(self, gbuffer: GBuffer) -> torch.Tensor:
+    def forward(
+        self,
+        gbuffer: GBuffer,
+        *,
+        width: torch.Tensor | None = None,
+        guide: torch.Tensor | None = None,
+        sample_weight: SampleWeight | None = None,
+    ) -> torch.Tensor:
+        """Scatter ``gbuffer.diffuse``; ``width`` (per-pixel multiplier, curvature modulation)
+        and ``guide`` + ``sample_weight`` (halo reduction) are forwarded to every pass."""
         if not isinstance(gbuffer, GBuffer):
             raise TypeError(f"gbuffer must be a GBuffer, got {type(gbuffer).__name__}")
         rot = None if self.rotation is None else random_rotation(gbuffer, self.rotation, self.seed)
@@ -106,6 +115,9 @@ class ArtistSSS(nn.Module):
             follow_surface=self.follow_surface,
             surface_scale=self.surface_scale,  # 000 eq. 7: σ_max
             rotation=rot,
+            width=1.0 if width is None else width,
+            guide=guide,
+            sample_weight=sample_weight,
         )
 
 

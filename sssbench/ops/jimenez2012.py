@@ -9,6 +9,7 @@ from torch import nn
 from sssbench._checks import check_choice, check_scalar
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.jimenez2012 import JIMENEZ2012_PRESETS, jimenez2012
+from sssbench.ops.gather import SampleWeight
 from sssbench.ops.preintegrated import two_pass
 from sssbench.ops.rotation import random_rotation
 from sssbench.profiles.sum_of_gaussians import SumOfGaussians
@@ -104,7 +105,16 @@ class Jimenez2012SSS(nn.Module):
         p = JIMENEZ2012_PRESETS[name]
         return cls(p["strength"], p["falloff"], width, samples, **options)
 
-    def forward(self, gbuffer: GBuffer) -> torch.Tensor:
+    def forward(
+        self,
+        gbuffer: GBuffer,
+        *,
+        width: torch.Tensor | None = None,
+        guide: torch.Tensor | None = None,
+        sample_weight: SampleWeight | None = None,
+    ) -> torch.Tensor:
+        """Scatter ``gbuffer.diffuse``; ``width`` (per-pixel multiplier, curvature modulation)
+        and ``guide`` + ``sample_weight`` (halo reduction) are forwarded to every pass."""
         if not isinstance(gbuffer, GBuffer):
             raise TypeError(f"gbuffer must be a GBuffer, got {type(gbuffer).__name__}")
         rot = None if self.rotation is None else random_rotation(gbuffer, self.rotation, self.seed)
@@ -113,10 +123,13 @@ class Jimenez2012SSS(nn.Module):
             self.kernel,
             gbuffer,
             name="jimenez2012",
-            width=self.width,  # kernel offsets are in widths (002 appendix: sssWidth)
+            # kernel offsets are in widths (002 appendix: sssWidth)
+            width=self.width if width is None else self.width * width,
             follow_surface="lerp" if self.follow_surface else None,
             surface_scale=self.surface_scale,
             rotation=rot,
+            guide=guide,
+            sample_weight=sample_weight,
         )
 
 

@@ -16,7 +16,7 @@ from sssbench.gbuffer import GBuffer
 from sssbench.kernels.kernel1d import Kernel1D
 from sssbench.kernels.preintegrated import preintegrated
 from sssbench.kernels.sampling import MAX_SAMPLES, SAMPLINGS
-from sssbench.ops.gather import FOLLOW_SURFACE, Stretch, separable_pass
+from sssbench.ops.gather import FOLLOW_SURFACE, SampleWeight, Stretch, separable_pass
 from sssbench.ops.rotation import random_rotation
 from sssbench.ops.timing import PassRecord, add_record
 from sssbench.profiles.sum_of_gaussians import SumOfGaussians
@@ -308,7 +308,16 @@ class SumOfGaussiansSSS(nn.Module):
         width_px = sigma * level * focal_px / gbuffer.depth * mask  # 003 §7.3.2, dd = 0
         return torch.where(width_px >= self.lod_threshold, mask, torch.zeros_like(mask))
 
-    def forward(self, gbuffer: GBuffer) -> torch.Tensor:
+    def forward(
+        self,
+        gbuffer: GBuffer,
+        *,
+        width: torch.Tensor | None = None,
+        guide: torch.Tensor | None = None,
+        sample_weight: SampleWeight | None = None,
+    ) -> torch.Tensor:
+        """Scatter ``gbuffer.diffuse``; ``width`` (per-pixel multiplier, curvature modulation)
+        and ``guide`` + ``sample_weight`` (halo reduction) are forwarded to every pass."""
         if not isinstance(gbuffer, GBuffer):
             raise TypeError(f"gbuffer must be a GBuffer, got {type(gbuffer).__name__}")
         rot = None if self.rotation is None else random_rotation(gbuffer, self.rotation, self.seed)
@@ -317,6 +326,9 @@ class SumOfGaussiansSSS(nn.Module):
             surface_scale=self.surface_scale,
             stretch=self.stretch,
             rotation=rot,
+            width=1.0 if width is None else width,
+            guide=guide,
+            sample_weight=sample_weight,
         )
         dtype = gbuffer.dtype
         rt1 = gbuffer.diffuse  # the widest Gaussian so far (003 Fig. 7.6: RT1)

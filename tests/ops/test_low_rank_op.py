@@ -114,3 +114,15 @@ def test_bad_arguments():
         LowRankSSS("skin", 1)
     with pytest.raises(ValueError, match="extent"):
         LowRankSSS(p, 1, 11, extent=-1.0)
+
+
+def test_halo_sample_weight_is_refused_with_a_clear_error():
+    """Bilateral renormalisation of summed SVD terms would scale the image by the rank."""
+    import data_synth
+    from sssbench.ops import LowRankSSS, halo_weight
+
+    g = data_synth.make_scene("halo", resolution=(16, 16))
+    guide, weight = halo_weight(g, "bilateral", 0.25)
+    op = LowRankSSS(SumOfGaussians.from_table("skin_deon6"), 2)
+    with pytest.raises(ValueError, match="sample_weight"):
+        op(g, guide=guide, sample_weight=weight)
