@@ -13,6 +13,7 @@ from sssbench.ops.gather import FOLLOW_SURFACE, Rotation, Stretch, separable_pas
 from sssbench.ops.halo import HALO_KINDS, halo_guide, halo_weight, lab_guide, range_weight
 from sssbench.ops.jimenez2012 import Jimenez2012SSS, jimenez2012_sss
 from sssbench.ops.low_rank import LowRankSSS, low_rank_sss
+from sssbench.ops.method import SeparableMethod
 from sssbench.ops.preintegrated import PreintegratedSSS, preintegrated_sss, two_pass
 from sssbench.ops.reference import ReferenceSSS, reference_sss
 from sssbench.ops.rotation import random_rotation
@@ -35,6 +36,7 @@ from sssbench.ops.translucency import (
 )
 
 __all__ = [
+    "SeparableMethod",
     "separable_pass",
     "Stretch",
     "Rotation",

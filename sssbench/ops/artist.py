@@ -4,19 +4,18 @@
 from __future__ import annotations
 
 import torch
-from torch import nn
 
 from sssbench._checks import check_choice, check_scalar
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.artist import ArtistParams
-from sssbench.ops.gather import FOLLOW_SURFACE, SampleWeight
+from sssbench.ops.gather import FOLLOW_SURFACE
+from sssbench.ops.method import SeparableMethod
 from sssbench.ops.preintegrated import two_pass
-from sssbench.ops.rotation import random_rotation
 
 __all__ = ["ArtistSSS", "artist_sss"]
 
 
-class ArtistSSS(nn.Module):
+class ArtistSSS(SeparableMethod):
     """Artist-friendly two-Gaussian separable SSS (000 §5, §7).
 
     The kernel is ``a'_m(d_xy) = w N(σ_n) + (1 − w) N(σ_f)`` (000 eq. 6, normalised to one)
@@ -94,31 +93,9 @@ class ArtistSSS(nn.Module):
         p = ArtistParams.preset(name)
         return cls(p.near, p.far, p.weight, p.scale, samples, sampling, **options)
 
-    def forward(
-        self,
-        gbuffer: GBuffer,
-        *,
-        width: torch.Tensor | None = None,
-        guide: torch.Tensor | None = None,
-        sample_weight: SampleWeight | None = None,
-    ) -> torch.Tensor:
-        """Scatter ``gbuffer.diffuse``; ``width`` (per-pixel multiplier, curvature modulation)
-        and ``guide`` + ``sample_weight`` (halo reduction) are forwarded to every pass."""
-        if not isinstance(gbuffer, GBuffer):
-            raise TypeError(f"gbuffer must be a GBuffer, got {type(gbuffer).__name__}")
-        rot = None if self.rotation is None else random_rotation(gbuffer, self.rotation, self.seed)
-        return two_pass(
-            gbuffer.diffuse,
-            self.kernel,
-            gbuffer,
-            name="artist",
-            follow_surface=self.follow_surface,
-            surface_scale=self.surface_scale,  # 000 eq. 7: σ_max
-            rotation=rot,
-            width=1.0 if width is None else width,
-            guide=guide,
-            sample_weight=sample_weight,
-        )
+    def scatter(self, gbuffer: GBuffer, options: dict[str, object]) -> torch.Tensor:
+        # follow_surface="gaussian" with surface_scale = σ_max: 000 eq. 7
+        return two_pass(gbuffer.diffuse, self.kernel, gbuffer, name="artist", **options)
 
 
 def artist_sss(

@@ -4,20 +4,18 @@ falloff kernel with the shader's follow-surface lerp and per-pixel strength."""
 from __future__ import annotations
 
 import torch
-from torch import nn
 
 from sssbench._checks import check_choice, check_scalar
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.jimenez2012 import JIMENEZ2012_PRESETS, jimenez2012
-from sssbench.ops.gather import SampleWeight
+from sssbench.ops.method import SeparableMethod
 from sssbench.ops.preintegrated import two_pass
-from sssbench.ops.rotation import random_rotation
 from sssbench.profiles.sum_of_gaussians import SumOfGaussians
 
 __all__ = ["Jimenez2012SSS", "jimenez2012_sss"]
 
 
-class Jimenez2012SSS(nn.Module):
+class Jimenez2012SSS(SeparableMethod):
     """Separable SSS of 002 (2012): ``s(w, t, f)`` (002 eq. 1) applied by the appendix shader.
 
     Mapping of ``SSSSBlurPS`` (002 appendix) onto :func:`~sssbench.ops.separable_pass`:
@@ -83,7 +81,7 @@ class Jimenez2012SSS(nn.Module):
             strength, falloff, samples, profile=profile, quadrature=quadrature
         )
         self.samples = samples
-        self.follow_surface = follow_surface
+        self.follow_surface = "lerp" if follow_surface else None  # the 2012 shader's lerp
         self.surface_scale = (
             self.width
             if surface_scale is None
@@ -105,32 +103,15 @@ class Jimenez2012SSS(nn.Module):
         p = JIMENEZ2012_PRESETS[name]
         return cls(p["strength"], p["falloff"], width, samples, **options)
 
-    def forward(
-        self,
-        gbuffer: GBuffer,
-        *,
-        width: torch.Tensor | None = None,
-        guide: torch.Tensor | None = None,
-        sample_weight: SampleWeight | None = None,
-    ) -> torch.Tensor:
-        """Scatter ``gbuffer.diffuse``; ``width`` (per-pixel multiplier, curvature modulation)
-        and ``guide`` + ``sample_weight`` (halo reduction) are forwarded to every pass."""
-        if not isinstance(gbuffer, GBuffer):
-            raise TypeError(f"gbuffer must be a GBuffer, got {type(gbuffer).__name__}")
-        rot = None if self.rotation is None else random_rotation(gbuffer, self.rotation, self.seed)
-        return two_pass(
-            gbuffer.diffuse,
-            self.kernel,
-            gbuffer,
-            name="jimenez2012",
-            # kernel offsets are in widths (002 appendix: sssWidth)
-            width=self.width if width is None else self.width * width,
-            follow_surface="lerp" if self.follow_surface else None,
-            surface_scale=self.surface_scale,
-            rotation=rot,
-            guide=guide,
-            sample_weight=sample_weight,
-        )
+    def pass_options(self, gbuffer, width=None, guide=None, sample_weight=None):
+        """As :meth:`SeparableMethod.pass_options`; the kernel offsets are in widths (002
+        appendix: ``sssWidth``), so the per-pixel multiplier scales ``self.width``."""
+        options = super().pass_options(gbuffer, width, guide, sample_weight)
+        options["width"] = self.width * options["width"]
+        return options
+
+    def scatter(self, gbuffer: GBuffer, options: dict[str, object]) -> torch.Tensor:
+        return two_pass(gbuffer.diffuse, self.kernel, gbuffer, name="jimenez2012", **options)
 
 
 def jimenez2012_sss(

@@ -4,20 +4,19 @@ singular term, summed."""
 from __future__ import annotations
 
 import torch
-from torch import nn
 
 from sssbench._checks import check_choice, check_int, check_scalar
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.low_rank import LowRankKernel, low_rank
 from sssbench.kernels.matrix import MAX_MATRIX_SIZE, kernel_matrix
-from sssbench.ops.gather import FOLLOW_SURFACE, SampleWeight, separable_pass
-from sssbench.ops.rotation import random_rotation
+from sssbench.ops.gather import FOLLOW_SURFACE, separable_pass
+from sssbench.ops.method import SeparableMethod
 from sssbench.profiles.base import Profile
 
 __all__ = ["LowRankSSS", "low_rank_sss"]
 
 
-class LowRankSSS(nn.Module):
+class LowRankSSS(SeparableMethod):
     """Rank-N SVD approximation of the discretised kernel (000 §3, eq. 2), 2N passes.
 
     The profile is integrated over an ``n × n`` grid of cells covering ``[-extent, extent]²``
@@ -104,33 +103,17 @@ class LowRankSSS(nn.Module):
         """``(3,)`` sum of the rank-N kernel (1 at full rank)."""
         return sum(h.sum() * v.sum() for h, v in self.kernel.terms)
 
-    def forward(
-        self,
-        gbuffer: GBuffer,
-        *,
-        width: torch.Tensor | None = None,
-        guide: torch.Tensor | None = None,
-        sample_weight: SampleWeight | None = None,
-    ) -> torch.Tensor:
-        """Scatter ``gbuffer.diffuse``; ``width`` (per-pixel multiplier, curvature modulation)
-        is forwarded to every pass; ``sample_weight`` is refused (see the error)."""
-        if not isinstance(gbuffer, GBuffer):
-            raise TypeError(f"gbuffer must be a GBuffer, got {type(gbuffer).__name__}")
+    def pass_options(self, gbuffer, width=None, guide=None, sample_weight=None):
+        """As :meth:`SeparableMethod.pass_options`, refusing ``sample_weight`` (see the error)."""
         if sample_weight is not None:
             raise ValueError(
                 "sample_weight (halo reduction) renormalises each pass by its summed weights, "
                 "which needs one non-negative normalised kernel; the SVD terms of LowRankSSS "
                 "carry negative weights and are summed, so use another method for halo reduction"
             )
-        rot = None if self.rotation is None else random_rotation(gbuffer, self.rotation, self.seed)
-        options = dict(
-            follow_surface=self.follow_surface,
-            surface_scale=self.surface_scale,
-            rotation=rot,
-            width=1.0 if width is None else width,
-            guide=guide,
-            sample_weight=sample_weight,
-        )
+        return super().pass_options(gbuffer, width, guide, sample_weight)
+
+    def scatter(self, gbuffer: GBuffer, options: dict[str, object]) -> torch.Tensor:
         image = gbuffer.diffuse
         active = gbuffer.mask_or_ones() > 0
         dtype = gbuffer.dtype

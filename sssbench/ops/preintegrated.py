@@ -3,15 +3,14 @@
 from __future__ import annotations
 
 import torch
-from torch import nn
 
 from sssbench._checks import check_choice
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.kernel1d import Kernel1D
 from sssbench.kernels.preintegrated import preintegrated
-from sssbench.ops.gather import FOLLOW_SURFACE, SampleWeight, separable_pass
+from sssbench.ops.gather import FOLLOW_SURFACE, separable_pass
 from sssbench.ops.halo import HALO_KINDS, halo_weight
-from sssbench.ops.rotation import random_rotation
+from sssbench.ops.method import SeparableMethod
 from sssbench.profiles.base import Profile
 
 __all__ = ["PreintegratedSSS", "preintegrated_sss", "two_pass"]
@@ -60,7 +59,7 @@ def preintegrated_sss(
     return PreintegratedSSS(profile, samples, sampling, follow_surface)(gbuffer)
 
 
-class PreintegratedSSS(nn.Module):
+class PreintegratedSSS(SeparableMethod):
     """Pre-integrated separable SSS (000 §4): ``A_p(x, y) = a_p(x) a_p(y) / ‖R‖₁`` (eq. 5),
     discretised once at construction (importance-sampled by default, 000 §7) and applied as
     two depth-aware passes.
@@ -117,26 +116,12 @@ class PreintegratedSSS(nn.Module):
         elif halo == "lab":
             self.needs = ("mask", "albedo")
 
-    def forward(
-        self,
-        gbuffer: GBuffer,
-        *,
-        width: torch.Tensor | None = None,
-        guide: torch.Tensor | None = None,
-        sample_weight: SampleWeight | None = None,
-    ) -> torch.Tensor:
-        rot = None if self.rotation is None else random_rotation(gbuffer, self.rotation, self.seed)
+    def pass_options(self, gbuffer, width=None, guide=None, sample_weight=None):
+        """As :meth:`SeparableMethod.pass_options`, with the configured ``halo`` weights unless
+        an explicit ``sample_weight`` is given."""
         if sample_weight is None and self.halo is not None:
             guide, sample_weight = halo_weight(gbuffer, self.halo, self.halo_sigma)
-        return two_pass(
-            gbuffer.diffuse,
-            self.kernel,
-            gbuffer,
-            name="preintegrated",
-            follow_surface=self.follow_surface,
-            surface_scale=self.surface_scale,
-            rotation=rot,
-            width=1.0 if width is None else width,
-            guide=guide,
-            sample_weight=sample_weight,
-        )
+        return super().pass_options(gbuffer, width, guide, sample_weight)
+
+    def scatter(self, gbuffer: GBuffer, options: dict[str, object]) -> torch.Tensor:
+        return two_pass(gbuffer.diffuse, self.kernel, gbuffer, name="preintegrated", **options)

@@ -9,15 +9,14 @@ import math
 from dataclasses import dataclass
 
 import torch
-from torch import nn
 
 from sssbench._checks import check_choice, check_int, check_scalar, check_tensor
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.kernel1d import Kernel1D
 from sssbench.kernels.preintegrated import preintegrated
 from sssbench.kernels.sampling import MAX_SAMPLES, SAMPLINGS
-from sssbench.ops.gather import FOLLOW_SURFACE, SampleWeight, Stretch, separable_pass
-from sssbench.ops.rotation import random_rotation
+from sssbench.ops.gather import FOLLOW_SURFACE, Stretch, separable_pass
+from sssbench.ops.method import SeparableMethod
 from sssbench.ops.timing import PassRecord, add_record
 from sssbench.profiles.sum_of_gaussians import SumOfGaussians
 
@@ -175,7 +174,7 @@ class SoGStep:
     kernel: Kernel1D | None
 
 
-class SumOfGaussiansSSS(nn.Module):
+class SumOfGaussiansSSS(SeparableMethod):
     """Screen-space sum of Gaussians (003 §7.3; DESIGN §4: 2N passes).
 
     Gaussians are sorted narrowest first. Step ``i`` blurs the previous Gaussian's image
@@ -308,28 +307,8 @@ class SumOfGaussiansSSS(nn.Module):
         width_px = sigma * level * focal_px / gbuffer.depth * mask  # 003 §7.3.2, dd = 0
         return torch.where(width_px >= self.lod_threshold, mask, torch.zeros_like(mask))
 
-    def forward(
-        self,
-        gbuffer: GBuffer,
-        *,
-        width: torch.Tensor | None = None,
-        guide: torch.Tensor | None = None,
-        sample_weight: SampleWeight | None = None,
-    ) -> torch.Tensor:
-        """Scatter ``gbuffer.diffuse``; ``width`` (per-pixel multiplier, curvature modulation)
-        and ``guide`` + ``sample_weight`` (halo reduction) are forwarded to every pass."""
-        if not isinstance(gbuffer, GBuffer):
-            raise TypeError(f"gbuffer must be a GBuffer, got {type(gbuffer).__name__}")
-        rot = None if self.rotation is None else random_rotation(gbuffer, self.rotation, self.seed)
-        options = dict(
-            follow_surface=self.follow_surface,
-            surface_scale=self.surface_scale,
-            stretch=self.stretch,
-            rotation=rot,
-            width=1.0 if width is None else width,
-            guide=guide,
-            sample_weight=sample_weight,
-        )
+    def scatter(self, gbuffer: GBuffer, options: dict[str, object]) -> torch.Tensor:
+        options = dict(options, stretch=self.stretch)  # 003 §7.3.1
         dtype = gbuffer.dtype
         rt1 = gbuffer.diffuse  # the widest Gaussian so far (003 Fig. 7.6: RT1)
         rtf = gbuffer.diffuse  # the blended result (RTF)
