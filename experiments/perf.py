@@ -3,11 +3,11 @@
     python -m experiments.run perf --threads 2   # full: 512² and 1080p, taps 7/17/33
     python -m experiments.run perf --quick       # CI: 128², 7 taps, no compilation (seconds)
 
-Writes ``experiments/sections/perf.md``. Every time is the median of repeats of one operator
-call after a warm-up, measured in this one process, and reported next to two baselines taken
-in the same process: ``kornia.filters.gaussian_blur2d`` with a 7×7 kernel (a fixed separable
-blur) and a plain read-and-write of the image (``clone``, the memory floor). Speed is never
-asserted by tests; this table is where it is measured.
+Writes ``experiments/sections/perf.md`` and ``figures/perf.png``. Every time is the median
+of repeats of one operator call after a warm-up, measured in this one process, and reported
+next to two baselines taken in the same process: ``kornia.filters.gaussian_blur2d`` with a
+7×7 kernel (a fixed separable blur) and a plain read-and-write of the image (``clone``, the
+memory floor). Speed is never asserted by tests; this table is where it is measured.
 """
 
 from __future__ import annotations
@@ -232,6 +232,20 @@ def run(ctx: Context) -> Section:
     )
     met.append(peak / max(size, 1e-9) < 10)
     verdict = "reproduced" if all(met) else "partly reproduced" if any(met) else "not reproduced"
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 3))
+    big_rows = [r for r in rows if r["resolution"] == big]
+    labels = [f"{r['method']}\n{r['taps']} taps" for r in big_rows]
+    ax.barh(labels, [r["vs_kornia"] for r in big_rows], color="tab:blue")
+    ax.axvline(4.0, color="tab:red", ls="--", label="target 4×")
+    ax.set_xscale("log")
+    ax.set_xlabel(f"time / kornia 7×7 blur ({big})")
+    ax.tick_params(axis="y", labelsize=6)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    figure = ctx.figure(fig, "perf")
+    plt.close(fig)
     return Section(
         title="Performance: cost of the passes (issue 7)",
         claim=(
@@ -243,6 +257,7 @@ def run(ctx: Context) -> Section:
         verdict=verdict,
         reason=f"{sum(met)} of {len(met)} targets met (listed below).",
         body="\n".join(targets) + "\n\n" + table,
+        figures=[figure],
         data={"rows": rows, "share": share, "t_ratio": t_ratio, "reference_s": ref_s},
     )
 

@@ -30,6 +30,8 @@ EXPERIMENTS = {
     "layers": "experiments.layers",
     "extensions": "experiments.extensions",
     "benchmark": "experiments.benchmark",
+    "perf": "experiments.perf",
+    "stability": "experiments.stability",
 }
 
 
