@@ -13,6 +13,7 @@ memory floor). Speed is never asserted by tests; this table is where it is measu
 from __future__ import annotations
 
 import json
+import os
 import statistics
 import subprocess
 import sys
@@ -65,25 +66,44 @@ def peak_memory_mb(
 ) -> tuple[float, float]:
     """(peak extra resident memory of one operator call, G-buffer tensor size), in MB.
 
-    Measured in a fresh interpreter: ``ru_maxrss`` after building the scene and the operator
-    is subtracted from ``ru_maxrss`` after one call.
+    Measured in a fresh interpreter: after building the scene and the operator, a thread
+    samples the resident set size (``/proc/self/statm``) every 0.5 ms during one call; the
+    peak minus the size just before the call is what the call needed.
     """
     code = f"""
-import resource, torch, json, data_synth
+import json, os, threading, time, torch, data_synth
 from sssbench.ops import PreintegratedSSS
 from sssbench.profiles import SumOfGaussians
 torch.set_num_threads({threads})
+page = os.sysconf("SC_PAGE_SIZE")
+def rss():
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * page
 g = data_synth.make_scene({scene!r}, resolution={resolution!r})
 op = PreintegratedSSS(SumOfGaussians.from_table("skin_deon6"), {taps}, follow_surface="lerp")
 size = sum(t.numel() * t.element_size() for t in
            (g.diffuse, g.depth, g.albedo, g.specular, g.normal, g.mask, g.thickness)
            if t is not None)
-before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+before = rss()
+peak = [before]
+done = threading.Event()
+def sample():
+    while not done.is_set():
+        peak[0] = max(peak[0], rss())
+        time.sleep(0.0005)
+t = threading.Thread(target=sample)
+t.start()
 op(g)
-after = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-print(json.dumps([(after - before) / 1024, size / 2**20]))
+done.set()
+t.join()
+print(json.dumps([(max(peak[0], rss()) - before) / 2**20, size / 2**20]))
 """
-    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    # a fixed mmap threshold: every large block is mapped on allocation and unmapped on free,
+    # so the resident size is the live memory (glibc otherwise keeps freed blocks on its heap)
+    env = dict(os.environ, MALLOC_MMAP_THRESHOLD_="131072", MALLOC_TRIM_THRESHOLD_="0")
+    res = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env
+    )
     peak, size = json.loads(res.stdout.strip().splitlines()[-1])
     return peak, size
 
