@@ -90,8 +90,9 @@ def _check_pass_inputs(
     width: float | torch.Tensor,
     follow_surface: str | None,
     surface_scale: float | torch.Tensor | None,
+    check_finite: bool = True,
 ) -> None:
-    check_tensor("image", image, ndim=4, channels=3)
+    check_tensor("image", image, ndim=4, channels=3, finite=check_finite)
     if not isinstance(gbuffer, GBuffer):
         raise TypeError(f"gbuffer must be a GBuffer, got {type(gbuffer).__name__}")
     if not isinstance(kernel, Kernel1D):
@@ -146,6 +147,7 @@ def separable_pass(
     guide: torch.Tensor | None = None,
     sample_weight: SampleWeight | None = None,
     name: str | None = None,
+    check_finite: bool = True,
 ) -> torch.Tensor:
     """One depth-aware 1D gather pass over the active pixels (DESIGN §4).
 
@@ -176,6 +178,10 @@ def separable_pass(
         sample_weight: bilateral weight ``f(centre_guide (N, G), sample_guide (N, G))`` ->
             ``(N, 1)`` or ``(N, 3)`` (004 §3.3); the result is renormalised by the summed weights.
         name: name of the :class:`~sssbench.ops.timing.PassRecord` (default ``"pass.<dir>"``).
+        check_finite: scan ``image`` for NaN / Inf (a full read of the image). The methods
+            pass ``False``: their first image is ``gbuffer.diffuse``, validated when the
+            G-buffer was built, and each later one is a pass output of finite inputs; on a
+            far-away object the scan would otherwise cost more than the pass (measured).
 
     Returns:
         ``(B, 3, H, W)``: blurred where active, ``image`` elsewhere.
@@ -190,7 +196,9 @@ def separable_pass(
         >>> separable_pass(g.diffuse, k, "x", g).shape
         torch.Size([1, 3, 8, 8])
     """
-    _check_pass_inputs(image, kernel, direction, gbuffer, width, follow_surface, surface_scale)
+    _check_pass_inputs(
+        image, kernel, direction, gbuffer, width, follow_surface, surface_scale, check_finite
+    )
     if (guide is None) != (sample_weight is None):
         raise ValueError("guide and sample_weight must be given together")
     if guide is not None:

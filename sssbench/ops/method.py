@@ -54,6 +54,7 @@ class SeparableMethod(nn.Module):
             width=1.0 if width is None else width,
             guide=guide,
             sample_weight=sample_weight,
+            check_finite=False,  # gbuffer.diffuse was validated; later images are pass outputs
         )
 
     def scatter(self, gbuffer: GBuffer, options: dict[str, object]) -> torch.Tensor:
