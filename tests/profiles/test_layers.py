@@ -150,3 +150,16 @@ def test_bad_inputs():
         compose_layers(top, other)
     with pytest.raises(ValueError, match="eps"):
         compose_layers(top, bottom, eps=0.0)
+
+
+def test_power_fit_of_a_dipole_stays_bounded_and_non_negative():
+    """Unconstrained least squares gave 1e7–1e8 alternating coefficients at degree 40; the
+    fit is of a non-negative profile, so its coefficients are constrained non-negative and
+    their sum cannot exceed a few times the profile's total (here Σc ≈ total, tested 2×)."""
+    from sssbench.profiles import Dipole
+    from sssbench.profiles.layers import fit_powers_of_gaussian
+
+    d = Dipole.from_material("skin1")
+    c = fit_powers_of_gaussian(d, 0.01, 40)
+    assert bool((c >= 0).all())
+    assert bool((c.sum(0) <= 2 * d.total()).all())
