@@ -85,6 +85,18 @@ def _accepts(method: nn.Module, names: tuple[str, ...]) -> bool:
     return all(n in params for n in names)
 
 
+def _gate(stage: str, configured: bool, missing: str | None, covered: bool) -> PlanEntry:
+    """A stage runs when configured, its G-buffer fields exist and some pixel is masked in
+    (DESIGN §5); otherwise the entry carries the first reason it does not."""
+    if not configured:
+        return PlanEntry(stage, False, "disabled")
+    if missing is not None:
+        return PlanEntry(stage, False, missing)
+    if not covered:
+        return PlanEntry(stage, False, _ZERO_MASK)
+    return PlanEntry(stage, True)
+
+
 class Pipeline(nn.Module):
     """translucency -> texturing -> blur method -> texturing -> specular add (module docstring).
 
@@ -212,43 +224,29 @@ class Pipeline(nn.Module):
         covered = g.mask is None or bool((g.mask > 0).any())
         entries = [self._plan_translucency(g, covered)]
 
-        if self.texturing is None:
-            entries.append(PlanEntry("texturing", False, "disabled"))
-        elif g.albedo is None:
-            entries.append(PlanEntry("texturing", False, "no albedo in the G-buffer"))
-        elif not covered:
-            entries.append(PlanEntry("texturing", False, _ZERO_MASK))
-        else:
-            entries.append(PlanEntry("texturing", True))
-
-        if self.curvature is None:
-            entries.append(PlanEntry("curvature", False, "disabled"))
-        elif g.normal is None:
-            entries.append(PlanEntry("curvature", False, "no normals in the G-buffer"))
-        elif not covered:
-            entries.append(PlanEntry("curvature", False, _ZERO_MASK))
-        else:
-            entries.append(PlanEntry("curvature", True))
-
-        if self.halo is None:
-            entries.append(PlanEntry("halo", False, "disabled"))
-        elif self.halo == "bilateral" and g.normal is None:
-            entries.append(PlanEntry("halo", False, "no normals in the G-buffer"))
-        elif not covered:
-            entries.append(PlanEntry("halo", False, _ZERO_MASK))
-        else:
-            entries.append(PlanEntry("halo", True))
-
-        entries.append(PlanEntry("sss", True) if covered else PlanEntry("sss", False, _ZERO_MASK))
-
-        if not self.add_specular:
-            entries.append(PlanEntry("specular", False, "disabled"))
-        elif g.specular is None:
-            entries.append(PlanEntry("specular", False, "no specular in the G-buffer"))
-        elif not covered:
-            entries.append(PlanEntry("specular", False, _ZERO_MASK))
-        else:
-            entries.append(PlanEntry("specular", True))
+        no_normals = None if g.normal is not None else "no normals in the G-buffer"
+        entries += [
+            _gate(
+                "texturing",
+                self.texturing is not None,
+                None if g.albedo is not None else "no albedo in the G-buffer",
+                covered,
+            ),
+            _gate("curvature", self.curvature is not None, no_normals, covered),
+            _gate(
+                "halo",
+                self.halo is not None,
+                no_normals if self.halo == "bilateral" else None,
+                covered,
+            ),
+            _gate("sss", True, None, covered),
+            _gate(
+                "specular",
+                self.add_specular,
+                None if g.specular is not None else "no specular in the G-buffer",
+                covered,
+            ),
+        ]
         return entries
 
     # ------------------------------------------------------------------ run
