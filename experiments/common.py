@@ -189,17 +189,6 @@ CACHE_DIR = Path.home() / ".cache" / "sssbench-experiments"
 SCENE_PARAMS: dict[str, dict[str, Any]] = {"pores": {"pixel_mm": 0.4}}
 
 
-def _code_digest() -> str:
-    """A digest of the reference's source, so a changed reference never reuses a stale cache."""
-    import hashlib
-
-    import sssbench.ops.reference as ref_mod
-    import sssbench.profiles.sum_of_gaussians as sog_mod
-
-    text = "".join(Path(m.__file__).read_text() for m in (ref_mod, sog_mod))
-    return hashlib.sha1(text.encode()).hexdigest()[:12]
-
-
 def scene(name: str, resolution: tuple[int, int], fields: Sequence[str] | None = None, **params):
     """``data_synth.make_scene`` in float32 with seed 0 (and :data:`SCENE_PARAMS`)."""
     import data_synth
@@ -215,10 +204,18 @@ def reference(name: str, resolution: tuple[int, int], profile: Any, **params) ->
     import json
 
     from sssbench.ops import ReferenceSSS
+    from sssbench.ops.reference import reference_code_digest
 
     params = {**SCENE_PARAMS.get(name, {}), **params}
     key = json.dumps(
-        [name, list(resolution), params, repr(profile), _profile_digest(profile), _code_digest()],
+        [
+            name,
+            list(resolution),
+            params,
+            repr(profile),
+            _profile_digest(profile),
+            reference_code_digest(),
+        ],
         sort_keys=True,
         default=str,
     )

@@ -142,8 +142,12 @@ class RunSpec:
         }
 
     def reference_key(self) -> dict[str, Any]:
-        """What the reference depends on: scene, profile, resolution, seed, dtype."""
+        """What the reference depends on: scene, profile, resolution, seed, dtype (and the
+        reference code itself, so a changed reference never comes from a stale cache)."""
+        from sssbench.ops.reference import reference_code_digest
+
         return {
+            "code": reference_code_digest(),
             "scene": self.scene,
             "scene_params": self.scene_params,
             "profile": self.profile,

@@ -18,12 +18,28 @@ from sssbench.gbuffer import GBuffer, pixel_size_mm
 from sssbench.ops.timing import timed_pass
 from sssbench.profiles.base import Profile
 
-__all__ = ["ReferenceSSS", "reference_sss", "reference_radius_px"]
+__all__ = ["ReferenceSSS", "reference_sss", "reference_radius_px", "reference_code_digest"]
 
 #: default energy tolerance of the support radius (see :func:`reference_sss`)
 DEFAULT_TOL = 1e-6
 #: steepest surface slope the reference trusts from a depth buffer (tan 85°)
 MAX_SLOPE = math.tan(math.radians(85.0))
+
+
+def reference_code_digest() -> str:
+    """A digest of the source that computes references (this module, the profiles, the
+    camera): caches of reference images add it to their key, so a changed reference is never
+    served from a stale cache."""
+    import hashlib
+    from pathlib import Path
+
+    import sssbench.gbuffer
+    import sssbench.profiles.base
+    import sssbench.profiles.sum_of_gaussians
+
+    modules = (sssbench.gbuffer, sssbench.profiles.base, sssbench.profiles.sum_of_gaussians)
+    text = Path(__file__).read_text() + "".join(Path(m.__file__).read_text() for m in modules)
+    return hashlib.sha1(text.encode()).hexdigest()[:12]
 
 
 def _padded_positions(
