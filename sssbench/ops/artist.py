@@ -5,10 +5,8 @@ from __future__ import annotations
 
 import torch
 
-from sssbench._checks import check_choice, check_scalar
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.artist import ArtistParams
-from sssbench.ops.gather import FOLLOW_SURFACE
 from sssbench.ops.method import SeparableMethod
 from sssbench.ops.preintegrated import two_pass
 
@@ -67,18 +65,18 @@ class ArtistSSS(SeparableMethod):
         seed: int = 0,
     ) -> None:
         super().__init__()
-        check_choice("follow_surface", follow_surface, FOLLOW_SURFACE)
-        if rotation is not None:
-            check_scalar("rotation", rotation, 0.0, 1.0)
         self.params = ArtistParams.make(near, far, weight, scale)
+        #: σ_max of 000 eq. 7 per channel (mm), floored so a zero σ' stays a valid scale
+        self.set_options(
+            follow_surface,
+            None,
+            rotation,
+            seed,
+            default_scale=self.params.sigma_max.clamp_min(1e-9),
+        )
         self.kernel = self.params.kernel(samples, sampling)
         self.samples = samples
         self.sampling = sampling
-        self.follow_surface = follow_surface
-        #: σ_max of 000 eq. 7 per channel (mm), floored so a zero σ' stays a valid scale
-        self.surface_scale = self.params.sigma_max.clamp_min(1e-9)
-        self.rotation = rotation
-        self.seed = seed
 
     @classmethod
     def preset(

@@ -75,20 +75,18 @@ class Jimenez2012SSS(SeparableMethod):
         self.width = check_scalar("width", width, 0.0, low_inclusive=False)
         if not isinstance(follow_surface, bool):
             raise TypeError(f"follow_surface must be a bool, got {type(follow_surface).__name__}")
-        if rotation is not None:
-            check_scalar("rotation", rotation, 0.0, 1.0)
+        # the 2012 shader's follow-surface is its lerp; fully replaced at a `width` mm step
+        self.set_options(
+            "lerp" if follow_surface else None,
+            surface_scale,
+            rotation,
+            seed,
+            default_scale=self.width,
+        )
         self.kernel = jimenez2012(
             strength, falloff, samples, profile=profile, quadrature=quadrature
         )
         self.samples = samples
-        self.follow_surface = "lerp" if follow_surface else None  # the 2012 shader's lerp
-        self.surface_scale = (
-            self.width
-            if surface_scale is None
-            else check_scalar("surface_scale", surface_scale, 0.0, low_inclusive=False)
-        )
-        self.rotation = rotation
-        self.seed = seed
 
     @classmethod
     def preset(

@@ -5,11 +5,11 @@ from __future__ import annotations
 
 import torch
 
-from sssbench._checks import check_choice, check_int, check_scalar
+from sssbench._checks import check_int, check_scalar
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.low_rank import LowRankKernel, low_rank
 from sssbench.kernels.matrix import MAX_MATRIX_SIZE, kernel_matrix
-from sssbench.ops.gather import FOLLOW_SURFACE, separable_pass
+from sssbench.ops.gather import separable_pass
 from sssbench.ops.method import SeparableMethod
 from sssbench.profiles.base import Profile
 
@@ -76,9 +76,9 @@ class LowRankSSS(SeparableMethod):
             raise TypeError(f"profile must be a sssbench Profile, got {type(profile).__name__}")
         n = check_int("n", n, 1, MAX_MATRIX_SIZE)
         rank = check_int("rank", rank, 1, n)
-        check_choice("follow_surface", follow_surface, FOLLOW_SURFACE)
-        if rotation is not None:
-            check_scalar("rotation", rotation, 0.0, 1.0)
+        self.set_options(
+            follow_surface, surface_scale, rotation, seed, default_scale=profile.length_scales()[1]
+        )
         extent = profile.radius() if extent is None else extent
         extent = check_scalar("extent", extent, 0.0, low_inclusive=False)
         m = kernel_matrix(profile, extent, n)
@@ -89,14 +89,6 @@ class LowRankSSS(SeparableMethod):
         self.rank = rank
         self.n = n
         self.extent = extent
-        self.follow_surface = follow_surface
-        self.surface_scale = (
-            profile.length_scales()[1]
-            if surface_scale is None
-            else check_scalar("surface_scale", surface_scale, 0.0, low_inclusive=False)
-        )
-        self.rotation = rotation
-        self.seed = seed
 
     @property
     def kernel_sum(self) -> torch.Tensor:

@@ -12,8 +12,9 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from sssbench._checks import check_choice, check_scalar
 from sssbench.gbuffer import GBuffer
-from sssbench.ops.gather import SampleWeight
+from sssbench.ops.gather import FOLLOW_SURFACE, SampleWeight
 from sssbench.ops.rotation import random_rotation
 
 __all__ = ["SeparableMethod"]
@@ -35,6 +36,37 @@ class SeparableMethod(nn.Module):
     surface_scale: float | torch.Tensor | None = None
     rotation: float | None = None
     seed: int = 0
+
+    def set_options(
+        self,
+        follow_surface: str | None,
+        surface_scale: float | None,
+        rotation: float | None,
+        seed: int,
+        *,
+        default_scale: float | torch.Tensor,
+    ) -> None:
+        """Validate and store the shared options (subclasses call this in ``__init__``).
+
+        Args:
+            follow_surface: ``None``, ``"lerp"`` or ``"gaussian"``.
+            surface_scale: mm, > 0, or ``None`` for ``default_scale`` (the method's own
+                material scale, e.g. the profile's widest length or σ_max of 000 eq. 7).
+            rotation: radius fraction in [0, 1] or ``None``.
+            seed: rotation seed.
+            default_scale: see ``surface_scale``.
+        """
+        check_choice("follow_surface", follow_surface, FOLLOW_SURFACE)
+        if rotation is not None:
+            check_scalar("rotation", rotation, 0.0, 1.0)
+        self.follow_surface = follow_surface
+        self.surface_scale = (
+            default_scale
+            if surface_scale is None
+            else check_scalar("surface_scale", surface_scale, 0.0, low_inclusive=False)
+        )
+        self.rotation = rotation
+        self.seed = seed
 
     def pass_options(
         self,

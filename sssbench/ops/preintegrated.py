@@ -8,7 +8,7 @@ from sssbench._checks import check_choice
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.kernel1d import Kernel1D
 from sssbench.kernels.preintegrated import preintegrated
-from sssbench.ops.gather import FOLLOW_SURFACE, separable_pass
+from sssbench.ops.gather import separable_pass
 from sssbench.ops.halo import HALO_KINDS, halo_weight
 from sssbench.ops.method import SeparableMethod
 from sssbench.profiles.base import Profile
@@ -97,18 +97,16 @@ class PreintegratedSSS(SeparableMethod):
         halo_sigma: float | None = None,
     ) -> None:
         super().__init__()
-        check_choice("follow_surface", follow_surface, FOLLOW_SURFACE)
         check_choice("halo", halo, (None, *HALO_KINDS))
+        #: σ_max of 000 eq. 7 / the lerp's full-replacement depth step: the profile's widest
+        #: length scale (mm), a property of the material, not of where the taps sit
+        self.set_options(
+            follow_surface, None, rotation, seed, default_scale=profile.length_scales()[1]
+        )
         self.profile = profile
         self.kernel = preintegrated(profile, samples, sampling)
         self.samples = samples
         self.sampling = sampling
-        self.follow_surface = follow_surface
-        #: σ_max of 000 eq. 7 / the lerp's full-replacement depth step: the profile's widest
-        #: length scale (mm), a property of the material, not of where the taps sit
-        self.surface_scale = profile.length_scales()[1]
-        self.rotation = rotation
-        self.seed = seed
         self.halo = halo
         self.halo_sigma = halo_sigma
         if halo == "bilateral":

@@ -15,7 +15,7 @@ from sssbench.gbuffer import GBuffer
 from sssbench.kernels.kernel1d import Kernel1D
 from sssbench.kernels.preintegrated import preintegrated
 from sssbench.kernels.sampling import MAX_SAMPLES, SAMPLINGS
-from sssbench.ops.gather import FOLLOW_SURFACE, Stretch, separable_pass
+from sssbench.ops.gather import Stretch, separable_pass
 from sssbench.ops.method import SeparableMethod
 from sssbench.ops.timing import PassRecord, add_record
 from sssbench.profiles.sum_of_gaussians import SumOfGaussians
@@ -254,13 +254,13 @@ class SumOfGaussiansSSS(SeparableMethod):
             raise TypeError(f"profile must be a SumOfGaussians, got {type(profile).__name__}")
         check_int("samples", samples, 1, MAX_SAMPLES)
         check_choice("sampling", sampling, SAMPLINGS)
-        check_choice("follow_surface", follow_surface, FOLLOW_SURFACE)
         if stretch is not None and not isinstance(stretch, Stretch):
             raise TypeError(f"stretch must be a Stretch or None, got {type(stretch).__name__}")
         self.lod_threshold = check_scalar("lod_threshold", lod_threshold, 0.0)
         extent_sigmas = check_scalar("extent_sigmas", extent_sigmas, 0.0, low_inclusive=False)
-        if rotation is not None:
-            check_scalar("rotation", rotation, 0.0, 1.0)
+        self.set_options(
+            follow_surface, surface_scale, rotation, seed, default_scale=profile.length_scales()[1]
+        )
         if bool((profile.weights < 0).any()):
             raise ValueError("profile weights must be >= 0 for alpha blending (003 §7.3.3)")
         if bool((profile.total() <= 0).any()):
@@ -287,14 +287,6 @@ class SumOfGaussiansSSS(SeparableMethod):
         self.stretch = stretch
         self.lod = bool(lod)
         self.unblurred_first = bool(unblurred_first)
-        self.follow_surface = follow_surface
-        self.surface_scale = (
-            profile.length_scales()[1]
-            if surface_scale is None
-            else check_scalar("surface_scale", surface_scale, 0.0, low_inclusive=False)
-        )
-        self.rotation = rotation
-        self.seed = seed
 
     def _lod_mask(self, gbuffer: GBuffer, sigma: float) -> torch.Tensor:
         """The G-buffer mask with pixels where ``sigma`` (mm) is under the LOD width zeroed."""
