@@ -115,7 +115,7 @@ def test_spec_rejects_bad_values():
 def test_benchmark_preset_sets_the_grid():
     cfg = _compose("+experiment=benchmark", hydra=True)
     params = cfg.hydra.sweeper.params
-    assert params.scene == "step_edge,sphere,head_mid" and params.method.startswith("glob(")
+    assert params.scene == "step_edge,light_dot,head_close" and params.method.startswith("glob(")
     assert cfg.hydra.callbacks.report._target_ == "sssbench.report.ReportCallback"
 
 
