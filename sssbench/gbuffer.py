@@ -76,47 +76,51 @@ class GBuffer:
             raise ValueError(
                 f"diffuse must have non-empty B, H, W, got shape {tuple(diffuse.shape)}"
             )
-        for name, channels in _IMAGE_FIELDS.items():
-            value = getattr(self, name)
-            if value is None:
-                continue
-            check_tensor(name, value, ndim=4, channels=channels)
-            if value.shape[0] != b or value.shape[2:] != diffuse.shape[2:]:
-                raise ValueError(
-                    f"{name} must have shape ({b}, {channels}, {h}, {w}) to match diffuse, "
-                    f"got {tuple(value.shape)}"
-                )
-            if value.dtype != diffuse.dtype:
-                raise TypeError(
-                    f"{name} has dtype {value.dtype} but diffuse has {diffuse.dtype}; "
-                    "all G-buffer tensors must share one dtype"
-                )
-        check_range("depth", self.depth, 0.0, low_inclusive=False)
-        # the passes step 1 / pixel size pixels per mm: it must be finite in the dtype, i.e. the
-        # nearest pixel's footprint a normal float (float32, fov_y = 1e-40 would give 0 · inf)
-        nearest = 2.0 * float(self.depth.min()) * math.tan(fov / 2.0) / h
-        tiny = torch.finfo(diffuse.dtype).tiny
-        if not nearest >= tiny:
+        for name in _IMAGE_FIELDS:
+            if name != "diffuse":
+                self._validate_field(name)
+        self._validate_field("light_dir")
+
+    def _validate_field(self, name: str) -> None:
+        """Check one field other than ``diffuse`` / ``fov_y`` against ``diffuse`` (valid)."""
+        value = getattr(self, name)
+        if value is None:
+            return
+        b, _, h, w = self.diffuse.shape
+        if name == "light_dir":
+            check_tensor("light_dir", value, ndim=2)
+            if value.shape != (b, 3):
+                raise ValueError(f"light_dir must have shape ({b}, 3), got {tuple(value.shape)}")
+            return
+        channels = _IMAGE_FIELDS[name]
+        check_tensor(name, value, ndim=4, channels=channels)
+        if value.shape[0] != b or value.shape[2:] != self.diffuse.shape[2:]:
             raise ValueError(
-                f"fov_y and depth must give a pixel footprint 2 z tan(fov_y/2) / H >= {tiny:g} mm "
-                f"(the smallest normal {diffuse.dtype}) at the nearest depth, got {nearest:g} mm "
-                f"(fov_y={fov:g}, min depth={float(self.depth.min()):g}); use a larger fov_y "
-                "or float64"
+                f"{name} must have shape ({b}, {channels}, {h}, {w}) to match diffuse, "
+                f"got {tuple(value.shape)}"
             )
-        if self.mask is not None:
-            check_range("mask", self.mask, 0.0, 1.0)
-        if self.albedo is not None:
-            check_range("albedo", self.albedo, 0.0, 1.0)
-        if self.specular is not None:
-            check_range("specular", self.specular, 0.0)
-        if self.thickness is not None:
-            check_range("thickness", self.thickness, 0.0)
-        if self.light_dir is not None:
-            check_tensor("light_dir", self.light_dir, ndim=2)
-            if self.light_dir.shape != (b, 3):
+        if value.dtype != self.diffuse.dtype:
+            raise TypeError(
+                f"{name} has dtype {value.dtype} but diffuse has {self.diffuse.dtype}; "
+                "all G-buffer tensors must share one dtype"
+            )
+        if name == "depth":
+            check_range("depth", value, 0.0, low_inclusive=False)
+            # the passes step 1 / pixel size pixels per mm: it must be finite in the dtype, i.e.
+            # the nearest pixel's footprint a normal float (float32, fov_y = 1e-40: 0 · inf)
+            nearest = 2.0 * float(value.min()) * math.tan(self.fov_y / 2.0) / h
+            tiny = torch.finfo(value.dtype).tiny
+            if not nearest >= tiny:
                 raise ValueError(
-                    f"light_dir must have shape ({b}, 3), got {tuple(self.light_dir.shape)}"
+                    f"fov_y and depth must give a pixel footprint 2 z tan(fov_y/2) / H >= "
+                    f"{tiny:g} mm (the smallest normal {value.dtype}) at the nearest depth, got "
+                    f"{nearest:g} mm (fov_y={self.fov_y:g}, min depth={float(value.min()):g}); "
+                    "use a larger fov_y or float64"
                 )
+        elif name in ("mask", "albedo"):
+            check_range(name, value, 0.0, 1.0)
+        elif name in ("specular", "thickness"):
+            check_range(name, value, 0.0)
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -148,8 +152,23 @@ class GBuffer:
         return replace(self, **changes)
 
     def replace(self, **changes: object) -> GBuffer:
-        """A copy with some fields replaced (validated again)."""
-        return replace(self, **changes)
+        """A copy with some fields replaced; the replaced fields are validated.
+
+        Fields that are not replaced were validated when this G-buffer was built and are not
+        scanned again (a method that swaps in a per-step stencil would otherwise re-read every
+        image of a 1080p G-buffer per step). Replacing ``diffuse`` or ``fov_y`` validates all.
+        """
+        if not changes.keys() <= {f.name for f in fields(self)}:
+            unknown = sorted(changes.keys() - {f.name for f in fields(self)})
+            raise TypeError(f"GBuffer has no field(s) {unknown}")
+        if changes.keys() & {"diffuse", "fov_y"}:
+            return replace(self, **changes)
+        new = object.__new__(GBuffer)
+        for f in fields(self):
+            object.__setattr__(new, f.name, changes.get(f.name, getattr(self, f.name)))
+        for name in changes:
+            new._validate_field(name)
+        return new
 
 
 def pixel_size_mm(depth: torch.Tensor, fov_y: float, height: int) -> torch.Tensor:

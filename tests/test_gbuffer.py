@@ -47,3 +47,32 @@ def test_pixel_size_and_positions_follow_the_pinhole_model():
     assert float(pos[0, 0, 0, 1] - pos[0, 0, 0, 0]) == pytest.approx(p)
     assert float(pos[0, 1, 0, 0] - pos[0, 1, 1, 0]) == pytest.approx(p)
     assert float(pos[0, 0, 0, 2] + pos[0, 0, 0, 3]) == pytest.approx(0.0, abs=1e-9)
+
+
+@pytest.mark.parametrize(
+    "field, value, exc, match",
+    [
+        ("mask", torch.full((1, 1, 4, 5), 1.5), ValueError, "mask"),
+        ("mask", torch.ones(1, 1, 3, 5), ValueError, "mask must have shape"),
+        ("depth", torch.zeros(1, 1, 4, 5), ValueError, "depth"),
+        ("albedo", torch.ones(1, 3, 4, 5, dtype=torch.float64), TypeError, "albedo has dtype"),
+        ("light_dir", torch.ones(2, 3), ValueError, "light_dir"),
+        ("colour", torch.ones(1), TypeError, "no field"),
+    ],
+)
+def test_replace_validates_the_replaced_fields(field, value, exc, match):
+    g = GBuffer(torch.ones(1, 3, 4, 5), torch.full((1, 1, 4, 5), 100.0), 0.5)
+    with pytest.raises(exc, match=match):
+        g.replace(**{field: value})
+
+
+def test_replace_equals_building_anew():
+    g = GBuffer(torch.ones(1, 3, 4, 5), torch.full((1, 1, 4, 5), 100.0), 0.5)
+    mask = torch.rand(1, 1, 4, 5)
+    new = g.replace(mask=mask)
+    assert new.mask is mask and new.depth is g.depth and g.mask is None
+    fresh = GBuffer(g.diffuse, g.depth, g.fov_y, mask=mask)
+    assert all(getattr(new, f) is getattr(fresh, f) for f in ("diffuse", "depth", "mask"))
+    assert new.fov_y == fresh.fov_y
+    with pytest.raises(ValueError, match="fov_y"):
+        g.replace(fov_y=4.0)  # fov_y / diffuse: everything is validated again
