@@ -14,6 +14,7 @@ from torch import nn
 
 from sssbench._checks import check_choice, check_scalar
 from sssbench.gbuffer import GBuffer
+from sssbench.ops._stencil import memo_scope
 from sssbench.ops.gather import FOLLOW_SURFACE, SampleWeight
 from sssbench.ops.rotation import random_rotation
 
@@ -109,4 +110,5 @@ class SeparableMethod(nn.Module):
             guide: ``(B, G, H, W)`` guide image of ``sample_weight`` (halo reduction).
             sample_weight: bilateral weight function (see ``separable_pass``).
         """
-        return self.scatter(gbuffer, self.pass_options(gbuffer, width, guide, sample_weight))
+        with memo_scope():  # stencils are built once per call even for inference tensors
+            return self.scatter(gbuffer, self.pass_options(gbuffer, width, guide, sample_weight))

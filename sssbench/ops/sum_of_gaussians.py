@@ -15,6 +15,7 @@ from sssbench.gbuffer import GBuffer
 from sssbench.kernels.kernel1d import Kernel1D
 from sssbench.kernels.preintegrated import preintegrated
 from sssbench.kernels.sampling import MAX_SAMPLES, SAMPLINGS
+from sssbench.ops._stencil import memoised
 from sssbench.ops.gather import Stretch, separable_pass
 from sssbench.ops.method import SeparableMethod
 from sssbench.ops.timing import PassRecord, add_record
@@ -289,15 +290,23 @@ class SumOfGaussiansSSS(SeparableMethod):
         self.unblurred_first = bool(unblurred_first)
 
     def _lod_mask(self, gbuffer: GBuffer, sigma: float) -> torch.Tensor:
-        """The G-buffer mask with pixels where ``sigma`` (mm) is under the LOD width zeroed."""
-        mask = gbuffer.mask_or_ones()
+        """The G-buffer mask with pixels where ``sigma`` (mm) is under the LOD width zeroed.
+
+        Memoised per G-buffer (:func:`~sssbench.ops._stencil.memoised`): like the stencil, a
+        renderer derives it once from depth, not per call."""
         if not self.lod:
-            return mask
+            return gbuffer.mask_or_ones()
         _, h, _ = gbuffer.shape
         focal_px = h / (2.0 * math.tan(gbuffer.fov_y / 2.0))  # DESIGN §2
         level = 1.0 if self.stretch is None else self.stretch.ssslevel
-        width_px = sigma * level * focal_px / gbuffer.depth * mask  # 003 §7.3.2, dd = 0
-        return torch.where(width_px >= self.lod_threshold, mask, torch.zeros_like(mask))
+
+        def compute() -> torch.Tensor:
+            mask = gbuffer.mask_or_ones()
+            width_px = sigma * level * focal_px / gbuffer.depth * mask  # 003 §7.3.2, dd = 0
+            return torch.where(width_px >= self.lod_threshold, mask, torch.zeros_like(mask))
+
+        tag = ("sog_lod", sigma, level, focal_px, self.lod_threshold)
+        return memoised((gbuffer.depth, gbuffer.mask), tag, compute)
 
     def scatter(self, gbuffer: GBuffer, options: dict[str, object]) -> torch.Tensor:
         options = dict(options, stretch=self.stretch)  # 003 §7.3.1
@@ -309,16 +318,17 @@ class SumOfGaussiansSSS(SeparableMethod):
             if step.kernel is None:  # the unblurred first Gaussian: w'_1 = 1, no pass
                 continue
             mask = self._lod_mask(gbuffer, math.sqrt(step.increment))
+            active = mask > 0
             name = f"sog{i}"
-            if not bool((mask > 0).any()):  # 003 §7.3.2: not computed anywhere
+            if not bool(active.any()):  # 003 §7.3.2: not computed anywhere
                 for axis in ("x", "y"):
                     add_record(PassRecord(f"{name}.{axis}", len(step.kernel), 0, 0.0))
                 continue
             g = gbuffer.replace(mask=mask)
             tmp = separable_pass(rt1, step.kernel, "x", g, name=f"{name}.x", **options)
             rt1 = separable_pass(tmp, step.kernel, "y", g, name=f"{name}.y", **options)
-            blended = blend * rt1 + (1.0 - blend) * rtf  # 003 §7.3.3, Listing 7.2
-            rtf = torch.where(mask > 0, blended, rtf)
+            # 003 §7.3.3, Listing 7.2: rtf ← blend · rt1 + (1 − blend) · rtf, as one lerp
+            rtf = torch.where(active, torch.lerp(rtf, rt1, blend), rtf)
         return rtf
 
 
