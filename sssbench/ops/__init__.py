@@ -1,6 +1,7 @@
 """Torch operators on a G-buffer (DESIGN §1, third layer): the one gather pass, the
 methods built from it, and the extensions (translucency, curvature, halo, texturing)."""
 
+from sssbench.ops import native
 from sssbench.ops.artist import ArtistSSS, artist_sss
 from sssbench.ops.curvature import (
     CURVATURE_MODES,
@@ -9,7 +10,15 @@ from sssbench.ops.curvature import (
     curvature_width,
     screen_space_curvature,
 )
-from sssbench.ops.gather import FOLLOW_SURFACE, Rotation, Stretch, separable_pass
+from sssbench.ops.gather import (
+    BACKENDS,
+    FOLLOW_SURFACE,
+    Rotation,
+    Stretch,
+    get_backend,
+    separable_pass,
+    set_backend,
+)
 from sssbench.ops.halo import HALO_KINDS, halo_guide, halo_weight, lab_guide, range_weight
 from sssbench.ops.jimenez2012 import Jimenez2012SSS, jimenez2012_sss
 from sssbench.ops.low_rank import LowRankSSS, low_rank_sss
@@ -38,6 +47,10 @@ from sssbench.ops.translucency import (
 __all__ = [
     "SeparableMethod",
     "separable_pass",
+    "set_backend",
+    "get_backend",
+    "BACKENDS",
+    "native",
     "Stretch",
     "Rotation",
     "FOLLOW_SURFACE",

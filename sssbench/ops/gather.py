@@ -29,9 +29,19 @@ import torch
 from sssbench._checks import check_choice, check_scalar, check_tensor
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.kernel1d import Kernel1D
+from sssbench.ops import native
+from sssbench.ops._stencil import image_stencils
 from sssbench.ops.timing import PassRecord, add_record
 
-__all__ = ["separable_pass", "set_compiled", "Stretch", "Rotation", "FOLLOW_SURFACE"]
+__all__ = [
+    "separable_pass",
+    "set_backend",
+    "get_backend",
+    "BACKENDS",
+    "Stretch",
+    "Rotation",
+    "FOLLOW_SURFACE",
+]
 
 FOLLOW_SURFACE = (None, "lerp", "gaussian")
 
@@ -229,22 +239,25 @@ def separable_pass(
         inv_scale = inv_scale.expand(c_)
     offsets = kernel.offsets.to(dtype)
     weights = kernel.weights.to(dtype)
-    fn = _accumulate
-    if _COMPILE["on"] and rotation is None and sample_weight is None:
-        fn = _compiled_accumulate()
+    backend = _backend_for(image, gbuffer, width, rotation, sample_weight)
 
     start = time.perf_counter()
-    out = image.clone()
+    stencils = None if strength is None else image_stencils(strength)
+    out = image.clone(memory_format=torch.contiguous_format)
     n_total = 0
     for bi in range(b_):  # per image: every tensor below is a view of one (C, H·W) plane set
+        lin = None if stencils is None else stencils[bi]
+        if lin is not None and lin.numel() == 0:
+            continue
+        if backend == "native":
+            _native_pass(
+                image[bi], out[bi], gbuffer.depth[bi], lin, strength, width, stretch, bi,
+                axis, focal_px, offsets, weights, follow, inv_scale,
+            )  # fmt: skip
+            n_total += h_ * w_ if lin is None else int(lin.numel())
+            continue
         depth = gbuffer.depth[bi].reshape(-1)
-        lin = None
-        if strength is not None:  # stencil compaction: only pixels with strength > 0
-            m = strength[bi].reshape(-1)
-            lin = torch.nonzero(m > 0).squeeze(1)
-            if lin.numel() == 0:
-                continue
-        else:
+        if lin is None:
             lin = torch.arange(h_ * w_, device=image.device)
         z = depth[lin]
         # ---- pixels per kernel-offset unit (DESIGN §2: a pixel covers 2 z tan(fov/2)/H mm)
@@ -260,7 +273,7 @@ def separable_pass(
         else:
             scale = scale * width
         if strength is not None:
-            scale = scale * m[lin]  # 003 §7.3.1 s' = s · alpha
+            scale = scale * strength[bi].reshape(-1)[lin]  # 003 §7.3.1 s' = s · alpha
         row, col = lin // w_, lin % w_
         if direction == "x":
             pos, fixed_lin, n_axis, stride_axis = col, row * w_, w_, 1
@@ -277,6 +290,7 @@ def separable_pass(
             rot = (rotation.radius * kernel.extent, row.to(dtype), col.to(dtype), drow, dcol)
         planes = image[bi].reshape(c_, -1)
         guide_planes = None if guide is None else guide[bi].to(dtype).reshape(guide.shape[1], -1)
+        fn = _compiled_accumulate() if backend == "compile" else _accumulate
         acc = fn(
             planes,
             depth,
@@ -300,6 +314,51 @@ def separable_pass(
     ms = (time.perf_counter() - start) * 1e3
     add_record(PassRecord(name or f"pass.{direction}", len(kernel), n_total, ms))
     return out
+
+
+def _native_pass(
+    image: torch.Tensor,
+    out: torch.Tensor,
+    depth: torch.Tensor,
+    lin: torch.Tensor | None,
+    strength: torch.Tensor | None,
+    width: float | torch.Tensor,
+    stretch: Stretch | None,
+    bi: int,
+    axis: int,
+    focal_px: float,
+    offsets: torch.Tensor,
+    weights: torch.Tensor,
+    follow: int,
+    inv_scale: torch.Tensor,
+) -> None:
+    """One image of a pass through the native loop (``native/gather_body.h``), which computes
+    the per-pixel scale and the taps exactly as the torch code of :func:`separable_pass` and
+    :func:`_accumulate` and writes ``out`` ``(3, H, W)`` (contiguous) at the active pixels."""
+    lib = native.library()
+    _, h, w = image.shape
+    keep = []  # contiguous copies must outlive the call
+
+    def ptr(t: torch.Tensor | None) -> int | None:
+        if t is None:
+            return None
+        t = (t.to(image.dtype) if t.is_floating_point() else t).contiguous()
+        keep.append(t)
+        return t.data_ptr()
+
+    dd, f_px, correction, maxdd = None, focal_px, 0.0, 0.0
+    if stretch is not None:  # 003 §7.3.1
+        dd = _axis_derivative(depth[None], axis)[0]
+        f_px, correction, maxdd = focal_px * stretch.ssslevel, stretch.correction, stretch.maxdd
+    per_pixel_width = width[bi] if isinstance(width, torch.Tensor) else None
+    fn = lib.sss_gather_f32 if image.dtype == torch.float32 else lib.sss_gather_f64
+    fn(
+        ptr(image), ptr(depth), ptr(lin), ptr(None if strength is None else strength[bi]),
+        ptr(per_pixel_width), ptr(dd), ptr(offsets), ptr(weights), ptr(inv_scale), out.data_ptr(),
+        f_px, 0.0 if per_pixel_width is not None else float(width), correction, maxdd,
+        h * w if lin is None else lin.numel(), offsets.numel(), h, w,
+        int(axis == 2), follow, torch.get_num_threads(),
+    )  # fmt: skip
 
 
 def _lerp_fetch(planes: torch.Tensor, a: torch.Tensor, b: torch.Tensor, f: torch.Tensor):
@@ -376,23 +435,55 @@ def _accumulate(
     return acc
 
 
-_COMPILE: dict[str, object] = {"on": False, "fn": None}
+BACKENDS = ("native", "torch", "compile")
+_BACKEND: dict[str, object] = {"name": "native", "compiled": None}
 
 
-def set_compiled(enabled: bool) -> None:
-    """Run the accumulation loop through ``torch.compile`` (inductor: one fused C++ loop).
+def set_backend(name: str) -> None:
+    """Choose how the tap loop runs (process-wide).
 
-    Off by default: the first call per (dtype, direction, follow-surface mode) compiles for
-    tens of seconds (cached on disk by torch afterwards). Results equal the eager loop to
-    float rounding (tested). Rotated taps and ``sample_weight`` always run eagerly.
+    - ``"native"`` (default): a C loop (``sssbench/ops/native``) built on first use with the
+      system compiler (about a second) and cached; same float operations in the same order as
+      the torch loop (tested equal). Used when no autograd graph is needed and the pass has no
+      rotated taps or ``sample_weight``; otherwise, or without a C compiler, the torch loop runs.
+    - ``"torch"``: the eager torch loop (:func:`_accumulate`), differentiable.
+    - ``"compile"``: the torch loop through ``torch.compile`` (inductor; the first call per
+      dtype, direction and follow-surface mode compiles for tens of seconds), differentiable.
     """
-    _COMPILE["on"] = bool(enabled)
+    _BACKEND["name"] = check_choice("backend", name, BACKENDS)
+
+
+def get_backend() -> str:
+    """The backend chosen by :func:`set_backend`."""
+    return str(_BACKEND["name"])
+
+
+def _backend_for(
+    image: torch.Tensor,
+    gbuffer: GBuffer,
+    width: float | torch.Tensor,
+    rotation: Rotation | None,
+    sample_weight: SampleWeight | None,
+) -> str:
+    """The backend this pass runs on (see :func:`set_backend`)."""
+    name = get_backend()
+    if rotation is not None or sample_weight is not None:
+        return "torch"  # rotated taps and bilateral weights: torch loop only
+    if name != "native":
+        return name
+    grads = torch.is_grad_enabled() and any(
+        isinstance(t, torch.Tensor) and t.requires_grad
+        for t in (image, gbuffer.depth, gbuffer.mask, width)
+    )
+    if grads or image.device.type != "cpu" or native.library() is None:
+        return "torch"
+    return "native"
 
 
 def _compiled_accumulate():
-    if _COMPILE["fn"] is None:
-        _COMPILE["fn"] = torch.compile(_accumulate, dynamic=True)
-    return _COMPILE["fn"]
+    if _BACKEND["compiled"] is None:
+        _BACKEND["compiled"] = torch.compile(_accumulate, dynamic=True)
+    return _BACKEND["compiled"]
 
 
 def _bilinear_corners(

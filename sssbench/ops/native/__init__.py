@@ -1,0 +1,93 @@
+"""The native tap loop of the gather primitive: C source built on first use, called via ctypes.
+
+``gather.c`` (float32 and float64, threads via pthreads) is compiled with the system C
+compiler (``$CC``, else ``cc``/``gcc``) into a per-user cache
+(``$SSSBENCH_CACHE_DIR/native``, default ``~/.cache/sssbench/native``), keyed by the hash of
+the source and the compiler, written atomically so that parallel sweep workers may race. No
+Python package beyond the declared ones is needed; on a machine without a C compiler
+:func:`library` returns ``None`` once with a warning and the gather runs its torch loop.
+The torch loop (:func:`sssbench.ops.gather._accumulate`) is the specification: the native
+loop performs the same float operations in the same order and is tested equal to it.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import os
+import shutil
+import subprocess
+import tempfile
+import warnings
+from pathlib import Path
+
+__all__ = ["library", "cache_dir"]
+
+_HERE = Path(__file__).resolve().parent
+_SOURCES = ("gather.c", "gather_body.h")
+_FLAGS = ["-O3", "-fPIC", "-shared", "-ffp-contract=off", "-fno-math-errno"]
+_STATE: dict[str, object] = {"lib": None, "tried": False}
+
+
+def cache_dir() -> Path:
+    """Where built libraries are kept (``$SSSBENCH_CACHE_DIR/native`` or ``~/.cache``)."""
+    root = os.environ.get("SSSBENCH_CACHE_DIR")
+    base = Path(root) if root else Path.home() / ".cache" / "sssbench"
+    return base / "native"
+
+
+def _compiler() -> str | None:
+    for name in (os.environ.get("CC"), "cc", "gcc", "clang"):
+        if name and shutil.which(name):
+            return name
+    return None
+
+
+def _build(cc: str) -> Path:
+    digest = hashlib.sha256()
+    for name in _SOURCES:
+        digest.update((_HERE / name).read_bytes())
+    digest.update(" ".join([cc, *_FLAGS]).encode())
+    target = cache_dir() / f"sssgather-{digest.hexdigest()[:16]}.so"
+    if target.exists():
+        return target
+    target.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(suffix=".so", dir=target.parent)
+    os.close(fd)
+    try:
+        cmd = [cc, *_FLAGS, "-o", tmp, str(_HERE / "gather.c"), "-lm", "-lpthread"]
+        subprocess.run(cmd, check=True, capture_output=True, text=True, timeout=120)
+        os.replace(tmp, target)  # atomic: a racing worker sees a whole library or none
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return target
+
+
+def _declare(lib: ctypes.CDLL) -> None:
+    p, i64, i32, f64 = ctypes.c_void_p, ctypes.c_int64, ctypes.c_int, ctypes.c_double
+    for fn in (lib.sss_gather_f32, lib.sss_gather_f64):
+        fn.restype = ctypes.c_int
+        fn.argtypes = [p] * 10 + [f64] * 4 + [i64] * 4 + [i32] * 3
+
+
+def library() -> ctypes.CDLL | None:
+    """The loaded native library, building it on first use; ``None`` if it cannot be built."""
+    if not _STATE["tried"]:
+        _STATE["tried"] = True
+        cc = _compiler()
+        try:
+            if cc is None:
+                raise OSError("no C compiler found ($CC, cc, gcc, clang)")
+            lib = ctypes.CDLL(str(_build(cc)))
+            _declare(lib)
+            _STATE["lib"] = lib
+        except (OSError, subprocess.SubprocessError) as exc:
+            detail = getattr(exc, "stderr", None) or exc
+            warnings.warn(
+                f"sssbench: native gather unavailable ({str(detail).strip()[:300]}); "
+                "using the torch loop (slower, same results)",
+                UserWarning,
+                stacklevel=3,
+            )
+    return _STATE["lib"]  # type: ignore[return-value]
