@@ -47,6 +47,7 @@ from typing import Any
 
 import torch
 
+from sssbench.ops.gather import BACKENDS, set_backend
 from sssbench.tracking import PassStats, RunRecord, RunStore, config_hash, utc_now
 
 log = logging.getLogger("sssbench")
@@ -116,6 +117,7 @@ class RunSpec:
     repeats: int = 5
     warmup: int = 1
     threads: int | None = None
+    backend: str = "native"
     store: Path = Path("sssbench.sqlite")
     store_journal: str = "wal"
     force: bool = False
@@ -139,6 +141,7 @@ class RunSpec:
             "seed": self.seed,
             "dtype": self.dtype,
             "threads": self.threads,
+            "backend": self.backend,
         }
 
     def reference_key(self) -> dict[str, Any]:
@@ -194,6 +197,8 @@ def spec_from_cfg(cfg: Any) -> RunSpec:
         raise ValueError(f"resolution must be [H, W] (integers) or one integer, got {res!r}")
     if c["dtype"] not in _DTYPES:
         raise ValueError(f"dtype must be one of {sorted(_DTYPES)}, got {c['dtype']!r}")
+    if c.get("backend", "native") not in BACKENDS:
+        raise ValueError(f"backend must be one of {list(BACKENDS)}, got {c.get('backend')!r}")
     for key in ("repeats", "warmup"):
         if not isinstance(c[key], int) or c[key] < (1 if key == "repeats" else 0):
             raise ValueError(f"{key} must be an integer >= {int(key == 'repeats')}, got {c[key]!r}")
@@ -215,6 +220,7 @@ def spec_from_cfg(cfg: Any) -> RunSpec:
         repeats=c["repeats"],
         warmup=c["warmup"],
         threads=c.get("threads"),
+        backend=str(c.get("backend", "native")),
         store=store,
         store_journal=c.get("store_journal", "wal"),
         force=bool(c.get("force", False)),
@@ -373,6 +379,14 @@ def _save_reference(path: Path, image: torch.Tensor, key: dict[str, Any], ms: fl
     os.replace(tmp, path)  # atomic: concurrent writers of the same key are harmless
 
 
+def backend_used(backend: str) -> str:
+    """The tap-loop backend a run really used: ``native`` falls back to ``torch`` without a C
+    compiler (see :func:`sssbench.ops.set_backend`)."""
+    from sssbench.ops import native
+
+    return "torch" if backend == "native" and native.library() is None else backend
+
+
 def versions() -> dict[str, str]:
     out = {"python": platform.python_version()}
     for pkg in (
@@ -433,6 +447,7 @@ def _measure(spec: RunSpec, run_dir: Path) -> tuple[dict[str, Any], list[PassSta
 
     if spec.threads is not None:
         torch.set_num_threads(int(spec.threads))
+    set_backend(spec.backend)
     profile = build_profile(spec)
     method = build_method(spec, profile)
     pipeline = Pipeline(method)
@@ -500,6 +515,7 @@ def _measure(spec: RunSpec, run_dir: Path) -> tuple[dict[str, Any], list[PassSta
         "repeats": repeats,
         "warmup": warmup,
         "threads": torch.get_num_threads(),
+        "backend": backend_used(spec.backend),
         "reference_cache_hit": hit,
         "reference_ms": ref_ms,
         "versions": versions(),
@@ -576,6 +592,7 @@ def execute(spec: RunSpec, run_dir: str | Path, sweep_dir: str | Path | None = N
             k: payload[k]
             for k in (
                 "threads",
+                "backend",
                 "versions",
                 "skipped_stages",
                 "reference_cache_hit",
