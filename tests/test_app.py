@@ -110,6 +110,15 @@ def test_spec_rejects_bad_values():
         app.spec_from_cfg(_compose("dtype=float16"))
     with pytest.raises(ValueError, match="repeats must be"):
         app.spec_from_cfg(_compose("repeats=0"))
+    with pytest.raises(ValueError, match="backend must be one of"):
+        app.spec_from_cfg(_compose("backend=gpu"))
+
+
+def test_backend_is_part_of_the_point_and_defaults_to_native():
+    spec = app.spec_from_cfg(_compose())
+    assert spec.backend == "native" and spec.point()["backend"] == "native"
+    torch_spec = app.spec_from_cfg(_compose("backend=torch"))
+    assert app.config_hash(torch_spec.point()) != app.config_hash(spec.point())
 
 
 def test_benchmark_preset_sets_the_grid():
