@@ -168,6 +168,7 @@ def execute(name: str, run: Callable[[Context], Section], ctx: Context) -> Path:
     section = run(ctx)
     seconds = time.perf_counter() - t0
     command = f"python -m experiments.run {name}" + (" --quick" if ctx.quick else "")
+    command += f" --threads {ctx.threads}" if ctx.threads != 1 else ""
     path = ctx.sections / f"{name}.md"
     path.write_text(section.markdown(name, command, seconds, ctx.quick))
     print(f"{name}: {section.verdict} ({seconds:.1f} s) -> {path}")
