@@ -48,11 +48,22 @@ def _build(cc: str) -> Path:
     for name in _SOURCES:
         digest.update((_HERE / name).read_bytes())
     digest.update(" ".join([cc, *_FLAGS]).encode())
-    target = cache_dir() / f"sssgather-{digest.hexdigest()[:16]}.so"
-    if target.exists():
-        return target
-    target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(suffix=".so", dir=target.parent)
+    name = f"sssgather-{digest.hexdigest()[:16]}.so"
+    fallback = Path(tempfile.gettempdir()) / f"sssbench-native-{os.getuid()}"
+    for folder in (cache_dir(), fallback):  # an unwritable home: the temp dir
+        try:
+            folder.mkdir(parents=True, exist_ok=True, mode=0o700)
+            if folder.stat().st_uid != os.getuid():
+                continue  # never load a library from a folder somebody else owns
+            if (folder / name).exists():
+                return folder / name
+            fd, tmp = tempfile.mkstemp(suffix=".so", dir=folder)
+            break
+        except OSError:
+            continue
+    else:
+        raise OSError(f"cannot write the native library to {cache_dir()} or {fallback}")
+    target = folder / name
     os.close(fd)
     try:
         cmd = [cc, *_FLAGS, "-o", tmp, str(_HERE / "gather.c"), "-lm", "-lpthread"]
