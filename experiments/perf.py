@@ -41,6 +41,8 @@ def methods(taps: int) -> dict[str, Callable[[], torch.nn.Module]]:
         out["sum_of_gaussians"] = lambda: ops.SumOfGaussiansSSS(skin, samples=taps)
     if hasattr(ops, "Jimenez2012SSS"):
         out["jimenez2012"] = lambda: ops.Jimenez2012SSS.preset("shader_default", 2.0, taps)
+    if hasattr(ops, "LowRankSSS"):  # rank 3: three separable terms, six passes
+        out["low_rank"] = lambda: ops.LowRankSSS(skin, 3, n=taps)
     if hasattr(ops, "ArtistSSS"):
         out["artist"] = lambda: ops.ArtistSSS.preset("multi_layer_close_fit", samples=taps)
     return out
