@@ -11,10 +11,13 @@ stochastic rotation turns the axis), clamp at the image border, and accumulate
 ``weight × sample``.
 
 Implementation: per image, pixels with ``mask > 0`` are compacted into one flat list (stencil:
-masked-out pixels are never computed, 002 §4 / 003 §7.3.1), their index arithmetic is shared
-by all channels, and samples are fetched straight from views of the ``(C, H·W)`` planes, so a
-pass touches the full image only to copy it once (time follows covered pixels). The tap loop
-is tensor-only and can be fused by ``torch.compile`` (:func:`set_compiled`).
+masked-out pixels are never computed, 002 §4 / 003 §7.3.1; built once per mask and reused,
+:func:`~sssbench.ops._stencil.image_stencils`), their index arithmetic is shared by all
+channels, and samples are fetched straight from the ``(C, H·W)`` planes, so a pass touches
+the full image only to copy it once (time follows covered pixels). The tap loop has one
+specification, :func:`_accumulate` (torch, differentiable), and two faster backends chosen by
+:func:`set_backend`: the same operations in C (``native/``, the default when no gradient is
+needed) and the torch loop fused by ``torch.compile``.
 """
 
 from __future__ import annotations
@@ -392,7 +395,7 @@ def _accumulate(
     pixel along the pass axis. ``follow``: index into :data:`FOLLOW_SURFACE`. ``rot``:
     ``(radius_mm, row, col, drow, dcol)`` for rotated inner taps. Written with tensors only
     when ``rot`` and ``sample_weight`` are ``None`` so that ``torch.compile`` can fuse the
-    whole loop (see :func:`set_compiled`).
+    whole loop (see :func:`set_backend`).
     """
     centre_rgb = planes[:, lin]
     centre_z = depth[lin]
