@@ -136,8 +136,8 @@ def run(ctx: Context) -> Section:
     backends = ["native", "torch"] if quick else ["native", "torch", "compile"]
     if native.library() is None:
         backends.remove("native")
-    memory = PeakMemory()
     lines, rows = [], []
+    measured = []  # (row, backend, op, gbuffer, size): memory is measured after all timings
     baselines = {}
     for res_name, res in resolutions.items():
         g = data_synth.make_scene("head_close", resolution=res)
@@ -158,7 +158,6 @@ def run(ctx: Context) -> Section:
                         continue  # compiling costs tens of seconds per configuration
                     op = make()
                     total, passes = time_method(op, g, repeats)
-                    peak = memory(lambda op=op, g=g: op(g))
                     rows.append(
                         dict(
                             method=name + BACKEND_LABELS[backend],
@@ -169,11 +168,10 @@ def run(ctx: Context) -> Section:
                             total_ms=total,
                             vs_kornia=total / kornia_ms,
                             vs_floor=total / floor_ms,
-                            peak_mb=peak,
-                            vs_gbuffer=peak / size,
                             coverage=coverage,
                         )
                     )
+                    measured.append((rows[-1], backend, op, g, size))
                     print(f"perf: {rows[-1]}", flush=True)
         gather.set_backend("native")
         lines.append(
@@ -181,6 +179,14 @@ def run(ctx: Context) -> Section:
             f"{size:.0f} MB): kornia `gaussian_blur2d` 7×7 {kornia_ms:.1f} ms; read+write "
             f"floor (one image `clone`) {floor_ms:.2f} ms."
         )
+    # peak memory last: PeakMemory makes glibc map and unmap every large block, which would
+    # add page faults to the timings above
+    memory = PeakMemory()
+    for row, backend, op, g, size in measured:
+        gather.set_backend(backend)
+        row["peak_mb"] = memory(lambda op=op, g=g: op(g))
+        row["vs_gbuffer"] = row["peak_mb"] / size
+    measured.clear()
     gather.set_backend("native")
     big = list(resolutions)[-1]
     res = resolutions[big]
