@@ -10,13 +10,15 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 from torch import nn
 
 from sssbench._checks import check_choice, check_scalar
 from sssbench.gbuffer import GBuffer, pixel_size_mm
 from sssbench.ops.timing import timed_pass
-from sssbench.profiles.base import Profile
+from sssbench.profiles.base import Profile, _gauss_legendre
+from sssbench.profiles.sum_of_gaussians import SumOfGaussians, interval_mass
 
 __all__ = ["ReferenceSSS", "reference_sss", "reference_radius_px", "reference_code_digest"]
 
@@ -218,29 +220,234 @@ def reference_sss(
     active = torch.nonzero(mask.reshape(-1) > 0).squeeze(1)
     bi, rem = active // (h * w), active % (h * w)
     centre = bi * hp * wp + (rem // w + k) * wp + (rem % w + k)  # flat index in the padding
-    xc, yc, zc = table[centre, 0], table[centre, 1], table[centre, 2]
-    acc = torch.zeros(active.numel(), 3, dtype=torch.float64)
-    wsum = torch.zeros_like(acc)
     radius_mm = profile.radius(tol)
     with timed_pass("reference", (2 * k + 1) ** 2, int(active.numel())):
-        for dv in range(-k, k + 1):
-            for du in range(-k, k + 1):
-                nb = table[centre + dv * wp + du]
-                dx, dy, hh = nb[:, 0] - xc, nb[:, 1] - yc, nb[:, 3]
-                # skip offsets whose nearest cell edge is beyond the support everywhere
-                near2 = (dx.abs() - hh).clamp_min(0) ** 2 + (dy.abs() - hh).clamp_min(0) ** 2
-                on = nb[:, 6] > 0
-                if not bool(on.any()) or float(near2[on].min()) > radius_mm**2:
-                    continue  # same rule as _flat_fft
-                wgt = profile.cell_integral(dx, dy, nb[:, 2] - zc, hh, hh, nb[:, 4], nb[:, 5])
-                wgt = wgt * nb[:, 6:7]
-                acc += wgt * nb[:, 7:10]
-                wsum += wgt
+        if _is_sum_of_gaussians(profile):
+            acc, wsum = _gather_sog(profile, table, centre, wp, k, radius_mm)
+        else:
+            acc, wsum = _gather_generic(profile, table, centre, wp, k, radius_mm)
     num = torch.zeros(b * h * w, 3, dtype=torch.float64).index_copy(0, active, acc)
     den = torch.ones(b * h * w, 3, dtype=torch.float64).index_copy(0, active, wsum)
     num = num.reshape(b, h, w, 3).permute(0, 3, 1, 2)
     den = den.reshape(b, h, w, 3).permute(0, 3, 1, 2)
     return _finish(g, mask, num, den).to(gbuffer.dtype)
+
+
+def _gather_generic(
+    profile: Profile, table: torch.Tensor, centre: torch.Tensor, wp: int, k: int, radius_mm: float
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """``Σ_j s_j E_j w_ij`` and ``Σ_j s_j w_ij`` per active centre, one neighbour offset at a
+    time through :meth:`Profile.cell_integral` (any profile)."""
+    xc, yc, zc = table[centre, 0], table[centre, 1], table[centre, 2]
+    acc = torch.zeros(centre.numel(), 3, dtype=torch.float64)
+    wsum = torch.zeros_like(acc)
+    for dv in range(-k, k + 1):
+        for du in range(-k, k + 1):
+            nb = table[centre + dv * wp + du]
+            dx, dy, hh = nb[:, 0] - xc, nb[:, 1] - yc, nb[:, 3]
+            # skip offsets whose nearest cell edge is beyond the support everywhere
+            near2 = (dx.abs() - hh).clamp_min(0) ** 2 + (dy.abs() - hh).clamp_min(0) ** 2
+            on = nb[:, 6] > 0
+            if not bool(on.any()) or float(near2[on].min()) > radius_mm**2:
+                continue  # same rule as _flat_fft
+            wgt = profile.cell_integral(dx, dy, nb[:, 2] - zc, hh, hh, nb[:, 4], nb[:, 5])
+            wgt = wgt * nb[:, 6:7]
+            acc += wgt * nb[:, 7:10]
+            wsum += wgt
+    return acc, wsum
+
+
+#: offsets × centres gathered per batch by :func:`_gather_sog`
+_BATCH_ELEMS = 1 << 18
+#: cells × quadrature nodes per block of :func:`_sog_gauss_legendre` (in cache)
+_NODE_ELEMS = 1 << 18
+
+
+def _is_sum_of_gaussians(profile: Profile) -> bool:
+    """A :class:`SumOfGaussians` whose cell integral is the library's (not overridden)."""
+    return (
+        isinstance(profile, SumOfGaussians)
+        and type(profile).cell_integral is SumOfGaussians.cell_integral
+    )
+
+
+def _sog_rule(
+    v: list[float], s: list[float], near2_min: float, h_max: float, tilted: bool
+) -> tuple[int | str | None, ...]:
+    """Per Gaussian, how :meth:`SumOfGaussians.cell_integral` integrates one call's cells:
+    ``None`` (skipped: below e^-40 on every cell), ``"flat"`` (closed form, no slopes),
+    ``"narrow"`` (closed form with orthogonal tangents) or the Gauss–Legendre order ``n``.
+    The same decisions from the same per-call statistics (nearest cell distance², widest
+    cell, any slope), so batching offsets does not change which rule a cell gets."""
+    rule: list[int | str | None] = []
+    for vi, si in zip(v, s, strict=True):
+        if near2_min > 80.0 * vi:
+            rule.append(None)
+        elif not tilted:
+            rule.append("flat")
+        elif si >= 0.5 * h_max:
+            ratio = h_max / si
+            n = 2 if ratio <= 0.25 else 3 if ratio <= 0.5 else 4 if ratio <= 1 else 6
+            rule.append(n + 4 if near2_min < vi else n)
+        else:
+            rule.append("narrow")
+    return tuple(rule)
+
+
+def _sog_gauss_legendre(
+    dx: torch.Tensor,
+    dy: torch.Tensor,
+    dz: torch.Tensor,
+    hh: torch.Tensor,
+    sx: torch.Tensor,
+    sy: torch.Tensor,
+    v: list[float],
+    n: list[int],
+) -> torch.Tensor:
+    """∫∫ G(v_g, |Δ + s t_x + t t_y|) dA over square planar patches of half-size ``hh`` by
+    the n_g×n_g Gauss–Legendre rule of :meth:`SumOfGaussians.cell_integral`, for several
+    Gaussians at once -> ``(G, M)``.
+
+    With ``s = hh·ξ_a``, ``t = hh·ξ_b``, ``t_x = (1, 0, slope_x)``, ``t_y = (0, 1, slope_y)``
+    the squared distance of a node is a fixed polynomial of the node,
+    ``|Δ|² + 2hξ_a Δ·t_x + 2hξ_b Δ·t_y + h²ξ_a²|t_x|² + h²ξ_b²|t_y|² + 2h²ξ_aξ_b t_x·t_y``,
+    so the exponents of every node of every Gaussian (001 eq. 7) are one matrix product of a
+    (nodes, 6) table with six per-cell features, and the weighted node sums a second one.
+    The same nodes and weights as the per-Gaussian rule, summed in another order (rounding).
+    """
+    phi, wsum = [], []
+    for vg, ng in zip(v, n, strict=True):
+        x, w = _gauss_legendre(ng)
+        xa, xb = np.repeat(x, ng), np.tile(x, ng)
+        phi.append(np.stack([np.ones_like(xa), xa, xb, xa**2, xb**2, xa * xb], 1) * (-0.5 / vg))
+        wsum.append(np.outer(w, w).ravel() / (2 * math.pi * vg))
+    rows = sum(len(c) for c in wsum)
+    reduce = np.zeros((len(v), rows))
+    start = 0
+    for g, c in enumerate(wsum):
+        reduce[g, start : start + len(c)] = c
+        start += len(c)
+    a_mat = torch.from_numpy(np.concatenate(phi)).to(dx)
+    r_mat = torch.from_numpy(reduce).to(dx)
+    bx, by = dx + sx * dz, dy + sy * dz  # Δ · t_x, Δ · t_y
+    h2 = hh * hh
+    feats = torch.stack(
+        [
+            dx * dx + dy * dy + dz * dz,
+            2 * hh * bx,
+            2 * hh * by,
+            h2 * (1 + sx * sx),
+            h2 * (1 + sy * sy),
+            2 * h2 * sx * sy,
+        ]
+    )
+    block = max(1, _NODE_ELEMS // rows)
+    m = dx.shape[0]
+    parts = [r_mat @ torch.exp(a_mat @ feats[:, i : i + block]) for i in range(0, m, block)]
+    area = torch.sqrt(1 + sx**2 + sy**2) * h2
+    return torch.cat(parts, 1) * area
+
+
+def _sog_cell_weights(
+    profile: SumOfGaussians,
+    rule: tuple[int | str | None, ...],
+    dx: torch.Tensor,
+    dy: torch.Tensor,
+    dz: torch.Tensor,
+    hh: torch.Tensor,
+    sx: torch.Tensor,
+    sy: torch.Tensor,
+) -> torch.Tensor:
+    """:meth:`SumOfGaussians.cell_integral` of flat cell tensors (M,) with the per-Gaussian
+    ``rule`` of :func:`_sog_rule`, channels first: ``(3, M)``."""
+    v = profile.variances.to(dx)
+    s = torch.sqrt(v)
+    used = [i for i, r in enumerate(rule) if r is not None]
+    terms: dict[int, torch.Tensor] = {}
+    if any(r == "narrow" for r in rule):
+        cx, cy = 1 + sx**2, 1 + sy**2
+        bx, by = dx + sx * dz, dy + sy * dz  # Δ · t_x, Δ · t_y
+        dist2 = dx**2 + dy**2 + dz**2
+    for i in used:
+        si = s[i]
+        if rule[i] == "flat":
+            mx = interval_mass((dx - hh) / si, (dx + hh) / si)
+            my = interval_mass((dy - hh) / si, (dy + hh) / si)
+            terms[i] = torch.exp(-(dz**2) / (2 * v[i])) * mx * my
+        elif rule[i] == "narrow":
+            resid = (dist2 - bx**2 / cx - by**2 / cy).clamp_min(0)
+            rx, ry = torch.sqrt(cx) / si, torch.sqrt(cy) / si
+            mx = interval_mass((bx / cx - hh) * rx, (bx / cx + hh) * rx)
+            my = interval_mass((by / cy - hh) * ry, (by / cy + hh) * ry)
+            terms[i] = torch.exp(-resid / (2 * v[i])) * mx * my
+    quad = [i for i in used if isinstance(rule[i], int)]
+    if quad:
+        order = [int(rule[i]) for i in quad]  # type: ignore[arg-type]
+        gl = _sog_gauss_legendre(dx, dy, dz, hh, sx, sy, [float(v[i]) for i in quad], order)
+        for j, i in enumerate(quad):
+            terms[i] = gl[j]
+    stacked = torch.stack([terms[i] for i in used], 0)  # (G_used, M)
+    return profile.weights.to(dx)[used].t() @ stacked
+
+
+def _gather_sog(
+    profile: SumOfGaussians,
+    table: torch.Tensor,
+    centre: torch.Tensor,
+    wp: int,
+    k: int,
+    radius_mm: float,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`_gather_generic` for a sum of Gaussians, many offsets per batch.
+
+    Offsets are visited nearest first in batches of ``_BATCH_ELEMS // centres``; each offset
+    keeps its own support test and its own :func:`_sog_rule` (as if it were one
+    :meth:`SumOfGaussians.cell_integral` call), and offsets with the same rule are integrated
+    together. Equal to the offset loop to rounding (tested)."""
+    e = centre.numel()
+    acc = torch.zeros(e, 3, dtype=torch.float64)
+    wsum = torch.zeros_like(acc)
+    if e == 0:
+        return acc, wsum
+    v = [float(x) for x in profile.variances.to(torch.float64)]
+    s = [float(x) for x in torch.sqrt(profile.variances.to(torch.float64))]
+    offs = sorted((du * du + dv * dv, dv, du) for dv in range(-k, k + 1) for du in range(-k, k + 1))
+    shift = torch.tensor([dv * wp + du for _, dv, du in offs], dtype=centre.dtype)
+    fields = table.t().contiguous()  # field-major: every gathered field is contiguous
+    xc, yc, zc = fields[0, centre], fields[1, centre], fields[2, centre]
+    per = max(1, _BATCH_ELEMS // e)
+    for a in range(0, shift.numel(), per):
+        sh = shift[a : a + per]
+        c = sh.numel()
+        idx = (centre[None, :] + sh[:, None]).reshape(1, -1).expand(fields.shape[0], -1)
+        nb = torch.gather(fields, 1, idx).view(-1, c, e)
+        dx, dy, dz = nb[0] - xc, nb[1] - yc, nb[2] - zc
+        hh, sx, sy, on = nb[3], nb[4], nb[5], nb[6]
+        with torch.no_grad():
+            near2 = (dx.abs() - hh).clamp_min(0) ** 2 + (dy.abs() - hh).clamp_min(0) ** 2
+            # the support test of _gather_generic: the nearest on-surface cell of the offset
+            near_on = torch.where(on > 0, near2, math.inf).amin(1).tolist()
+            near2_min = near2.amin(1).tolist()
+            h_max = hh.amax(1).tolist()
+            tilted = ((sx != 0) | (sy != 0)).any(1).tolist()
+        groups: dict[tuple[int | str | None, ...], list[int]] = {}
+        for j in range(c):
+            if near_on[j] > radius_mm**2:
+                continue  # no on-surface neighbour, or all beyond the support
+            rule = _sog_rule(v, s, near2_min[j], h_max[j], tilted[j])
+            if any(r is not None for r in rule):
+                groups.setdefault(rule, []).append(j)
+        for rule, rows in groups.items():
+            if len(rows) == c:
+                sub = [dx, dy, dz, hh, sx, sy, on, nb[7:10]]
+            else:
+                sel = torch.tensor(rows)
+                sub = [t.index_select(-2, sel) for t in (dx, dy, dz, hh, sx, sy, on, nb[7:10])]
+            wgt = _sog_cell_weights(profile, rule, *(t.reshape(-1) for t in sub[:6]))  # (3, M)
+            wgt = wgt.view(3, -1, e) * sub[6]
+            acc = acc + (wgt * sub[7]).sum(1).t()
+            wsum = wsum + wgt.sum(1).t()
+    return acc, wsum
 
 
 def _finish(g: GBuffer, mask: torch.Tensor, num: torch.Tensor, den: torch.Tensor) -> torch.Tensor:
