@@ -161,6 +161,7 @@ def separable_pass(
     sample_weight: SampleWeight | None = None,
     name: str | None = None,
     check_finite: bool = True,
+    inplace: bool = False,
 ) -> torch.Tensor:
     """One depth-aware 1D gather pass over the active pixels (DESIGN §4).
 
@@ -195,6 +196,10 @@ def separable_pass(
             pass ``False``: their first image is ``gbuffer.diffuse``, validated when the
             G-buffer was built, and each later one is a pass output of finite inputs; on a
             far-away object the scan would otherwise cost more than the pass (measured).
+        inplace: write the result into ``image`` and return it instead of a new tensor, for
+            a caller that owns ``image`` (an intermediate of its own schedule): the pass then
+            costs no full-image copy, only work on the active pixels. Honoured when no
+            gradient is needed and ``image`` is contiguous; otherwise a new tensor is returned.
 
     Returns:
         ``(B, 3, H, W)``: blurred where active, ``image`` elsewhere.
@@ -242,11 +247,13 @@ def separable_pass(
         inv_scale = inv_scale.expand(c_)
     offsets = kernel.offsets.to(dtype)
     weights = kernel.weights.to(dtype)
-    backend = _backend_for(image, gbuffer, width, rotation, sample_weight)
+    grads = _needs_grad(image, gbuffer, width)
+    backend = _backend_for(image, grads, rotation, sample_weight)
+    inplace = inplace and not grads and image.is_contiguous()
 
     start = time.perf_counter()
     stencils = None if strength is None else image_stencils(strength)
-    out = image.clone(memory_format=torch.contiguous_format)
+    out = image if inplace else image.clone(memory_format=torch.contiguous_format)
     n_total = 0
     for bi in range(b_):  # per image: every tensor below is a view of one (C, H·W) plane set
         lin = None if stencils is None else stencils[bi]
@@ -255,7 +262,7 @@ def separable_pass(
         if backend == "native":
             _native_pass(
                 image[bi], out[bi], gbuffer.depth[bi], lin, strength, width, stretch, bi,
-                axis, focal_px, offsets, weights, follow, inv_scale,
+                axis, focal_px, offsets, weights, follow, inv_scale, inplace,
             )  # fmt: skip
             n_total += h_ * w_ if lin is None else int(lin.numel())
             continue
@@ -334,10 +341,13 @@ def _native_pass(
     weights: torch.Tensor,
     follow: int,
     inv_scale: torch.Tensor,
+    inplace: bool,
 ) -> None:
     """One image of a pass through the native loop (``native/gather_body.h``), which computes
     the per-pixel scale and the taps exactly as the torch code of :func:`separable_pass` and
-    :func:`_accumulate` and writes ``out`` ``(3, H, W)`` (contiguous) at the active pixels."""
+    :func:`_accumulate` and writes ``out`` ``(3, H, W)`` (contiguous) at the active pixels.
+    ``inplace`` (``out`` is ``image``): the loop writes compact ``(3, N)`` rows, copied into
+    ``out`` once every tap has been read."""
     lib = native.library()
     _, h, w = image.shape
     keep = []  # contiguous copies must outlive the call
@@ -354,14 +364,21 @@ def _native_pass(
         dd = _axis_derivative(depth[None], axis)[0]
         f_px, correction, maxdd = focal_px * stretch.ssslevel, stretch.correction, stretch.maxdd
     per_pixel_width = width[bi] if isinstance(width, torch.Tensor) else None
+    n = h * w if lin is None else lin.numel()
+    dst = torch.empty(3, n, dtype=image.dtype) if inplace else out
     fn = lib.sss_gather_f32 if image.dtype == torch.float32 else lib.sss_gather_f64
     fn(
         ptr(image), ptr(depth), ptr(lin), ptr(None if strength is None else strength[bi]),
-        ptr(per_pixel_width), ptr(dd), ptr(offsets), ptr(weights), ptr(inv_scale), out.data_ptr(),
+        ptr(per_pixel_width), ptr(dd), ptr(offsets), ptr(weights), ptr(inv_scale), dst.data_ptr(),
         f_px, 0.0 if per_pixel_width is not None else float(width), correction, maxdd,
-        h * w if lin is None else lin.numel(), offsets.numel(), h, w,
-        int(axis == 2), follow, torch.get_num_threads(),
+        n, offsets.numel(), h, w, int(axis == 2), follow, int(inplace), torch.get_num_threads(),
     )  # fmt: skip
+    if inplace:
+        flat = out.view(3, h * w)
+        if lin is None:
+            flat.copy_(dst)
+        else:
+            flat.index_copy_(1, lin, dst)
 
 
 def _lerp_fetch(planes: torch.Tensor, a: torch.Tensor, b: torch.Tensor, f: torch.Tensor):
@@ -461,10 +478,17 @@ def get_backend() -> str:
     return str(_BACKEND["name"])
 
 
+def _needs_grad(image: torch.Tensor, gbuffer: GBuffer, width: float | torch.Tensor) -> bool:
+    """Whether autograd records this pass."""
+    return torch.is_grad_enabled() and any(
+        isinstance(t, torch.Tensor) and t.requires_grad
+        for t in (image, gbuffer.depth, gbuffer.mask, width)
+    )
+
+
 def _backend_for(
     image: torch.Tensor,
-    gbuffer: GBuffer,
-    width: float | torch.Tensor,
+    grads: bool,
     rotation: Rotation | None,
     sample_weight: SampleWeight | None,
 ) -> str:
@@ -474,10 +498,6 @@ def _backend_for(
         return "torch"  # rotated taps and bilateral weights: torch loop only
     if name != "native":
         return name
-    grads = torch.is_grad_enabled() and any(
-        isinstance(t, torch.Tensor) and t.requires_grad
-        for t in (image, gbuffer.depth, gbuffer.mask, width)
-    )
     if grads or image.device.type != "cpu" or native.library() is None:
         return "torch"
     return "native"

@@ -114,7 +114,8 @@ class LowRankSSS(SeparableMethod):
             tmp = separable_pass(image, h, "x", gbuffer, name=f"low_rank{i}.x", **options)
             h_sum = h.sum().to(dtype=dtype, device=image.device).view(1, 3, 1, 1)
             tmp = torch.where(active, tmp, image * h_sum)
-            out = out + separable_pass(tmp, v, "y", gbuffer, name=f"low_rank{i}.y", **options)
+            name = f"low_rank{i}.y"
+            out = out + separable_pass(tmp, v, "y", gbuffer, name=name, inplace=True, **options)
         return torch.where(active, out, image)
 
 

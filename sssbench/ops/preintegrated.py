@@ -27,7 +27,8 @@ def two_pass(
     """Apply a rank-1 separable kernel: a horizontal then a vertical :func:`separable_pass`
     (000 eq. 2 with N = 1). ``options`` are forwarded to both passes."""
     tmp = separable_pass(image, kernel, "x", gbuffer, name=f"{name}.x", **options)
-    return separable_pass(tmp, kernel, "y", gbuffer, name=f"{name}.y", **options)
+    # tmp is this function's own: the second pass overwrites it (one full-image copy per call)
+    return separable_pass(tmp, kernel, "y", gbuffer, name=f"{name}.y", inplace=True, **options)
 
 
 def preintegrated_sss(

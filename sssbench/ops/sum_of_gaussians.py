@@ -15,7 +15,7 @@ from sssbench.gbuffer import GBuffer
 from sssbench.kernels.kernel1d import Kernel1D
 from sssbench.kernels.preintegrated import preintegrated
 from sssbench.kernels.sampling import MAX_SAMPLES, SAMPLINGS
-from sssbench.ops._stencil import memoised
+from sssbench.ops._stencil import image_stencils, memoised
 from sssbench.ops.gather import Stretch, separable_pass
 from sssbench.ops.method import SeparableMethod
 from sssbench.ops.timing import PassRecord, add_record
@@ -325,10 +325,21 @@ class SumOfGaussiansSSS(SeparableMethod):
                     add_record(PassRecord(f"{name}.{axis}", len(step.kernel), 0, 0.0))
                 continue
             g = gbuffer.replace(mask=mask)
-            tmp = separable_pass(rt1, step.kernel, "x", g, name=f"{name}.x", **options)
-            rt1 = separable_pass(tmp, step.kernel, "y", g, name=f"{name}.y", **options)
-            # 003 §7.3.3, Listing 7.2: rtf ← blend · rt1 + (1 − blend) · rtf, as one lerp
-            rtf = torch.where(active, torch.lerp(rtf, rt1, blend), rtf)
+            # render targets owned by this call are overwritten (no full-image copy per pass)
+            owned = rt1 is not gbuffer.diffuse
+            tmp = separable_pass(
+                rt1, step.kernel, "x", g, name=f"{name}.x", inplace=owned, **options
+            )
+            rt1 = separable_pass(
+                tmp, step.kernel, "y", g, name=f"{name}.y", inplace=True, **options
+            )
+            if rtf is gbuffer.diffuse:
+                rtf = rtf.clone(memory_format=torch.contiguous_format)
+            # 003 §7.3.3, Listing 7.2: rtf ← blend · rt1 + (1 − blend) · rtf, as one lerp, on
+            # the stencil's pixels only
+            for bi, lin in enumerate(image_stencils(mask)):
+                flat, blurred = rtf[bi].view(3, -1), rt1[bi].reshape(3, -1)
+                flat[:, lin] = torch.lerp(flat[:, lin], blurred[:, lin], blend.view(3, 1))
         return rtf
 
 

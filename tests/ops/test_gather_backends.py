@@ -220,3 +220,36 @@ def test_inference_tensors_are_memoised_only_within_a_call_scope():
         memoised((mask,), "probe-inference", compute)
         memoised((mask,), "probe-inference", compute)
     assert len(calls) == 3
+
+
+@pytest.mark.parametrize("name", ["native", "torch"])
+@pytest.mark.parametrize("holes", [True, False])
+def test_inplace_pass_equals_the_copying_pass(name, holes):
+    """``inplace=True`` reads every tap before it writes (compact rows, then one copy)."""
+    g = scene(b=2, holes=holes)
+    k = kernel()
+    with backend(name):
+        for direction in ("x", "y"):
+            ref = separable_pass(
+                g.diffuse, k, direction, g, follow_surface="lerp", surface_scale=3.0
+            )
+            work = g.diffuse.clone()
+            got = separable_pass(work, k, direction, g, follow_surface="lerp", surface_scale=3.0,
+                                 inplace=True)  # fmt: skip
+            assert got is work
+            torch.testing.assert_close(got, ref, rtol=0, atol=0)
+        no_mask = GBuffer(g.diffuse, g.depth, g.fov_y)
+        ref = separable_pass(no_mask.diffuse, k, "x", no_mask)
+        got = separable_pass(no_mask.diffuse.clone(), k, "x", no_mask, inplace=True)
+        torch.testing.assert_close(got, ref, rtol=0, atol=0)
+
+
+def test_inplace_is_not_honoured_under_autograd_or_for_strided_images():
+    g = scene(h=8, w=9)
+    image = g.diffuse.clone().requires_grad_(True)
+    out = separable_pass(image, kernel(3), "x", g, inplace=True)
+    assert out is not image and out.requires_grad
+    strided = g.diffuse.transpose(2, 3).contiguous().transpose(2, 3)
+    before = strided.clone()
+    out = separable_pass(strided, kernel(3), "x", g, inplace=True)
+    assert out is not strided and torch.equal(strided, before)

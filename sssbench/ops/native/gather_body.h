@@ -18,10 +18,11 @@ typedef struct {
     const SCALAR *offsets;  /* (k,) tap offsets, mm per width unit */
     const SCALAR *weights;  /* (k, 3) tap weights */
     const SCALAR *inv_scale;/* (3,) 1 / surface_scale per channel */
-    SCALAR *dst;            /* (3, H*W) output planes (written at active pixels only) */
+    SCALAR *dst;            /* (3, H*W) output planes written at the active pixels, or (3, n)
+                               compact rows when compact != 0 */
     SCALAR focal_px, width_scalar, correction, maxdd;
     int64_t n, k, h, w, begin, end;
-    int axis_y, follow;
+    int axis_y, follow, compact;
 } CAT(job_, SUFFIX);
 
 static void *CAT(run_, SUFFIX)(void *arg) {
@@ -36,6 +37,7 @@ static void *CAT(run_, SUFFIX)(void *arg) {
     const SCALAR *restrict weights = j->weights;
     const SCALAR inv[3] = {j->inv_scale[0], j->inv_scale[1], j->inv_scale[2]};
     const int follow = j->follow, axis_y = j->axis_y;
+    const int64_t plane = j->compact ? j->n : hw;
     SCALAR *restrict dst = j->dst;
     for (int64_t i = j->begin; i < j->end; ++i) {
         const int64_t l = j->lin ? j->lin[i] : i;
@@ -79,9 +81,10 @@ static void *CAT(run_, SUFFIX)(void *arg) {
                 acc[ch] = acc[ch] + wt * v[ch];
             }
         }
-        dst[l] = acc[0];
-        dst[hw + l] = acc[1];
-        dst[2 * hw + l] = acc[2];
+        const int64_t o = j->compact ? i : l;
+        dst[o] = acc[0];
+        dst[plane + o] = acc[1];
+        dst[2 * plane + o] = acc[2];
     }
     return NULL;
 }
@@ -92,7 +95,7 @@ int CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const int64
                              const SCALAR *inv_scale, SCALAR *dst, double focal_px,
                              double width_scalar, double correction, double maxdd, int64_t n,
                              int64_t k, int64_t h, int64_t w, int axis_y, int follow,
-                             int threads) {
+                             int compact, int threads) {
     enum { MAX_THREADS = 64 };
     if (threads < 1) threads = 1;
     if (threads > MAX_THREADS) threads = MAX_THREADS;
@@ -103,7 +106,8 @@ int CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const int64
         CAT(job_, SUFFIX) jb = {src, depth, lin, mask, width, ddepth, offsets, weights,
                                 inv_scale, dst, (SCALAR)focal_px, (SCALAR)width_scalar,
                                 (SCALAR)correction, (SCALAR)maxdd, n, k, h, w,
-                                n * t / threads, n * (t + 1) / threads, axis_y, follow};
+                                n * t / threads, n * (t + 1) / threads, axis_y, follow,
+                                compact};
         jobs[t] = jb;
     }
     int started = 1;
