@@ -9,6 +9,7 @@ from oracles import FOV, flat, step_gbuffer, step_response
 from scipy.special import ndtr
 
 from sssbench.ops import ReferenceSSS, reference_sss
+from sssbench.ops import reference as reference
 from sssbench.profiles import SumOfGaussians
 
 
@@ -97,11 +98,19 @@ def _as_loop(p: SumOfGaussians) -> _LoopSoG:
     return _LoopSoG(p.variances, p.weights)
 
 
+@pytest.fixture
+def cell_integral_skip(monkeypatch):
+    """The batched path with SumOfGaussians.cell_integral's own skip radius (e^-40)."""
+    monkeypatch.setattr(reference, "_SOG_SKIP", 40.0)
+
+
 @pytest.mark.parametrize(
     ("scene", "res", "table"),
     [("head", 48, "skin_deon6"), ("sphere", 40, "marble_jg10"), ("head_close", 24, "skin_jg10")],
 )
-def test_batched_sum_of_gaussians_path_equals_the_offset_loop(scene, res, table):
+def test_batched_sum_of_gaussians_path_equals_the_offset_loop(
+    scene, res, table, cell_integral_skip
+):
     from data_synth import make_scene
 
     p = SumOfGaussians.from_table(table)
@@ -111,7 +120,7 @@ def test_batched_sum_of_gaussians_path_equals_the_offset_loop(scene, res, table)
     torch.testing.assert_close(fast, loop, rtol=0, atol=1e-12)
 
 
-def test_batched_path_equals_the_offset_loop_on_a_masked_plane():
+def test_batched_path_equals_the_offset_loop_on_a_masked_plane(cell_integral_skip):
     # no slopes: the fronto-parallel closed form, and off-surface neighbours
     p = SumOfGaussians.from_table("skin_deon6")
     gen = torch.Generator().manual_seed(7)
@@ -121,3 +130,42 @@ def test_batched_path_equals_the_offset_loop_on_a_masked_plane():
     fast = reference_sss(g, p, method="gather")
     loop = reference_sss(g, _as_loop(p), method="gather")
     torch.testing.assert_close(fast, loop, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize(("scene", "res"), [("head", 64), ("head_close", 32), ("pores", 20)])
+def test_earlier_skip_of_far_gauss_legendre_cells_stays_within_its_bound(scene, res):
+    # documented bound: 2 max E · 4.5e-10 over the gathered fraction of the weight (≥ ~0.1)
+    from data_synth import make_scene
+
+    p = SumOfGaussians.from_table("skin_deon6")
+    g = make_scene(scene, (res, res), dtype=torch.float64)
+    fast = reference_sss(g, p)
+    loop = reference_sss(g, _as_loop(p))  # cell_integral's skip radius
+    bound = 2 * float(g.diffuse.abs().max()) * 4.5e-10 / 0.1
+    assert float((fast - loop).abs().max()) < bound
+
+
+@pytest.mark.parametrize("order", [2, 3, 4, 6, 10])
+def test_gauss_legendre_block_equals_the_per_gaussian_rule(order):
+    # the node polynomial and the two matrix products against the direct node sum of
+    # sum_of_gaussians._tilted_gauss_legendre (same nodes), slopes up to the 85° clamp
+    from sssbench.profiles.sum_of_gaussians import _tilted_gauss_legendre
+
+    gen = torch.Generator().manual_seed(order)
+    n = 500
+
+    def rand(lo, hi):
+        return lo + (hi - lo) * torch.rand(n, generator=gen, dtype=torch.float64)
+
+    dx, dy, dz = rand(-4, 4), rand(-4, 4), rand(-3, 3)
+    hh = rand(0.05, 0.6)
+    sx, sy = rand(-11.4, 11.4) * rand(0, 1) ** 4, rand(-11.4, 11.4) * rand(0, 1) ** 4
+    p = SumOfGaussians.from_table("skin_deon6")
+    var = p.variances.tolist()[2:]
+    w = p.weights[2:]
+    got = reference._sog_gauss_legendre(dx, dy, dz, hh, sx, sy, var, [order] * len(var), w)
+    want = sum(
+        _tilted_gauss_legendre(dx, dy, dz, hh, hh, sx, sy, vi, order)[None, :] * w[i][:, None]
+        for i, vi in enumerate(var)
+    )
+    torch.testing.assert_close(got, want, rtol=1e-12, atol=1e-300)
