@@ -31,7 +31,7 @@ def backend(name):
         set_backend(before)
 
 
-def scene(seed=0, b=1, h=23, w=31, dtype=torch.float64, holes=True):
+def scene(seed=0, b=1, h=23, w=31, dtype=torch.float64, holes=True, cover=0.7):
     g = torch.Generator().manual_seed(seed)
     img = torch.rand(b, 3, h, w, generator=g, dtype=dtype)
     # depth with smooth slopes and a discontinuity, as at a silhouette
@@ -42,7 +42,7 @@ def scene(seed=0, b=1, h=23, w=31, dtype=torch.float64, holes=True):
     depth = depth.expand(b, 1, h, w) + 3 * torch.rand(b, 1, h, w, generator=g, dtype=dtype)
     mask = torch.rand(b, 1, h, w, generator=g, dtype=dtype)
     if holes:
-        mask = mask * (torch.rand(b, 1, h, w, generator=g, dtype=dtype) > 0.3)
+        mask = mask * (torch.rand(b, 1, h, w, generator=g, dtype=dtype) < cover)
     return GBuffer(img, depth.contiguous(), 0.7, mask=mask)
 
 
@@ -67,6 +67,7 @@ def tol(dtype):
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 @pytest.mark.parametrize("direction", ["x", "y"])
+@pytest.mark.parametrize("cover", [0.7, 0.1], ids=["interleaved", "planar"])
 @pytest.mark.parametrize(
     "options",
     [
@@ -82,8 +83,10 @@ def tol(dtype):
     ],
     ids=lambda o: "-".join(f"{k}" for k in o) or "plain",
 )
-def test_native_equals_torch_loop(dtype, direction, options):
-    g = scene(dtype=dtype)
+def test_native_equals_torch_loop(dtype, direction, cover, options):
+    """Both native layouts: >= 1/4 of the pixels covered interleaves the image, fewer fetch
+    from the planes."""
+    g = scene(dtype=dtype, cover=cover)
     ref, got = both(g.diffuse, kernel(), direction, g, **options)
     torch.testing.assert_close(got, ref, **tol(dtype))
     assert not torch.equal(ref, g.diffuse)  # the case blurs something

@@ -1,6 +1,8 @@
 """The native tap loop of the gather primitive: C source built on first use, called via ctypes.
 
-``gather.c`` (float32 and float64, threads via pthreads) is compiled with the system C
+``gather.c`` (float32 and float64, threads via pthreads; when a quarter of the image or more
+is covered it interleaves (r, g, b, depth) once so that each tap is one 4-lane load and
+4-lane arithmetic, otherwise it reads the planes) is compiled with the system C
 compiler (``$CC``, else ``cc``/``gcc``) into a per-user cache
 (``$SSSBENCH_CACHE_DIR/native``, default ``~/.cache/sssbench/native``), keyed by the hash of
 the source and the compiler, written atomically so that parallel sweep workers may race. No
@@ -25,7 +27,7 @@ __all__ = ["library", "cache_dir"]
 
 _HERE = Path(__file__).resolve().parent
 _SOURCES = ("gather.c", "gather_body.h")
-_FLAGS = ["-O3", "-fPIC", "-shared", "-ffp-contract=off", "-fno-math-errno"]
+_FLAGS = ["-O3", "-fPIC", "-shared", "-ffp-contract=off", "-fno-math-errno", "-Wno-psabi"]
 _STATE: dict[str, object] = {"lib": None, "tried": False}
 
 

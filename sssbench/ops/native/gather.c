@@ -4,16 +4,23 @@
 #include <math.h>
 #include <pthread.h>
 #include <stdint.h>
+#include <stdlib.h>
 
 #define SCALAR float
 #define SUFFIX f32
 #define EXPF expf
+#define FABSF fabsf
+#define ISCALAR int32_t
 #include "gather_body.h"
 #undef SCALAR
 #undef SUFFIX
 #undef EXPF
+#undef FABSF
+#undef ISCALAR
 
 #define SCALAR double
 #define SUFFIX f64
 #define EXPF exp
+#define FABSF fabs
+#define ISCALAR int64_t
 #include "gather_body.h"

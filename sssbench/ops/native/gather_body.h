@@ -2,7 +2,8 @@
  *
  * Mirrors sssbench.ops.gather._accumulate operation by operation (same order of float
  * operations, so results agree with the torch loop to rounding); see that function and
- * separable_pass for the formulas and their citations. Expects SCALAR, SUFFIX, EXPF.
+ * separable_pass for the formulas and their citations. Expects SCALAR, SUFFIX, EXPF, FABSF and
+ * ISCALAR (the signed integer of SCALAR's size).
  */
 
 #define CAT_(a, b) a##b
@@ -20,29 +21,52 @@ typedef struct {
     const SCALAR *inv_scale;/* (3,) 1 / surface_scale per channel */
     SCALAR *dst;            /* (3, H*W) output planes written at the active pixels, or (3, n)
                                compact rows when compact != 0 */
+    const SCALAR *packed;   /* (H*W, 4) r, g, b, depth interleaved, NULL: use the planes */
+    const SCALAR *weights4; /* (k, 4) weights with a zero fourth lane */
     SCALAR focal_px, width_scalar, correction, maxdd;
     int64_t n, k, h, w, begin, end;
     int axis_y, follow, compact;
 } CAT(job_, SUFFIX);
 
-static void *CAT(run_, SUFFIX)(void *arg) {
-    const CAT(job_, SUFFIX) *j = (const CAT(job_, SUFFIX) *)arg;
-    /* locals, so that the compiler need not reload them after each store to dst */
+typedef SCALAR CAT(vec_, SUFFIX) __attribute__((vector_size(4 * sizeof(SCALAR))));
+typedef ISCALAR CAT(mask_, SUFFIX) __attribute__((vector_size(4 * sizeof(SCALAR))));
+
+/* (r, g, b, depth) of flat pixel l: one 4-lane load from the interleaved copy when PACKED,
+ * else four loads from the planes. */
+static inline __attribute__((always_inline)) CAT(vec_, SUFFIX)
+    CAT(fetch_, SUFFIX)(const CAT(job_, SUFFIX) *j, int64_t l, int64_t hw, const int PACKED) {
+    CAT(vec_, SUFFIX) v;
+    if (PACKED) {
+        __builtin_memcpy(&v, j->packed + 4 * l, sizeof v);
+    } else {
+        v[0] = j->src[l];
+        v[1] = j->src[hw + l];
+        v[2] = j->src[2 * hw + l];
+        v[3] = j->depth[l];
+    }
+    return v;
+}
+
+/* The tap loop over pixels [begin, end) of the job, 4-lane: lanes r, g, b carry the colour,
+ * lane 3 carries depth through the lerp (its weight is 0); lane by lane these are the float
+ * operations of the torch loop, in its order. */
+static inline __attribute__((always_inline)) void CAT(taps_, SUFFIX)(
+    const CAT(job_, SUFFIX) *j, const int PACKED) {
+    typedef CAT(vec_, SUFFIX) vec;
+    typedef CAT(mask_, SUFFIX) vmask;
     const int64_t w = j->w, hw = j->h * j->w, k = j->k;
     const int64_t n_axis = j->axis_y ? j->h : j->w;
     const int64_t stride = j->axis_y ? j->w : 1;
     const SCALAR last = (SCALAR)(n_axis - 1);
-    const SCALAR *restrict r = j->src, *restrict g = j->src + hw, *restrict b = j->src + 2 * hw;
-    const SCALAR *restrict depth = j->depth, *restrict offsets = j->offsets;
-    const SCALAR *restrict weights = j->weights;
-    const SCALAR inv[3] = {j->inv_scale[0], j->inv_scale[1], j->inv_scale[2]};
-    const int follow = j->follow, axis_y = j->axis_y;
+    const int follow = j->follow;
+    const vec inv = {j->inv_scale[0], j->inv_scale[1], j->inv_scale[2], 0};
+    const vec one = {1, 1, 1, 1}, zero = {0, 0, 0, 0};
     const int64_t plane = j->compact ? j->n : hw;
-    SCALAR *restrict dst = j->dst;
     for (int64_t i = j->begin; i < j->end; ++i) {
         const int64_t l = j->lin ? j->lin[i] : i;
         const int64_t row = l / w, col = l - row * w;
-        const SCALAR cz = depth[l];
+        const vec c = CAT(fetch_, SUFFIX)(j, l, hw, PACKED);
+        const SCALAR cz = c[3];
         /* pixels per kernel-offset unit: DESIGN §2 pinhole, 003 §7.3.1 stretch and s' = s a */
         SCALAR denom = cz;
         if (j->ddepth) {
@@ -52,41 +76,78 @@ static void *CAT(run_, SUFFIX)(void *arg) {
         SCALAR scale = j->focal_px / denom;
         scale = scale * (j->width ? j->width[l] : j->width_scalar);
         if (j->mask) scale = scale * j->mask[l];
-        const SCALAR pos = (SCALAR)(axis_y ? row : col);
-        const int64_t fixed = axis_y ? col : row * w;
-        const SCALAR c[3] = {r[l], g[l], b[l]};
-        SCALAR acc[3] = {0, 0, 0};
+        const SCALAR pos = (SCALAR)(j->axis_y ? row : col);
+        const int64_t fixed = j->axis_y ? col : row * w;
+        vec acc = zero;
         for (int64_t t = 0; t < k; ++t) {
-            SCALAR p = pos + offsets[t] * scale;
+            SCALAR p = pos + j->offsets[t] * scale;
             p = p >= 0 ? (p <= last ? p : last) : 0; /* border clamp; NaN -> 0, never OOB */
             const int64_t i0 = (int64_t)p;           /* = floor(p) since p >= 0 */
             const SCALAR f = p - (SCALAR)i0;
             const int64_t a = fixed + i0 * stride;
             const int64_t bb = fixed + (i0 + 1 < n_axis ? i0 + 1 : n_axis - 1) * stride;
-            SCALAR v[3] = {r[a] + f * (r[bb] - r[a]), g[a] + f * (g[bb] - g[a]),
-                           b[a] + f * (b[bb] - b[a])};
-            const SCALAR zs = depth[a] + f * (depth[bb] - depth[a]);
-            const SCALAR adz = zs - cz < 0 ? cz - zs : zs - cz;
-            for (int ch = 0; ch < 3; ++ch) {
-                SCALAR wt = weights[t * 3 + ch];
-                if (follow) {
-                    const SCALAR dz = adz * inv[ch];
-                    if (follow == 1) { /* 002 appendix shader: lerp back to the centre */
-                        const SCALAR s = dz < 0 ? 0 : (dz > 1 ? 1 : dz);
-                        v[ch] = v[ch] + s * (c[ch] - v[ch]);
-                    } else { /* 000 eq. 7 */
-                        wt = wt * EXPF((SCALAR)-0.5 * dz * dz);
-                    }
+            const vec va = CAT(fetch_, SUFFIX)(j, a, hw, PACKED);
+            const vec vb = CAT(fetch_, SUFFIX)(j, bb, hw, PACKED);
+            vec v = va + f * (vb - va), wt;
+            __builtin_memcpy(&wt, j->weights4 + 4 * t, sizeof wt);
+            if (follow) {
+                const vec d = FABSF(v[3] - cz) * inv; /* |dz| / surface_scale per channel */
+                if (follow == 1) { /* 002 appendix shader: lerp back by clamp(d, 0, 1) */
+                    const vmask lo = d < one;
+                    vec s = (vec)(((vmask)d & lo) | ((vmask)one & ~lo));
+                    const vmask hi = s > zero;
+                    s = (vec)(((vmask)s & hi) | ((vmask)zero & ~hi));
+                    v = v + s * (c - v);
+                } else { /* 000 eq. 7 */
+                    const vec e = {EXPF((SCALAR)-0.5 * d[0] * d[0]),
+                                   EXPF((SCALAR)-0.5 * d[1] * d[1]),
+                                   EXPF((SCALAR)-0.5 * d[2] * d[2]), 0};
+                    wt = wt * e;
                 }
-                acc[ch] = acc[ch] + wt * v[ch];
             }
+            acc = acc + wt * v;
         }
         const int64_t o = j->compact ? i : l;
-        dst[o] = acc[0];
-        dst[plane + o] = acc[1];
-        dst[2 * plane + o] = acc[2];
+        j->dst[o] = acc[0];
+        j->dst[plane + o] = acc[1];
+        j->dst[2 * plane + o] = acc[2];
+    }
+}
+
+static void *CAT(run_packed_, SUFFIX)(void *arg) {
+    CAT(taps_, SUFFIX)((const CAT(job_, SUFFIX) *)arg, 1);
+    return NULL;
+}
+
+static void *CAT(run_planar_, SUFFIX)(void *arg) {
+    CAT(taps_, SUFFIX)((const CAT(job_, SUFFIX) *)arg, 0);
+    return NULL;
+}
+
+/* Interleave pixels [begin, end) of the planes and depth into job->packed. */
+static void *CAT(run_pack_, SUFFIX)(void *arg) {
+    const CAT(job_, SUFFIX) *j = (const CAT(job_, SUFFIX) *)arg;
+    const int64_t hw = j->h * j->w;
+    SCALAR *restrict out = (SCALAR *)j->packed;
+    for (int64_t l = j->begin; l < j->end; ++l) {
+        out[4 * l] = j->src[l];
+        out[4 * l + 1] = j->src[hw + l];
+        out[4 * l + 2] = j->src[2 * hw + l];
+        out[4 * l + 3] = j->depth[l];
     }
     return NULL;
+}
+
+/* Run jobs[0..threads) on threads (jobs[0] on the caller's); a thread that cannot be started
+ * has its share run by the caller. */
+static void CAT(parallel_, SUFFIX)(void *(*run)(void *), CAT(job_, SUFFIX) * jobs, int threads) {
+    pthread_t ids[64];
+    int started = 1;
+    for (int t = 1; t < threads; ++t, ++started)
+        if (pthread_create(&ids[t], NULL, run, &jobs[t]) != 0) break;
+    for (int t = started; t < threads; ++t) run(&jobs[t]);
+    run(&jobs[0]);
+    for (int t = 1; t < started; ++t) pthread_join(ids[t], NULL);
 }
 
 int CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const int64_t *lin,
@@ -99,24 +160,34 @@ int CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const int64
     enum { MAX_THREADS = 64 };
     if (threads < 1) threads = 1;
     if (threads > MAX_THREADS) threads = MAX_THREADS;
-    if (n < 4096 * threads) threads = 1; /* thread start-up costs more than a few pixels */
+    if (n < 16384 * threads) threads = 1; /* start-up and a still-spinning OpenMP pool cost more */
+    const int64_t hw = h * w;
+    SCALAR *weights4 = (SCALAR *)malloc(sizeof(SCALAR) * 4 * (size_t)k);
+    if (!weights4) return 1;
+    for (int64_t t = 0; t < k; ++t) {
+        for (int ch = 0; ch < 3; ++ch) weights4[4 * t + ch] = weights[3 * t + ch];
+        weights4[4 * t + 3] = 0;
+    }
+    /* most of the image covered: interleave it once (one 4-lane load per fetch); a few
+     * pixels: fetch from the planes (time follows covered pixels, no full-image pass) */
+    SCALAR *packed = n >= hw / 4 ? (SCALAR *)malloc(sizeof(SCALAR) * 4 * (size_t)hw) : NULL;
     CAT(job_, SUFFIX) jobs[MAX_THREADS];
-    pthread_t ids[MAX_THREADS];
     for (int t = 0; t < threads; ++t) {
         CAT(job_, SUFFIX) jb = {src, depth, lin, mask, width, ddepth, offsets, weights,
-                                inv_scale, dst, (SCALAR)focal_px, (SCALAR)width_scalar,
-                                (SCALAR)correction, (SCALAR)maxdd, n, k, h, w,
-                                n * t / threads, n * (t + 1) / threads, axis_y, follow,
+                                inv_scale, dst, packed, weights4, (SCALAR)focal_px,
+                                (SCALAR)width_scalar, (SCALAR)correction, (SCALAR)maxdd, n, k, h,
+                                w, hw * t / threads, hw * (t + 1) / threads, axis_y, follow,
                                 compact};
         jobs[t] = jb;
     }
-    int started = 1;
-    for (int t = 1; t < threads; ++t, ++started)
-        if (pthread_create(&ids[t], NULL, CAT(run_, SUFFIX), &jobs[t]) != 0) break;
-    /* threads that could not be started: their share runs here */
-    for (int t = started; t < threads; ++t) CAT(run_, SUFFIX)(&jobs[t]);
-    CAT(run_, SUFFIX)(&jobs[0]);
-    for (int t = 1; t < started; ++t) pthread_join(ids[t], NULL);
+    if (packed) CAT(parallel_, SUFFIX)(CAT(run_pack_, SUFFIX), jobs, threads);
+    for (int t = 0; t < threads; ++t) { /* the taps: split the active pixels */
+        jobs[t].begin = n * t / threads;
+        jobs[t].end = n * (t + 1) / threads;
+    }
+    CAT(parallel_, SUFFIX)(packed ? CAT(run_packed_, SUFFIX) : CAT(run_planar_, SUFFIX), jobs, threads);
+    free(packed);
+    free(weights4);
     return 0;
 }
 
