@@ -366,10 +366,14 @@ def _native_pass(
     per_pixel_width = width[bi] if isinstance(width, torch.Tensor) else None
     n = h * w if lin is None else lin.numel()
     dst = torch.empty(3, n, dtype=image.dtype) if inplace else out
+    # a quarter of the image or more covered: the loop interleaves (r, g, b, depth) into this
+    # buffer once and then fetches each tap with one 4-lane load
+    packed = torch.empty(4 * h * w, dtype=image.dtype) if 4 * n >= h * w else None
     fn = lib.sss_gather_f32 if image.dtype == torch.float32 else lib.sss_gather_f64
     fn(
         ptr(image), ptr(depth), ptr(lin), ptr(None if strength is None else strength[bi]),
         ptr(per_pixel_width), ptr(dd), ptr(offsets), ptr(weights), ptr(inv_scale), dst.data_ptr(),
+        None if packed is None else packed.data_ptr(),
         f_px, 0.0 if per_pixel_width is not None else float(width), correction, maxdd,
         n, offsets.numel(), h, w, int(axis == 2), follow, int(inplace), torch.get_num_threads(),
     )  # fmt: skip

@@ -21,7 +21,7 @@ typedef struct {
     const SCALAR *inv_scale;/* (3,) 1 / surface_scale per channel */
     SCALAR *dst;            /* (3, H*W) output planes written at the active pixels, or (3, n)
                                compact rows when compact != 0 */
-    const SCALAR *packed;   /* (H*W, 4) r, g, b, depth interleaved, NULL: use the planes */
+    SCALAR *packed;         /* (H*W, 4) r, g, b, depth interleaved, NULL: use the planes */
     const SCALAR *weights4; /* (k, 4) weights with a zero fourth lane */
     SCALAR focal_px, width_scalar, correction, maxdd;
     int64_t n, k, h, w, begin, end;
@@ -128,7 +128,7 @@ static void *CAT(run_planar_, SUFFIX)(void *arg) {
 static void *CAT(run_pack_, SUFFIX)(void *arg) {
     const CAT(job_, SUFFIX) *j = (const CAT(job_, SUFFIX) *)arg;
     const int64_t hw = j->h * j->w;
-    SCALAR *restrict out = (SCALAR *)j->packed;
+    SCALAR *restrict out = j->packed;
     for (int64_t l = j->begin; l < j->end; ++l) {
         out[4 * l] = j->src[l];
         out[4 * l + 1] = j->src[hw + l];
@@ -153,7 +153,8 @@ static void CAT(parallel_, SUFFIX)(void *(*run)(void *), CAT(job_, SUFFIX) * job
 int CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const int64_t *lin,
                              const SCALAR *mask, const SCALAR *width, const SCALAR *ddepth,
                              const SCALAR *offsets, const SCALAR *weights,
-                             const SCALAR *inv_scale, SCALAR *dst, double focal_px,
+                             const SCALAR *inv_scale, SCALAR *dst, SCALAR *packed,
+                             double focal_px,
                              double width_scalar, double correction, double maxdd, int64_t n,
                              int64_t k, int64_t h, int64_t w, int axis_y, int follow,
                              int compact, int threads) {
@@ -168,9 +169,9 @@ int CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const int64
         for (int ch = 0; ch < 3; ++ch) weights4[4 * t + ch] = weights[3 * t + ch];
         weights4[4 * t + 3] = 0;
     }
-    /* most of the image covered: interleave it once (one 4-lane load per fetch); a few
-     * pixels: fetch from the planes (time follows covered pixels, no full-image pass) */
-    SCALAR *packed = n >= hw / 4 ? (SCALAR *)malloc(sizeof(SCALAR) * 4 * (size_t)hw) : NULL;
+    /* packed, an (H*W, 4) buffer, given: interleave the image into it once, then one 4-lane
+     * load per fetch (the caller gives it when most of the image is covered); NULL: fetch
+     * from the planes (time follows covered pixels, no full-image pass) */
     CAT(job_, SUFFIX) jobs[MAX_THREADS];
     for (int t = 0; t < threads; ++t) {
         CAT(job_, SUFFIX) jb = {src, depth, lin, mask, width, ddepth, offsets, weights,
@@ -185,8 +186,8 @@ int CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const int64
         jobs[t].begin = n * t / threads;
         jobs[t].end = n * (t + 1) / threads;
     }
-    CAT(parallel_, SUFFIX)(packed ? CAT(run_packed_, SUFFIX) : CAT(run_planar_, SUFFIX), jobs, threads);
-    free(packed);
+    CAT(parallel_, SUFFIX)(packed ? CAT(run_packed_, SUFFIX) : CAT(run_planar_, SUFFIX), jobs,
+                           threads);
     free(weights4);
     return 0;
 }
