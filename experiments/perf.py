@@ -201,6 +201,17 @@ def run(ctx: Context) -> Section:
     big = list(resolutions)[-1]
     res = resolutions[big]
 
+    # the headline ratio, interleaved: kornia and the operator alternate, so that a drift of
+    # the machine's speed during the run (seen here: kornia 18–60 ms in one hour) hits both
+    g = data_synth.make_scene("head_close", resolution=res)
+    op = PreintegratedSSS(SumOfGaussians.from_table("skin_deon6"), 7, follow_surface="lerp")
+    op(g)
+    pairs = []
+    for _ in range(9):
+        k_ms = median_ms(lambda: kornia.filters.gaussian_blur2d(g.diffuse, (7, 7), (1.5, 1.5)), 1)
+        pairs.append((median_ms(lambda: op(g), 1), k_ms))
+    paired = statistics.median(t / k for t, k in pairs)
+
     # time follows covered pixels: far vs close at the largest resolution, 7 taps
     cover = {}
     skin = SumOfGaussians.from_table("skin_deon6")
@@ -265,10 +276,16 @@ def run(ctx: Context) -> Section:
         headline = backend == backends[0]
         targets.append(
             f"- two-pass, 7 taps, {big}, {mode}: {t7 / kornia_big:.2f}× kornia"
-            + (" (target ≤ 4×)." if headline else " (for comparison).")
+            + (
+                f" in the table; {paired:.2f}× as the median of 9 interleaved pairs "
+                f"(operator {statistics.median(t for t, _ in pairs):.1f} ms, kornia "
+                f"{statistics.median(k for _, k in pairs):.1f} ms; target ≤ 4×)."
+                if headline
+                else " (for comparison)."
+            )
         )
         if headline:
-            met.append(t7 / kornia_big <= 4)
+            met.append(paired <= 4)
         t33 = total_ms(mode, 33, big)
         if t33 is not None:
             targets.append(
@@ -346,6 +363,7 @@ def run(ctx: Context) -> Section:
             "share": share,
             "t_ratio": t_ratio,
             "above_floor": above,
+            "paired_ratio": paired,
             "reference_s": ref_s,
             "baselines": baselines,
         },
