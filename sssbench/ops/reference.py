@@ -18,7 +18,11 @@ from sssbench._checks import check_choice, check_scalar
 from sssbench.gbuffer import GBuffer, pixel_size_mm
 from sssbench.ops.timing import timed_pass
 from sssbench.profiles.base import Profile, _gauss_legendre
-from sssbench.profiles.sum_of_gaussians import SumOfGaussians, interval_mass
+from sssbench.profiles.sum_of_gaussians import (
+    SumOfGaussians,
+    flat_cell_mass,
+    narrow_tilted_cell_mass,
+)
 
 __all__ = ["ReferenceSSS", "reference_sss", "reference_radius_px", "reference_code_digest"]
 
@@ -385,25 +389,13 @@ def _sog_cell_weights(
     """:meth:`SumOfGaussians.cell_integral` of flat cell tensors (M,) with the per-Gaussian
     ``rule`` of :func:`_sog_rule`, channels first: ``(3, M)``."""
     v = profile.variances.to(dx)
-    s = torch.sqrt(v)
     used = [i for i, r in enumerate(rule) if r is not None]
     terms: dict[int, torch.Tensor] = {}
-    if any(r == "narrow" for r in rule):
-        cx, cy = 1 + sx**2, 1 + sy**2
-        bx, by = dx + sx * dz, dy + sy * dz  # Δ · t_x, Δ · t_y
-        dist2 = dx**2 + dy**2 + dz**2
     for i in used:
-        si = s[i]
         if rule[i] == "flat":
-            mx = interval_mass((dx - hh) / si, (dx + hh) / si)
-            my = interval_mass((dy - hh) / si, (dy + hh) / si)
-            terms[i] = torch.exp(-(dz**2) / (2 * v[i])) * mx * my
+            terms[i] = flat_cell_mass(dx, dy, dz, hh, hh, v[i])
         elif rule[i] == "narrow":
-            resid = (dist2 - bx**2 / cx - by**2 / cy).clamp_min(0)
-            rx, ry = torch.sqrt(cx) / si, torch.sqrt(cy) / si
-            mx = interval_mass((bx / cx - hh) * rx, (bx / cx + hh) * rx)
-            my = interval_mass((by / cy - hh) * ry, (by / cy + hh) * ry)
-            terms[i] = torch.exp(-resid / (2 * v[i])) * mx * my
+            terms[i] = narrow_tilted_cell_mass(dx, dy, dz, hh, hh, sx, sy, v[i])
     w = profile.weights.to(dx)
     out = None
     quad = [i for i in used if isinstance(rule[i], int)]

@@ -108,3 +108,31 @@ def test_bad_inputs_name_the_argument(variances, weights, match):
 def test_unknown_table_name():
     with pytest.raises(ValueError, match="name must be one of"):
         SumOfGaussians.from_table("skin_unknown")
+
+
+def test_narrow_tilted_cell_is_capped_on_steep_silhouette_cells():
+    """A Gaussian narrower than the cell on a patch sloping along both axes: the orthogonal-
+    tangent closed form can overstate a far cell by orders of magnitude (uncapped: 0.99 of
+    the mass below); the result must stay within the exact area × peak-density bound, which
+    scipy's dblquad of the patch integral (independent) also respects."""
+    from sssbench.profiles.sum_of_gaussians import narrow_tilted_cell_mass
+
+    v, h = 0.01, 0.25  # σ = 0.1 mm on a 0.5 mm cell
+    f64 = lambda x: torch.tensor([x], dtype=torch.float64)  # noqa: E731
+    for dx, dy, dz, sx, sy in [
+        (0.1792, -0.6356, -0.5354, -3.9745, 3.5970),  # steep both ways, 3.9σ away
+        (0.9, 0.0, 0.0, -3.97, -2.92),
+        (-0.6, 0.7, 0.4, 2.0, -1.5),
+    ]:
+        got = float(narrow_tilted_cell_mass(*map(f64, (dx, dy, dz, h, h, sx, sy)), v))
+
+        def density(t, s, dx=dx, dy=dy, dz=dz, sx=sx, sy=sy):
+            r2 = (dx + s) ** 2 + (dy + t) ** 2 + (dz + sx * s + sy * t) ** 2
+            return math.exp(-r2 / (2 * v)) / (2 * math.pi * v) * math.sqrt(1 + sx * sx + sy * sy)
+
+        ref = integrate.dblquad(density, -h, h, -h, h, epsabs=1e-15, epsrel=1e-9)[0]
+        near2 = max(abs(dx) - h, 0) ** 2 + max(abs(dy) - h, 0) ** 2
+        area = 4 * h * h * math.sqrt(1 + sx * sx + sy * sy)
+        cap = area * math.exp(-near2 / (2 * v)) / (2 * math.pi * v)
+        assert ref <= cap and got <= cap * (1 + 1e-12)
+        assert abs(got - ref) <= cap
