@@ -6,21 +6,39 @@
 #include <stdint.h>
 #include <stdlib.h>
 
+/* lane-wise a < b ? a : b and a > b ? a : b (the second operand where either is NaN): the
+ * SSE min / max instructions for float, lane masks otherwise */
+#define VSELECT(cond, a, b) \
+    ((__typeof__(a))(((__typeof__(cond))(a) & (cond)) | ((__typeof__(cond))(b) & ~(cond))))
+#if defined(__SSE__)
+#include <xmmintrin.h>
+#define VMIN_F32(a, b) ((__typeof__(a))_mm_min_ps((__m128)(a), (__m128)(b)))
+#define VMAX_F32(a, b) ((__typeof__(a))_mm_max_ps((__m128)(a), (__m128)(b)))
+#else
+#define VMIN_F32(a, b) VSELECT((a) < (b), a, b)
+#define VMAX_F32(a, b) VSELECT((a) > (b), a, b)
+#endif
+#define VMIN_F64(a, b) VSELECT((a) < (b), a, b)
+#define VMAX_F64(a, b) VSELECT((a) > (b), a, b)
+
 #define SCALAR float
 #define SUFFIX f32
 #define EXPF expf
 #define FABSF fabsf
-#define ISCALAR int32_t
+#define VMIN VMIN_F32
+#define VMAX VMAX_F32
 #include "gather_body.h"
 #undef SCALAR
 #undef SUFFIX
 #undef EXPF
 #undef FABSF
-#undef ISCALAR
+#undef VMIN
+#undef VMAX
 
 #define SCALAR double
 #define SUFFIX f64
 #define EXPF exp
 #define FABSF fabs
-#define ISCALAR int64_t
+#define VMIN VMIN_F64
+#define VMAX VMAX_F64
 #include "gather_body.h"

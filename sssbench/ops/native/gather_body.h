@@ -29,7 +29,6 @@ typedef struct {
 } CAT(job_, SUFFIX);
 
 typedef SCALAR CAT(vec_, SUFFIX) __attribute__((vector_size(4 * sizeof(SCALAR))));
-typedef ISCALAR CAT(mask_, SUFFIX) __attribute__((vector_size(4 * sizeof(SCALAR))));
 
 /* (r, g, b, depth) of flat pixel l: one 4-lane load from the interleaved copy when PACKED,
  * else four loads from the planes. */
@@ -51,14 +50,12 @@ static inline __attribute__((always_inline)) CAT(vec_, SUFFIX)
  * lane 3 carries depth through the lerp (its weight is 0); lane by lane these are the float
  * operations of the torch loop, in its order. */
 static inline __attribute__((always_inline)) void CAT(taps_, SUFFIX)(
-    const CAT(job_, SUFFIX) *j, const int PACKED) {
+    const CAT(job_, SUFFIX) *j, const int PACKED, const int FOLLOW) {
     typedef CAT(vec_, SUFFIX) vec;
-    typedef CAT(mask_, SUFFIX) vmask;
     const int64_t w = j->w, hw = j->h * j->w, k = j->k;
     const int64_t n_axis = j->axis_y ? j->h : j->w;
     const int64_t stride = j->axis_y ? j->w : 1;
     const SCALAR last = (SCALAR)(n_axis - 1);
-    const int follow = j->follow;
     const vec inv = {j->inv_scale[0], j->inv_scale[1], j->inv_scale[2], 0};
     const vec one = {1, 1, 1, 1}, zero = {0, 0, 0, 0};
     const int64_t plane = j->compact ? j->n : hw;
@@ -90,13 +87,10 @@ static inline __attribute__((always_inline)) void CAT(taps_, SUFFIX)(
             const vec vb = CAT(fetch_, SUFFIX)(j, bb, hw, PACKED);
             vec v = va + f * (vb - va), wt;
             __builtin_memcpy(&wt, j->weights4 + 4 * t, sizeof wt);
-            if (follow) {
+            if (FOLLOW) {
                 const vec d = FABSF(v[3] - cz) * inv; /* |dz| / surface_scale per channel */
-                if (follow == 1) { /* 002 appendix shader: lerp back by clamp(d, 0, 1) */
-                    const vmask lo = d < one;
-                    vec s = (vec)(((vmask)d & lo) | ((vmask)one & ~lo));
-                    const vmask hi = s > zero;
-                    s = (vec)(((vmask)s & hi) | ((vmask)zero & ~hi));
+                if (FOLLOW == 1) { /* 002 appendix shader: lerp back by clamp(d, 0, 1) */
+                    const vec s = VMAX(VMIN(d, one), zero);
                     v = v + s * (c - v);
                 } else { /* 000 eq. 7 */
                     const vec e = {EXPF((SCALAR)-0.5 * d[0] * d[0]),
@@ -114,13 +108,20 @@ static inline __attribute__((always_inline)) void CAT(taps_, SUFFIX)(
     }
 }
 
+/* One specialisation of the tap loop per layout and follow-surface mode (constants). */
 static void *CAT(run_packed_, SUFFIX)(void *arg) {
-    CAT(taps_, SUFFIX)((const CAT(job_, SUFFIX) *)arg, 1);
+    const CAT(job_, SUFFIX) *j = (const CAT(job_, SUFFIX) *)arg;
+    if (j->follow == 0) CAT(taps_, SUFFIX)(j, 1, 0);
+    else if (j->follow == 1) CAT(taps_, SUFFIX)(j, 1, 1);
+    else CAT(taps_, SUFFIX)(j, 1, 2);
     return NULL;
 }
 
 static void *CAT(run_planar_, SUFFIX)(void *arg) {
-    CAT(taps_, SUFFIX)((const CAT(job_, SUFFIX) *)arg, 0);
+    const CAT(job_, SUFFIX) *j = (const CAT(job_, SUFFIX) *)arg;
+    if (j->follow == 0) CAT(taps_, SUFFIX)(j, 0, 0);
+    else if (j->follow == 1) CAT(taps_, SUFFIX)(j, 0, 1);
+    else CAT(taps_, SUFFIX)(j, 0, 2);
     return NULL;
 }
 
