@@ -346,8 +346,8 @@ def _native_pass(
     """One image of a pass through the native loop (``native/gather_body.h``), which computes
     the per-pixel scale and the taps exactly as the torch code of :func:`separable_pass` and
     :func:`_accumulate` and writes ``out`` ``(3, H, W)`` (contiguous) at the active pixels.
-    ``inplace`` (``out`` is ``image``): the loop writes compact ``(3, N)`` rows, copied into
-    ``out`` once every tap has been read."""
+    ``inplace`` (``out`` is ``image``): every sample is read before it is overwritten — from
+    the interleaved copy, or via compact ``(3, N)`` rows copied into ``out`` at the end."""
     lib = native.library()
     _, h, w = image.shape
     keep = []  # contiguous copies must outlive the call
@@ -365,19 +365,21 @@ def _native_pass(
         f_px, correction, maxdd = focal_px * stretch.ssslevel, stretch.correction, stretch.maxdd
     per_pixel_width = width[bi] if isinstance(width, torch.Tensor) else None
     n = h * w if lin is None else lin.numel()
-    dst = torch.empty(3, n, dtype=image.dtype) if inplace else out
     # a quarter of the image or more covered: the loop interleaves (r, g, b, depth) into this
-    # buffer once and then fetches each tap with one 4-lane load
+    # buffer once and then fetches every sample from it, so it may write ``out`` even when
+    # that is ``image``; otherwise an in-place pass writes compact rows, scattered afterwards
     packed = torch.empty(4 * h * w, dtype=image.dtype) if 4 * n >= h * w else None
+    compact = inplace and packed is None
+    dst = torch.empty(3, n, dtype=image.dtype) if compact else out
     fn = lib.sss_gather_f32 if image.dtype == torch.float32 else lib.sss_gather_f64
     fn(
         ptr(image), ptr(depth), ptr(lin), ptr(None if strength is None else strength[bi]),
         ptr(per_pixel_width), ptr(dd), ptr(offsets), ptr(weights), ptr(inv_scale), dst.data_ptr(),
         None if packed is None else packed.data_ptr(),
         f_px, 0.0 if per_pixel_width is not None else float(width), correction, maxdd,
-        n, offsets.numel(), h, w, int(axis == 2), follow, int(inplace), torch.get_num_threads(),
+        n, offsets.numel(), h, w, int(axis == 2), follow, int(compact), torch.get_num_threads(),
     )  # fmt: skip
-    if inplace:
+    if compact:
         flat = out.view(3, h * w)
         if lin is None:
             flat.copy_(dst)

@@ -226,10 +226,11 @@ def test_inference_tensors_are_memoised_only_within_a_call_scope():
 
 
 @pytest.mark.parametrize("name", ["native", "torch"])
-@pytest.mark.parametrize("holes", [True, False])
-def test_inplace_pass_equals_the_copying_pass(name, holes):
-    """``inplace=True`` reads every tap before it writes (compact rows, then one copy)."""
-    g = scene(b=2, holes=holes)
+@pytest.mark.parametrize("cover", [0.1, 0.7, None], ids=["sparse", "dense", "full"])
+def test_inplace_pass_equals_the_copying_pass(name, cover):
+    """``inplace=True`` reads every tap before it writes: from the interleaved copy (dense
+    stencil) or via compact rows scattered at the end (sparse stencil, torch loop)."""
+    g = scene(b=2, holes=cover is not None, cover=cover or 0.0)
     k = kernel()
     with backend(name):
         for direction in ("x", "y"):
