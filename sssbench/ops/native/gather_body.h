@@ -108,19 +108,15 @@ static inline __attribute__((always_inline)) void CAT(taps_, SUFFIX)(
     }
 }
 
-/* One specialisation of the tap loop per layout and follow-surface mode (constants). */
-static void *CAT(run_packed_, SUFFIX)(void *arg) {
+/* The tap loop, specialised per layout and follow-surface mode (both constants there). */
+static void *CAT(run_taps_, SUFFIX)(void *arg) {
     const CAT(job_, SUFFIX) *j = (const CAT(job_, SUFFIX) *)arg;
-    if (j->follow == 0) CAT(taps_, SUFFIX)(j, 1, 0);
-    else if (j->follow == 1) CAT(taps_, SUFFIX)(j, 1, 1);
-    else CAT(taps_, SUFFIX)(j, 1, 2);
-    return NULL;
-}
-
-static void *CAT(run_planar_, SUFFIX)(void *arg) {
-    const CAT(job_, SUFFIX) *j = (const CAT(job_, SUFFIX) *)arg;
-    if (j->follow == 0) CAT(taps_, SUFFIX)(j, 0, 0);
-    else if (j->follow == 1) CAT(taps_, SUFFIX)(j, 0, 1);
+    const int packed = j->packed != NULL, follow = j->follow;
+    if (packed && follow == 0) CAT(taps_, SUFFIX)(j, 1, 0);
+    else if (packed && follow == 1) CAT(taps_, SUFFIX)(j, 1, 1);
+    else if (packed) CAT(taps_, SUFFIX)(j, 1, 2);
+    else if (follow == 0) CAT(taps_, SUFFIX)(j, 0, 0);
+    else if (follow == 1) CAT(taps_, SUFFIX)(j, 0, 1);
     else CAT(taps_, SUFFIX)(j, 0, 2);
     return NULL;
 }
@@ -187,8 +183,7 @@ int CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const int64
         jobs[t].begin = n * t / threads;
         jobs[t].end = n * (t + 1) / threads;
     }
-    CAT(parallel_, SUFFIX)(packed ? CAT(run_packed_, SUFFIX) : CAT(run_planar_, SUFFIX), jobs,
-                           threads);
+    CAT(parallel_, SUFFIX)(CAT(run_taps_, SUFFIX), jobs, threads);
     free(weights4);
     return 0;
 }
