@@ -253,6 +253,9 @@ def separable_pass(
 
     start = time.perf_counter()
     stencils = None if strength is None else image_stencils(strength)
+    f_px, ddepth = focal_px, None  # pixels per mm at 1 mm depth; |∂depth/∂axis| (mm / px)
+    if stretch is not None:  # 003 §7.3.1
+        f_px, ddepth = focal_px * stretch.ssslevel, _axis_derivative(gbuffer.depth, axis)
     out = image if inplace else image.clone(memory_format=torch.contiguous_format)
     n_total = 0
     for bi in range(b_):  # per image: every tensor below is a view of one (C, H·W) plane set
@@ -261,8 +264,11 @@ def separable_pass(
             continue
         if backend == "native":
             _native_pass(
-                image[bi], out[bi], gbuffer.depth[bi], lin, strength, width, stretch, bi,
-                axis, focal_px, offsets, weights, follow, inv_scale, inplace,
+                image[bi], out[bi], gbuffer.depth[bi], lin,
+                None if strength is None else strength[bi],
+                width[bi] if isinstance(width, torch.Tensor) else width,
+                None if ddepth is None else ddepth[bi], stretch, axis, f_px, offsets, weights,
+                follow, inv_scale, inplace,
             )  # fmt: skip
             n_total += h_ * w_ if lin is None else int(lin.numel())
             continue
@@ -272,11 +278,9 @@ def separable_pass(
         z = depth[lin]
         # ---- pixels per kernel-offset unit (DESIGN §2: a pixel covers 2 z tan(fov/2)/H mm)
         denom = z
-        f_px = focal_px
-        if stretch is not None:  # 003 §7.3.1
-            dd = _axis_derivative(gbuffer.depth[bi : bi + 1], axis).reshape(-1)[lin]
+        if ddepth is not None:  # 003 §7.3.1
+            dd = ddepth[bi].reshape(-1)[lin]
             denom = z + stretch.correction * dd.clamp_max(stretch.maxdd)
-            f_px = focal_px * stretch.ssslevel
         scale = f_px / denom
         if isinstance(width, torch.Tensor):
             scale = scale * width[bi].reshape(-1)[lin]
@@ -333,10 +337,10 @@ def _native_pass(
     lin: torch.Tensor | None,
     strength: torch.Tensor | None,
     width: float | torch.Tensor,
+    ddepth: torch.Tensor | None,
     stretch: Stretch | None,
-    bi: int,
     axis: int,
-    focal_px: float,
+    f_px: float,
     offsets: torch.Tensor,
     weights: torch.Tensor,
     follow: int,
@@ -346,6 +350,7 @@ def _native_pass(
     """One image of a pass through the native loop (``native/gather_body.h``), which computes
     the per-pixel scale and the taps exactly as the torch code of :func:`separable_pass` and
     :func:`_accumulate` and writes ``out`` ``(3, H, W)`` (contiguous) at the active pixels.
+    Per-image tensors are ``(1, H, W)``; ``f_px`` includes the stretch's ``ssslevel``.
     ``inplace`` (``out`` is ``image``): every sample is read before it is overwritten — from
     the interleaved copy, or via compact ``(3, N)`` rows copied into ``out`` at the end."""
     lib = native.library()
@@ -359,11 +364,8 @@ def _native_pass(
         keep.append(t)
         return t.data_ptr()
 
-    dd, f_px, correction, maxdd = None, focal_px, 0.0, 0.0
-    if stretch is not None:  # 003 §7.3.1
-        dd = _axis_derivative(depth[None], axis)[0]
-        f_px, correction, maxdd = focal_px * stretch.ssslevel, stretch.correction, stretch.maxdd
-    per_pixel_width = width[bi] if isinstance(width, torch.Tensor) else None
+    correction, maxdd = (0.0, 0.0) if stretch is None else (stretch.correction, stretch.maxdd)
+    per_pixel_width = width if isinstance(width, torch.Tensor) else None
     n = h * w if lin is None else lin.numel()
     # a quarter of the image or more covered: the loop interleaves (r, g, b, depth) into this
     # buffer once and then fetches every sample from it, so it may write ``out`` even when
@@ -373,8 +375,8 @@ def _native_pass(
     dst = torch.empty(3, n, dtype=image.dtype) if compact else out
     fn = lib.sss_gather_f32 if image.dtype == torch.float32 else lib.sss_gather_f64
     fn(
-        ptr(image), ptr(depth), ptr(lin), ptr(None if strength is None else strength[bi]),
-        ptr(per_pixel_width), ptr(dd), ptr(offsets), ptr(weights), ptr(inv_scale), dst.data_ptr(),
+        ptr(image), ptr(depth), ptr(lin), ptr(strength), ptr(per_pixel_width), ptr(ddepth),
+        ptr(offsets), ptr(weights), ptr(inv_scale), dst.data_ptr(),
         None if packed is None else packed.data_ptr(),
         f_px, 0.0 if per_pixel_width is not None else float(width), correction, maxdd,
         n, offsets.numel(), h, w, int(axis == 2), follow, int(compact), torch.get_num_threads(),
