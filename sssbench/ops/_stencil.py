@@ -91,7 +91,11 @@ def active_pixels(mask: torch.Tensor | None, numel: int) -> torch.Tensor | None:
     """Flat indices of the pixels with ``mask > 0``, or ``None`` (every pixel) without mask."""
     if mask is None:
         return None
-    return torch.nonzero(mask.reshape(-1) > 0).squeeze(1)
+    lists = image_stencils(mask)  # one stencil per mask, shared with the passes
+    if len(lists) == 1:
+        return lists[0]
+    hw = mask.shape[-2] * mask.shape[-1]
+    return torch.cat([lin + bi * hw for bi, lin in enumerate(lists)])
 
 
 def image_stencils(mask: torch.Tensor) -> list[torch.Tensor]:
