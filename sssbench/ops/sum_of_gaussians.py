@@ -318,9 +318,9 @@ class SumOfGaussiansSSS(SeparableMethod):
             if step.kernel is None:  # the unblurred first Gaussian: w'_1 = 1, no pass
                 continue
             mask = self._lod_mask(gbuffer, math.sqrt(step.increment))
-            active = mask > 0
+            stencils = image_stencils(mask)
             name = f"sog{i}"
-            if not bool(active.any()):  # 003 §7.3.2: not computed anywhere
+            if not any(lin.numel() for lin in stencils):  # 003 §7.3.2: not computed anywhere
                 for axis in ("x", "y"):
                     add_record(PassRecord(f"{name}.{axis}", len(step.kernel), 0, 0.0))
                 continue
@@ -337,7 +337,7 @@ class SumOfGaussiansSSS(SeparableMethod):
                 rtf = rtf.clone(memory_format=torch.contiguous_format)
             # 003 §7.3.3, Listing 7.2: rtf ← blend · rt1 + (1 − blend) · rtf, as one lerp, on
             # the stencil's pixels only
-            for bi, lin in enumerate(image_stencils(mask)):
+            for bi, lin in enumerate(stencils):
                 flat, blurred = rtf[bi].view(3, -1), rt1[bi].reshape(3, -1)
                 flat[:, lin] = torch.lerp(flat[:, lin], blurred[:, lin], blend.view(3, 1))
         return rtf
