@@ -20,6 +20,7 @@ from sssbench.ops.timing import timed_pass
 from sssbench.profiles.base import Profile, _gauss_legendre
 from sssbench.profiles.sum_of_gaussians import (
     SumOfGaussians,
+    cell_rules,
     flat_cell_mass,
     narrow_tilted_cell_mass,
 )
@@ -292,32 +293,6 @@ def _is_sum_of_gaussians(profile: Profile) -> bool:
     )
 
 
-def _sog_rule(
-    v: list[float], s: list[float], near2_min: float, h_max: float, tilted: bool
-) -> tuple[int | str | None, ...]:
-    """Per Gaussian, how :meth:`SumOfGaussians.cell_integral` integrates one call's cells:
-    ``None`` (skipped), ``"flat"`` (closed form, no slopes), ``"narrow"`` (closed form with
-    orthogonal tangents) or the Gauss–Legendre order ``n``: the same decisions from the same
-    per-call statistics (nearest cell distance², widest cell, any slope), so batching offsets
-    does not change which rule a cell gets. One difference: a Gauss–Legendre Gaussian is
-    skipped beyond ``2·_SOG_SKIP·v`` instead of ``80 v`` (see :func:`reference_sss`)."""
-    rule: list[int | str | None] = []
-    for vi, si in zip(v, s, strict=True):
-        if near2_min > 80.0 * vi:
-            rule.append(None)
-        elif not tilted:
-            rule.append("flat")
-        elif si < 0.5 * h_max:
-            rule.append("narrow")
-        elif near2_min > 2.0 * _SOG_SKIP * vi:
-            rule.append(None)
-        else:
-            ratio = h_max / si
-            n = 2 if ratio <= 0.25 else 3 if ratio <= 0.5 else 4 if ratio <= 1 else 6
-            rule.append(n + 4 if near2_min < vi else n)
-    return tuple(rule)
-
-
 def _sog_gauss_legendre(
     dx: torch.Tensor,
     dy: torch.Tensor,
@@ -387,7 +362,7 @@ def _sog_cell_weights(
     sy: torch.Tensor,
 ) -> torch.Tensor:
     """:meth:`SumOfGaussians.cell_integral` of flat cell tensors (M,) with the per-Gaussian
-    ``rule`` of :func:`_sog_rule`, channels first: ``(3, M)``."""
+    ``rule`` of :func:`cell_rules`, channels first: ``(3, M)``."""
     v = profile.variances.to(dx)
     used = [i for i, r in enumerate(rule) if r is not None]
     terms: dict[int, torch.Tensor] = {}
@@ -420,7 +395,7 @@ def _gather_sog(
     """:func:`_gather_generic` for a sum of Gaussians, many offsets per batch.
 
     Offsets are visited nearest first in batches of ``_BATCH_ELEMS // centres``; each offset
-    keeps its own support test and its own :func:`_sog_rule` (as if it were one
+    keeps its own support test and its own :func:`cell_rules` (as if it were one
     :meth:`SumOfGaussians.cell_integral` call), and offsets with the same rule are integrated
     together. Equal to the offset loop to rounding (tested)."""
     e = centre.numel()
@@ -429,7 +404,6 @@ def _gather_sog(
     if e == 0:
         return acc, wsum
     v = [float(x) for x in profile.variances.to(torch.float64)]
-    s = [float(x) for x in torch.sqrt(profile.variances.to(torch.float64))]
     offs = sorted((du * du + dv * dv, dv, du) for dv in range(-k, k + 1) for du in range(-k, k + 1))
     shift = torch.tensor([dv * wp + du for _, dv, du in offs], dtype=centre.dtype)
     # field-major (every gathered field contiguous), without the stencil column: a neighbour
@@ -457,7 +431,7 @@ def _gather_sog(
         for j in range(c):
             if near_on[j] > radius_mm**2:
                 continue  # no on-surface neighbour, or all beyond the support
-            rule = _sog_rule(v, s, near2_min[j], h_max[j], tilted[j] > 0)
+            rule = cell_rules(v, near2_min[j], h_max[j], tilted[j] > 0, 2.0 * _SOG_SKIP)
             if any(r is not None for r in rule):
                 groups.setdefault(rule, []).append(j)
         for rule, rows in groups.items():

@@ -194,7 +194,6 @@ class SumOfGaussians(Profile):
           point (see :func:`narrow_tilted_cell_mass`).
         """
         v = self.variances.to(dx)
-        s = torch.sqrt(v)
         # squared distance from the origin to the nearest point of each cell: a Gaussian whose
         # mass there is below e^-40 relative (4e-18) for every cell is skipped (exact to float64)
         near2 = (dx.abs() - half_x).clamp_min(0) ** 2 + (dy.abs() - half_y).clamp_min(0) ** 2
@@ -206,25 +205,65 @@ class SumOfGaussians(Profile):
             sx = torch.zeros_like(dx) if slope_x is None else slope_x
             sy = torch.zeros_like(dy) if slope_y is None else slope_y
             h_max = float(torch.maximum(half_x, half_y).max())
-        for i in range(v.numel()):
-            if near2_min > 80.0 * float(v[i]):
+        rules = cell_rules(v.tolist(), near2_min, h_max if tilted else 0.0, tilted)
+        for i, rule in enumerate(rules):
+            if rule is None:
                 continue
-            si = s[i]
-            if not tilted:
+            if rule == "flat":
                 term = flat_cell_mass(dx, dy, dz, half_x, half_y, v[i])
-            elif float(si) >= 0.5 * h_max:
-                ratio = h_max / float(si)
-                n = 2 if ratio <= 0.25 else 3 if ratio <= 0.5 else 4 if ratio <= 1 else 6
-                if near2_min < float(v[i]):  # the peak lies within σ of a cell: resolve it
-                    n += 4
-                term = _tilted_gauss_legendre(dx, dy, dz, half_x, half_y, sx, sy, float(v[i]), n)
-            else:
+            elif rule == "narrow":
                 term = narrow_tilted_cell_mass(dx, dy, dz, half_x, half_y, sx, sy, v[i])
+            else:
+                term = _tilted_gauss_legendre(
+                    dx, dy, dz, half_x, half_y, sx, sy, float(v[i]), int(rule)
+                )
             out = out + term[..., None] * self.weights[i].to(dx)
         return out
 
     def second_moment(self) -> torch.Tensor:
         return (self.variances[:, None] * self.weights).sum(0) / self.total()
+
+
+def cell_rules(
+    variances: list[float],
+    near2_min: float,
+    h_max: float,
+    tilted: bool,
+    quadrature_skip: float = 80.0,
+) -> tuple[int | str | None, ...]:
+    """Per Gaussian, how :meth:`SumOfGaussians.cell_integral` integrates one set of cells.
+
+    ``None``: skipped, every cell's nearest point is beyond ``√(80 v)`` (mass below e^-40);
+    ``"flat"``: the fronto-parallel closed form; ``"narrow"``: the tilted closed form of a
+    Gaussian narrower than a quarter of the widest cell (σ < h_max / 2);
+    an int ``n``: an n×n Gauss–Legendre rule, n = 2, 3, 4 or 6 as the cell is ≤ ½, ≤ 1,
+    ≤ 2 or ≤ 4 σ wide, four more where the peak lies within σ of a cell; a quadrature
+    Gaussian is also skipped beyond ``√(quadrature_skip · v)`` (the reference's batched path
+    uses 50, its bound documented in ``reference_sss``).
+
+    Args:
+        variances: v per Gaussian, mm².
+        near2_min: squared lateral distance of the nearest cell point, mm².
+        h_max: largest cell half-size, mm (used only when ``tilted``).
+        tilted: whether any cell has a slope.
+        quadrature_skip: skip radius² over v for Gauss–Legendre Gaussians.
+    """
+    rule: list[int | str | None] = []
+    for v in variances:
+        s = math.sqrt(v)
+        if near2_min > 80.0 * v:
+            rule.append(None)
+        elif not tilted:
+            rule.append("flat")
+        elif s < 0.5 * h_max:
+            rule.append("narrow")
+        elif near2_min > quadrature_skip * v:
+            rule.append(None)
+        else:
+            ratio = h_max / s
+            n = 2 if ratio <= 0.25 else 3 if ratio <= 0.5 else 4 if ratio <= 1 else 6
+            rule.append(n + 4 if near2_min < v else n)
+    return tuple(rule)
 
 
 def flat_cell_mass(
