@@ -15,7 +15,14 @@ from typing import TypeVar
 
 import torch
 
-__all__ = ["active_pixels", "apply_on_active", "image_stencils", "memoised", "memo_scope"]
+__all__ = [
+    "active_pixels",
+    "apply_on_active",
+    "image_spans",
+    "image_stencils",
+    "memoised",
+    "memo_scope",
+]
 
 #: memo of :func:`memoised`: key -> (the key tensors themselves, value)
 _MEMO: OrderedDict[tuple, tuple[tuple, object]] = OrderedDict()
@@ -113,6 +120,36 @@ def image_stencils(mask: torch.Tensor) -> list[torch.Tensor]:
     return memoised(
         (mask,), "stencil", lambda: [torch.nonzero(m.reshape(-1) > 0).squeeze(1) for m in mask]
     )
+
+
+def image_spans(mask: torch.Tensor | None, shape: tuple[int, int, int]) -> list[torch.Tensor]:
+    """Per image, the runs of active pixels, row by row: ``(S, 3)`` int64 ``(row, first
+    column, end column)`` sorted by row then column, the stencil as the native loop walks it.
+
+    Derived from :func:`image_stencils` and memoised with it; without a mask every row is one
+    run.
+
+    Args:
+        mask: ``(B, 1, H, W)`` stencil / strength, or ``None``.
+        shape: ``(B, H, W)``.
+    """
+    b, h, w = shape
+    if mask is None:
+        rows = torch.arange(h, dtype=torch.int64)
+        full = torch.stack([rows, torch.zeros_like(rows), torch.full_like(rows, w)], 1)
+        return [full] * b
+
+    def runs(lin: torch.Tensor) -> torch.Tensor:
+        if lin.numel() == 0:
+            return torch.zeros(0, 3, dtype=torch.int64)
+        row, col = lin // w, lin % w
+        start = torch.ones_like(lin, dtype=torch.bool)  # a run starts where the next pixel
+        start[1:] = (lin[1:] != lin[:-1] + 1) | (row[1:] != row[:-1])  # is not the previous + 1
+        first = torch.nonzero(start).squeeze(1)
+        last = torch.cat([first[1:], first.new_tensor([lin.numel()])]) - 1
+        return torch.stack([row[first], col[first], col[last] + 1], 1).contiguous()
+
+    return memoised((mask,), "spans", lambda: [runs(lin) for lin in image_stencils(mask)])
 
 
 def apply_on_active(

@@ -33,7 +33,7 @@ from sssbench._checks import check_choice, check_scalar, check_tensor
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.kernel1d import Kernel1D
 from sssbench.ops import native
-from sssbench.ops._stencil import image_stencils
+from sssbench.ops._stencil import image_spans, image_stencils
 from sssbench.ops.timing import PassRecord, add_record
 
 __all__ = [
@@ -253,24 +253,34 @@ def separable_pass(
 
     start = time.perf_counter()
     stencils = None if strength is None else image_stencils(strength)
+    spans = image_spans(strength, (b_, h_, w_)) if backend == "native" else None
     f_px, ddepth = focal_px, None  # pixels per mm at 1 mm depth; |∂depth/∂axis| (mm / px)
     if stretch is not None:  # 003 §7.3.1
         f_px, ddepth = focal_px * stretch.ssslevel, _axis_derivative(gbuffer.depth, axis)
-    out = image if inplace else image.clone(memory_format=torch.contiguous_format)
+    # a new image is a copy of ``image`` with the active pixels replaced; the native loop
+    # copies it line by line as it goes (no separate full-image pass, and no torch thread
+    # pool left spinning against its threads)
+    copy = not inplace and backend == "native"
+    if inplace:
+        out = image
+    elif copy:
+        out = torch.empty_like(image, memory_format=torch.contiguous_format)
+    else:
+        out = image.clone(memory_format=torch.contiguous_format)
     n_total = 0
     for bi in range(b_):  # per image: every tensor below is a view of one (C, H·W) plane set
         lin = None if stencils is None else stencils[bi]
-        if lin is not None and lin.numel() == 0:
-            continue
-        if backend == "native":
+        empty = lin is not None and lin.numel() == 0
+        if backend == "native" and not (empty and not copy):
             _native_pass(
-                image[bi], out[bi], gbuffer.depth[bi], lin,
+                image[bi], out[bi], gbuffer.depth[bi], spans[bi],
                 None if strength is None else strength[bi],
                 width[bi] if isinstance(width, torch.Tensor) else width,
                 None if ddepth is None else ddepth[bi], stretch, axis, f_px, offsets, weights,
-                follow, inv_scale, inplace,
+                follow, inv_scale, copy,
             )  # fmt: skip
             n_total += h_ * w_ if lin is None else int(lin.numel())
+        if backend == "native" or empty:
             continue
         depth = gbuffer.depth[bi].reshape(-1)
         if lin is None:
@@ -334,7 +344,7 @@ def _native_pass(
     image: torch.Tensor,
     out: torch.Tensor,
     depth: torch.Tensor,
-    lin: torch.Tensor | None,
+    spans: torch.Tensor,
     strength: torch.Tensor | None,
     width: float | torch.Tensor,
     ddepth: torch.Tensor | None,
@@ -345,14 +355,16 @@ def _native_pass(
     weights: torch.Tensor,
     follow: int,
     inv_scale: torch.Tensor,
-    inplace: bool,
+    copy: bool,
 ) -> None:
     """One image of a pass through the native loop (``native/gather_body.h``), which computes
     the per-pixel scale and the taps exactly as the torch code of :func:`separable_pass` and
-    :func:`_accumulate` and writes ``out`` ``(3, H, W)`` (contiguous) at the active pixels.
-    Per-image tensors are ``(1, H, W)``; ``f_px`` includes the stretch's ``ssslevel``.
-    ``inplace`` (``out`` is ``image``): every sample is read before it is overwritten — from
-    the interleaved copy, or via compact ``(3, N)`` rows copied into ``out`` at the end."""
+    :func:`_accumulate` and writes ``out`` ``(3, H, W)`` (contiguous) at the active pixels,
+    given as runs by ``spans`` ``(S, 3)`` (:func:`~sssbench.ops._stencil.image_spans`).
+    Per-image tensors are ``(1, H, W)``; ``f_px`` includes the stretch's ``ssslevel``. ``out``
+    may be ``image``: the loop reads every sample of a row (x) or column strip (y) into its
+    own buffer before it writes any result there. ``copy``: ``out`` is uninitialised and
+    gets ``image``'s pixels everywhere else (copied line by line as the loop goes)."""
     lib = native.library()
     _, h, w = image.shape
     keep = []  # contiguous copies must outlive the call
@@ -366,27 +378,16 @@ def _native_pass(
 
     correction, maxdd = (0.0, 0.0) if stretch is None else (stretch.correction, stretch.maxdd)
     per_pixel_width = width if isinstance(width, torch.Tensor) else None
-    n = h * w if lin is None else lin.numel()
-    # a quarter of the image or more covered: the loop interleaves (r, g, b, depth) into this
-    # buffer once and then fetches every sample from it, so it may write ``out`` even when
-    # that is ``image``; otherwise an in-place pass writes compact rows, scattered afterwards
-    packed = torch.empty(4 * h * w, dtype=image.dtype) if 4 * n >= h * w else None
-    compact = inplace and packed is None
-    dst = torch.empty(3, n, dtype=image.dtype) if compact else out
     fn = lib.sss_gather_f32 if image.dtype == torch.float32 else lib.sss_gather_f64
-    fn(
-        ptr(image), ptr(depth), ptr(lin), ptr(strength), ptr(per_pixel_width), ptr(ddepth),
-        ptr(offsets), ptr(weights), ptr(inv_scale), dst.data_ptr(),
-        None if packed is None else packed.data_ptr(),
+    status = fn(
+        ptr(image), ptr(depth), ptr(spans), ptr(strength), ptr(per_pixel_width), ptr(ddepth),
+        ptr(offsets), ptr(weights), ptr(inv_scale), out.data_ptr(),
         f_px, 0.0 if per_pixel_width is not None else float(width), correction, maxdd,
-        n, offsets.numel(), h, w, int(axis == 2), follow, int(compact), torch.get_num_threads(),
+        spans.shape[0], offsets.numel(), h, w, int(axis == 2), follow, int(copy),
+        torch.get_num_threads(),
     )  # fmt: skip
-    if compact:
-        flat = out.view(3, h * w)
-        if lin is None:
-            flat.copy_(dst)
-        else:
-            flat.index_copy_(1, lin, dst)
+    if status != 0:
+        raise MemoryError(f"native gather: no memory for the line buffers of a {h}x{w} image")
 
 
 def _lerp_fetch(planes: torch.Tensor, a: torch.Tensor, b: torch.Tensor, f: torch.Tensor):

@@ -67,7 +67,7 @@ def tol(dtype):
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 @pytest.mark.parametrize("direction", ["x", "y"])
-@pytest.mark.parametrize("cover", [0.7, 0.1], ids=["interleaved", "planar"])
+@pytest.mark.parametrize("cover", [0.7, 0.1], ids=["dense", "sparse"])
 @pytest.mark.parametrize(
     "options",
     [
@@ -84,8 +84,7 @@ def tol(dtype):
     ids=lambda o: "-".join(f"{k}" for k in o) or "plain",
 )
 def test_native_equals_torch_loop(dtype, direction, cover, options):
-    """Both native layouts: >= 1/4 of the pixels covered interleaves the image, fewer fetch
-    from the planes."""
+    """Dense and sparse stencils (the y pass uses wide and narrow column strips)."""
     g = scene(dtype=dtype, cover=cover)
     ref, got = both(g.diffuse, kernel(), direction, g, **options)
     torch.testing.assert_close(got, ref, **tol(dtype))
@@ -183,6 +182,52 @@ def test_library_is_built_into_the_cache_dir(tmp_path):
     assert len(built) == 1 and outs[0] == str(tmp_path / "native")
 
 
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("cover", [0.95, 0.12], ids=["dense", "sparse"])
+def test_native_lines_windows_and_threads_on_a_larger_image(dtype, cover):
+    """An image large enough for two threads and many y strips (spans crossing strip edges),
+    kernels from a pixel wide to wider than the image, a per-pixel width with a few huge
+    values (their window is the whole line) and both follow-surface modes: each line reads
+    only the window its largest step can reach, which must hold every tap."""
+    g = scene(seed=5, h=90, w=203, dtype=dtype, cover=cover)
+    width = 0.05 + torch.rand(1, 1, 90, 203, generator=torch.Generator().manual_seed(2))
+    width[0, 0, 40, 100:105] = 1e4  # taps clamp at both borders
+    width = width.to(dtype)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        for wide in (0.2, 3.0, 60.0):
+            for direction in ("x", "y"):
+                for follow in ("lerp", "gaussian"):
+                    ref, got = both(g.diffuse, kernel(9), direction, g, width=width * wide,
+                                    follow_surface=follow, surface_scale=3.0)  # fmt: skip
+                    torch.testing.assert_close(got, ref, **tol(dtype))
+    finally:
+        torch.set_num_threads(threads)
+
+
+def test_spans_are_the_runs_of_the_stencil():
+    """Against a Python walk over the mask, row by row."""
+    from sssbench.ops._stencil import image_spans
+
+    g = scene(seed=7, b=2, h=9, w=13, cover=0.6)
+    g.mask[1] = 0
+    spans = image_spans(g.mask, (2, 9, 13))
+    for bi in range(2):
+        expected = []
+        for r in range(9):
+            c = 0
+            while c < 13:
+                if g.mask[bi, 0, r, c] > 0:
+                    start = c
+                    while c < 13 and g.mask[bi, 0, r, c] > 0:
+                        c += 1
+                    expected.append([r, start, c])
+                c += 1
+        assert spans[bi].tolist() == expected
+    assert image_spans(None, (1, 3, 5))[0].tolist() == [[0, 0, 5], [1, 0, 5], [2, 0, 5]]
+
+
 def test_stencil_memo_misses_after_an_in_place_write():
     g = scene()
     first = image_stencils(g.mask)
@@ -228,8 +273,8 @@ def test_inference_tensors_are_memoised_only_within_a_call_scope():
 @pytest.mark.parametrize("name", ["native", "torch"])
 @pytest.mark.parametrize("cover", [0.1, 0.7, None], ids=["sparse", "dense", "full"])
 def test_inplace_pass_equals_the_copying_pass(name, cover):
-    """``inplace=True`` reads every tap before it writes: from the interleaved copy (dense
-    stencil) or via compact rows scattered at the end (sparse stencil, torch loop)."""
+    """``inplace=True`` reads every tap before it writes: the native loop copies each row (x)
+    or column strip (y) it works on first; the torch loop gathers every tap first."""
     g = scene(b=2, holes=cover is not None, cover=cover or 0.0)
     k = kernel()
     with backend(name):

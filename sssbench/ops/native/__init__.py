@@ -1,8 +1,9 @@
 """The native tap loop of the gather primitive: C source built on first use, called via ctypes.
 
-``gather.c`` (float32 and float64, threads via pthreads; when a quarter of the image or more
-is covered it interleaves (r, g, b, depth) once so that each tap is one 4-lane load and
-4-lane arithmetic, otherwise it reads the planes) is compiled with the system C
+``gather.c`` (float32 and float64, threads via pthreads; it works line by line, a row for an x
+pass and a strip of columns for a y pass, and interleaves (r, g, b, depth) of the window the
+line's taps can reach into a small buffer, so that each tap is one 4-lane load from cache and
+4-lane arithmetic, and a pass reads only around the active pixels) is compiled with the system C
 compiler (``$CC``, else ``cc``/``gcc``) into a per-user cache
 (``$SSSBENCH_CACHE_DIR/native``, default ``~/.cache/sssbench/native``), keyed by the hash of
 the source and the compiler, written atomically so that parallel sweep workers may race. No
@@ -81,7 +82,7 @@ def _declare(lib: ctypes.CDLL) -> None:
     p, i64, i32, f64 = ctypes.c_void_p, ctypes.c_int64, ctypes.c_int, ctypes.c_double
     for fn in (lib.sss_gather_f32, lib.sss_gather_f64):
         fn.restype = ctypes.c_int
-        fn.argtypes = [p] * 11 + [f64] * 4 + [i64] * 4 + [i32] * 4
+        fn.argtypes = [p] * 10 + [f64] * 4 + [i64] * 4 + [i32] * 4
 
 
 def library() -> ctypes.CDLL | None:

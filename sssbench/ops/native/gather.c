@@ -5,6 +5,7 @@
 #include <pthread.h>
 #include <stdint.h>
 #include <stdlib.h>
+#include <string.h>
 
 /* lane-wise a < b ? a : b and a > b ? a : b (the second operand where either is NaN): the
  * SSE min / max instructions for float, lane masks otherwise */

@@ -2,191 +2,299 @@
  *
  * Mirrors sssbench.ops.gather._accumulate operation by operation (same order of float
  * operations, so results agree with the torch loop to rounding); see that function and
- * separable_pass for the formulas and their citations. Expects SCALAR, SUFFIX, EXPF, FABSF and
- * ISCALAR (the signed integer of SCALAR's size).
+ * separable_pass for the formulas and their citations. Expects SCALAR, SUFFIX, EXPF, FABSF,
+ * VMIN and VMAX.
+ *
+ * Work is done per line: a row of the image for an x pass, a strip of columns for a y pass (a
+ * y tap stays in its column). For each line the active pixels' scales are computed
+ * first; their largest step bounds how far any tap can reach, and only that window of the line
+ * is interleaved as (r, g, b, depth) into a small per-thread buffer, still in cache when the
+ * taps read it (one 4-lane load per fetch). So a pass reads the image once around the active
+ * pixels, never writes a full-image copy, and reads every sample before it writes the line's
+ * results: the output may be the input (an in-place pass), since lines never share pixels.
  */
 
 #define CAT_(a, b) a##b
 #define CAT(a, b) CAT_(a, b)
 
 typedef struct {
-    const SCALAR *src;      /* (3, H*W) image planes of one image */
-    const SCALAR *depth;    /* (H*W,) linear depth, mm */
-    const int64_t *lin;     /* (n,) active flat pixel indices, NULL: every pixel */
-    const SCALAR *mask;     /* (H*W,) strength (003 s' = s * alpha), NULL: none */
-    const SCALAR *width;    /* (H*W,) per-pixel width multiplier, NULL: width_scalar */
-    const SCALAR *ddepth;   /* (H*W,) |d depth / d axis| for the JG10 stretch, NULL: none */
-    const SCALAR *offsets;  /* (k,) tap offsets, mm per width unit */
-    const SCALAR *weights;  /* (k, 3) tap weights */
-    const SCALAR *inv_scale;/* (3,) 1 / surface_scale per channel */
-    SCALAR *dst;            /* (3, H*W) output planes written at the active pixels, or (3, n)
-                               compact rows when compact != 0 */
-    SCALAR *packed;         /* (H*W, 4) r, g, b, depth interleaved, NULL: use the planes */
-    const SCALAR *weights4; /* (k, 4) weights with a zero fourth lane */
-    SCALAR focal_px, width_scalar, correction, maxdd;
-    int64_t n, k, h, w, begin, end;
-    int axis_y, follow, compact;
+    const SCALAR *src;       /* (3, H*W) image planes of one image */
+    const SCALAR *depth;     /* (H*W,) linear depth, mm */
+    const int64_t *spans;    /* (n_spans, 3) runs of active pixels: row, first col, end col;
+                                sorted by row, then column */
+    const SCALAR *mask;      /* (H*W,) strength (003 s' = s * alpha), NULL: none */
+    const SCALAR *width;     /* (H*W,) per-pixel width multiplier, NULL: width_scalar */
+    const SCALAR *ddepth;    /* (H*W,) |d depth / d axis| for the JG10 stretch, NULL: none */
+    const SCALAR *offsets;   /* (k,) tap offsets, mm per width unit */
+    const SCALAR *weights4;  /* (k, 4) tap weights with a zero fourth lane */
+    const SCALAR *inv_scale; /* (3,) 1 / surface_scale per channel */
+    SCALAR *dst;             /* (3, H*W) output planes, written at the active pixels */
+    const int64_t *lines;    /* per line: (first entry in ids, span count, active pixels) */
+    const int64_t *ids;      /* the spans crossing each line, line after line, in order */
+    SCALAR focal_px, width_scalar, correction, maxdd, max_offset;
+    int64_t k, h, w, first, last, strip; /* this thread's lines [first, last); strip width */
+    int axis_y, follow, copy; /* copy: dst starts as a copy of src, line by line */
+    SCALAR *buf;   /* per thread: the line's interleaved (r, g, b, depth) window */
+    SCALAR *scale; /* per thread: the scales of one line's active pixels */
 } CAT(job_, SUFFIX);
 
 typedef SCALAR CAT(vec_, SUFFIX) __attribute__((vector_size(4 * sizeof(SCALAR))));
 
-/* (r, g, b, depth) of flat pixel l: one 4-lane load from the interleaved copy when PACKED,
- * else four loads from the planes. */
-static inline __attribute__((always_inline)) CAT(vec_, SUFFIX)
-    CAT(fetch_, SUFFIX)(const CAT(job_, SUFFIX) *j, int64_t l, int64_t hw, const int PACKED) {
-    CAT(vec_, SUFFIX) v;
-    if (PACKED) {
-        __builtin_memcpy(&v, j->packed + 4 * l, sizeof v);
-    } else {
-        v[0] = j->src[l];
-        v[1] = j->src[hw + l];
-        v[2] = j->src[2 * hw + l];
-        v[3] = j->depth[l];
+/* y-pass strip widths (columns): one cache line of each plane row when few pixels are active
+ * (a narrow strip packs no column it does not need), 512 bytes of each when many are or the
+ * whole image is copied (fewer strips cross each page of the planes: fewer TLB misses) */
+#define NARROW_STRIP ((int64_t)(64 / sizeof(SCALAR)))
+#define WIDE_STRIP ((int64_t)(512 / sizeof(SCALAR)))
+
+/* pixels per kernel-offset unit at flat pixel l: DESIGN §2 pinhole, 003 §7.3.1 stretch and
+ * s' = s * alpha; the torch loop's operations in its order */
+static inline SCALAR CAT(scale_at_, SUFFIX)(const CAT(job_, SUFFIX) *j, int64_t l) {
+    const SCALAR cz = j->depth[l];
+    SCALAR denom = cz;
+    if (j->ddepth) {
+        const SCALAR dd = j->ddepth[l];
+        denom = cz + j->correction * (dd < j->maxdd ? dd : j->maxdd);
     }
-    return v;
+    SCALAR s = j->focal_px / denom;
+    s = s * (j->width ? j->width[l] : j->width_scalar);
+    if (j->mask) s = s * j->mask[l];
+    return s;
 }
 
-/* The tap loop over pixels [begin, end) of the job, 4-lane: lanes r, g, b carry the colour,
- * lane 3 carries depth through the lerp (its weight is 0); lane by lane these are the float
- * operations of the torch loop, in its order. */
-static inline __attribute__((always_inline)) void CAT(taps_, SUFFIX)(
-    const CAT(job_, SUFFIX) *j, const int PACKED, const int FOLLOW) {
+/* The taps of one pixel at position pos along the axis. The window buffer holds positions
+ * [win0, ...] of the line; position q is at vector (q - win0) * pitch + lane. Lanes r, g, b
+ * carry the colour, lane 3 depth through the lerp (its weight is 0). */
+static inline __attribute__((always_inline)) CAT(vec_, SUFFIX) CAT(taps_, SUFFIX)(
+    const CAT(job_, SUFFIX) *j, const SCALAR *buf, int64_t pitch, int64_t lane, int64_t win0,
+    SCALAR pos, SCALAR scale, int64_t n_axis, const int FOLLOW) {
     typedef CAT(vec_, SUFFIX) vec;
-    const int64_t w = j->w, hw = j->h * j->w, k = j->k;
-    const int64_t n_axis = j->axis_y ? j->h : j->w;
-    const int64_t stride = j->axis_y ? j->w : 1;
     const SCALAR last = (SCALAR)(n_axis - 1);
     const vec inv = {j->inv_scale[0], j->inv_scale[1], j->inv_scale[2], 0};
     const vec one = {1, 1, 1, 1}, zero = {0, 0, 0, 0};
-    const int64_t plane = j->compact ? j->n : hw;
-    for (int64_t i = j->begin; i < j->end; ++i) {
-        const int64_t l = j->lin ? j->lin[i] : i;
-        const int64_t row = l / w, col = l - row * w;
-        const vec c = CAT(fetch_, SUFFIX)(j, l, hw, PACKED);
-        const SCALAR cz = c[3];
-        /* pixels per kernel-offset unit: DESIGN §2 pinhole, 003 §7.3.1 stretch and s' = s a */
-        SCALAR denom = cz;
-        if (j->ddepth) {
-            SCALAR dd = j->ddepth[l];
-            denom = cz + j->correction * (dd < j->maxdd ? dd : j->maxdd);
-        }
-        SCALAR scale = j->focal_px / denom;
-        scale = scale * (j->width ? j->width[l] : j->width_scalar);
-        if (j->mask) scale = scale * j->mask[l];
-        const SCALAR pos = (SCALAR)(j->axis_y ? row : col);
-        const int64_t fixed = j->axis_y ? col : row * w;
-        vec acc = zero;
-        for (int64_t t = 0; t < k; ++t) {
-            SCALAR p = pos + j->offsets[t] * scale;
-            p = p >= 0 ? (p <= last ? p : last) : 0; /* border clamp; NaN -> 0, never OOB */
-            const int64_t i0 = (int64_t)p;           /* = floor(p) since p >= 0 */
-            const SCALAR f = p - (SCALAR)i0;
-            const int64_t a = fixed + i0 * stride;
-            const int64_t bb = fixed + (i0 + 1 < n_axis ? i0 + 1 : n_axis - 1) * stride;
-            const vec va = CAT(fetch_, SUFFIX)(j, a, hw, PACKED);
-            const vec vb = CAT(fetch_, SUFFIX)(j, bb, hw, PACKED);
-            vec v = va + f * (vb - va), wt;
-            __builtin_memcpy(&wt, j->weights4 + 4 * t, sizeof wt);
-            if (FOLLOW) {
-                const vec d = FABSF(v[3] - cz) * inv; /* |dz| / surface_scale per channel */
-                if (FOLLOW == 1) { /* 002 appendix shader: lerp back by clamp(d, 0, 1) */
-                    const vec s = VMAX(VMIN(d, one), zero);
-                    v = v + s * (c - v);
-                } else { /* 000 eq. 7 */
-                    const vec e = {EXPF((SCALAR)-0.5 * d[0] * d[0]),
-                                   EXPF((SCALAR)-0.5 * d[1] * d[1]),
-                                   EXPF((SCALAR)-0.5 * d[2] * d[2]), 0};
-                    wt = wt * e;
-                }
+    vec c;
+    __builtin_memcpy(&c, buf + 4 * (((int64_t)pos - win0) * pitch + lane), sizeof c);
+    const SCALAR cz = c[3];
+    vec acc = zero;
+    for (int64_t t = 0; t < j->k; ++t) {
+        SCALAR p = pos + j->offsets[t] * scale;
+        p = p >= 0 ? (p <= last ? p : last) : 0; /* border clamp; NaN -> 0 */
+        const int64_t i0 = (int64_t)p;           /* = floor(p) since p >= 0 */
+        const SCALAR f = p - (SCALAR)i0;
+        const int64_t i1 = i0 + 1 < n_axis ? i0 + 1 : n_axis - 1;
+        vec va, vb, wt;
+        __builtin_memcpy(&va, buf + 4 * ((i0 - win0) * pitch + lane), sizeof va);
+        __builtin_memcpy(&vb, buf + 4 * ((i1 - win0) * pitch + lane), sizeof vb);
+        vec v = va + f * (vb - va);
+        __builtin_memcpy(&wt, j->weights4 + 4 * t, sizeof wt);
+        if (FOLLOW) {
+            const vec d = FABSF(v[3] - cz) * inv; /* |dz| / surface_scale per channel */
+            if (FOLLOW == 1) { /* 002 appendix shader: lerp back by clamp(d, 0, 1) */
+                const vec s = VMAX(VMIN(d, one), zero);
+                v = v + s * (c - v);
+            } else { /* 000 eq. 7 */
+                const vec e = {EXPF((SCALAR)-0.5 * d[0] * d[0]),
+                               EXPF((SCALAR)-0.5 * d[1] * d[1]),
+                               EXPF((SCALAR)-0.5 * d[2] * d[2]), 0};
+                wt = wt * e;
             }
-            acc = acc + wt * v;
         }
-        const int64_t o = j->compact ? i : l;
-        j->dst[o] = acc[0];
-        j->dst[plane + o] = acc[1];
-        j->dst[2 * plane + o] = acc[2];
+        acc = acc + wt * v;
+    }
+    return acc;
+}
+
+/* The window [lo, hi] of positions along the axis that the taps of pixels at positions
+ * [pmin, pmax] with scales up to max_abs can read: every step is |offset * scale| <=
+ * max_offset * max_abs (float rounding is monotone), plus a pixel for the lerp's second
+ * sample and one of margin; a NaN or huge step clamps anywhere, so the whole line. */
+static inline void CAT(window_, SUFFIX)(const CAT(job_, SUFFIX) *j, SCALAR max_abs,
+                                        int64_t pmin, int64_t pmax, int64_t n_axis,
+                                        int64_t *lo, int64_t *hi) {
+    const SCALAR reach = j->max_offset * max_abs;
+    if (!(reach < (SCALAR)n_axis)) { /* also NaN */
+        *lo = 0;
+        *hi = n_axis - 1;
+        return;
+    }
+    const int64_t r = (int64_t)reach + 2;
+    *lo = pmin - r > 0 ? pmin - r : 0;
+    *hi = pmax + r < n_axis - 1 ? pmax + r : n_axis - 1;
+}
+
+/* This thread's lines: rows (x pass) or strips of j->strip columns (y pass). The spans
+ * crossing a line are listed in j->ids in row order; a y pass clips them to its strip. */
+static inline __attribute__((always_inline)) void CAT(lines_, SUFFIX)(
+    const CAT(job_, SUFFIX) *j, const int AXIS_Y, const int FOLLOW) {
+    const int64_t w = j->w, h = j->h, hw = h * w, n_axis = AXIS_Y ? h : w;
+    for (int64_t q = j->first; q < j->last; ++q) {
+        const int64_t *ids = j->ids + j->lines[3 * q], count = j->lines[3 * q + 1];
+        const int64_t s0 = AXIS_Y ? q * j->strip : 0;
+        const int64_t s1 = AXIS_Y && s0 + j->strip < w ? s0 + j->strip : w;
+        if (j->copy) /* the line's pixels, before its results overwrite the active ones */
+            for (int ch = 0; ch < 3; ++ch)
+                for (int64_t r = AXIS_Y ? 0 : q; r < (AXIS_Y ? h : q + 1); ++r)
+                    memcpy(j->dst + ch * hw + r * w + s0, j->src + ch * hw + r * w + s0,
+                           sizeof(SCALAR) * (size_t)(s1 - s0));
+        if (count == 0) continue;
+        SCALAR max_abs = 0;
+        int64_t idx = 0;
+        for (int64_t e = 0; e < count; ++e) { /* the scales, and the largest */
+            const int64_t *sp = j->spans + 3 * ids[e];
+            const int64_t c0 = sp[1] > s0 ? sp[1] : s0, c1 = sp[2] < s1 ? sp[2] : s1;
+            for (int64_t c = c0; c < c1; ++c) {
+                const SCALAR sc = CAT(scale_at_, SUFFIX)(j, sp[0] * w + c);
+                const SCALAR a = FABSF(sc);
+                if (!(a <= max_abs)) max_abs = a == a ? a : (SCALAR)INFINITY;
+                j->scale[idx++] = sc;
+            }
+        }
+        const int64_t *head = j->spans + 3 * ids[0], *tail = j->spans + 3 * ids[count - 1];
+        int64_t lo, hi; /* the window along the axis */
+        CAT(window_, SUFFIX)(j, max_abs, AXIS_Y ? head[0] : head[1],
+                             AXIS_Y ? tail[0] : tail[2] - 1, n_axis, &lo, &hi);
+        /* interleave rows r0..r1 x columns c0..c1 (a y strip; an x row's window) */
+        const int64_t r0 = AXIS_Y ? lo : q, r1 = AXIS_Y ? hi : q;
+        const int64_t c0 = AXIS_Y ? s0 : lo, c1 = AXIS_Y ? s1 - 1 : hi;
+        const int64_t pitch = AXIS_Y ? s1 - s0 : 1; /* vectors from one position to the next */
+        for (int64_t r = r0; r <= r1; ++r) {
+            const SCALAR *rgb = j->src + r * w, *z = j->depth + r * w;
+            SCALAR *o = j->buf + 4 * (r - r0) * (c1 - c0 + 1) - 4 * c0;
+            for (int64_t c = c0; c <= c1; ++c) {
+                o[4 * c] = rgb[c];
+                o[4 * c + 1] = rgb[hw + c];
+                o[4 * c + 2] = rgb[2 * hw + c];
+                o[4 * c + 3] = z[c];
+            }
+        }
+        idx = 0;
+        for (int64_t e = 0; e < count; ++e) { /* the taps */
+            const int64_t *sp = j->spans + 3 * ids[e];
+            const int64_t row = sp[0];
+            const int64_t a = sp[1] > s0 ? sp[1] : s0, b = sp[2] < s1 ? sp[2] : s1;
+            for (int64_t c = a; c < b; ++c) {
+                const CAT(vec_, SUFFIX) acc = CAT(taps_, SUFFIX)(
+                    j, j->buf, pitch, AXIS_Y ? c - s0 : 0, lo, (SCALAR)(AXIS_Y ? row : c),
+                    j->scale[idx++], n_axis, FOLLOW);
+                const int64_t l = row * w + c;
+                j->dst[l] = acc[0];
+                j->dst[hw + l] = acc[1];
+                j->dst[2 * hw + l] = acc[2];
+            }
+        }
     }
 }
 
-/* The tap loop, specialised per layout and follow-surface mode (both constants there). */
-static void *CAT(run_taps_, SUFFIX)(void *arg) {
+/* One thread's lines, specialised per axis and follow-surface mode (constants there). */
+static void *CAT(run_, SUFFIX)(void *arg) {
     const CAT(job_, SUFFIX) *j = (const CAT(job_, SUFFIX) *)arg;
-    const int packed = j->packed != NULL, follow = j->follow;
-    if (packed && follow == 0) CAT(taps_, SUFFIX)(j, 1, 0);
-    else if (packed && follow == 1) CAT(taps_, SUFFIX)(j, 1, 1);
-    else if (packed) CAT(taps_, SUFFIX)(j, 1, 2);
-    else if (follow == 0) CAT(taps_, SUFFIX)(j, 0, 0);
-    else if (follow == 1) CAT(taps_, SUFFIX)(j, 0, 1);
-    else CAT(taps_, SUFFIX)(j, 0, 2);
-    return NULL;
-}
-
-/* Interleave pixels [begin, end) of the planes and depth into job->packed. */
-static void *CAT(run_pack_, SUFFIX)(void *arg) {
-    const CAT(job_, SUFFIX) *j = (const CAT(job_, SUFFIX) *)arg;
-    const int64_t hw = j->h * j->w;
-    SCALAR *restrict out = j->packed;
-    for (int64_t l = j->begin; l < j->end; ++l) {
-        out[4 * l] = j->src[l];
-        out[4 * l + 1] = j->src[hw + l];
-        out[4 * l + 2] = j->src[2 * hw + l];
-        out[4 * l + 3] = j->depth[l];
-    }
+    if (!j->axis_y && j->follow == 0) CAT(lines_, SUFFIX)(j, 0, 0);
+    else if (!j->axis_y && j->follow == 1) CAT(lines_, SUFFIX)(j, 0, 1);
+    else if (!j->axis_y) CAT(lines_, SUFFIX)(j, 0, 2);
+    else if (j->follow == 0) CAT(lines_, SUFFIX)(j, 1, 0);
+    else if (j->follow == 1) CAT(lines_, SUFFIX)(j, 1, 1);
+    else CAT(lines_, SUFFIX)(j, 1, 2);
     return NULL;
 }
 
 /* Run jobs[0..threads) on threads (jobs[0] on the caller's); a thread that cannot be started
  * has its share run by the caller. */
-static void CAT(parallel_, SUFFIX)(void *(*run)(void *), CAT(job_, SUFFIX) * jobs, int threads) {
+static void CAT(parallel_, SUFFIX)(CAT(job_, SUFFIX) * jobs, int threads) {
     pthread_t ids[64];
     int started = 1;
     for (int t = 1; t < threads; ++t, ++started)
-        if (pthread_create(&ids[t], NULL, run, &jobs[t]) != 0) break;
-    for (int t = started; t < threads; ++t) run(&jobs[t]);
-    run(&jobs[0]);
+        if (pthread_create(&ids[t], NULL, CAT(run_, SUFFIX), &jobs[t]) != 0) break;
+    for (int t = started; t < threads; ++t) CAT(run_, SUFFIX)(&jobs[t]);
+    CAT(run_, SUFFIX)(&jobs[0]);
     for (int t = 1; t < started; ++t) pthread_join(ids[t], NULL);
 }
 
-int CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const int64_t *lin,
+/* One pass over the active pixels of one image (see the job fields); returns 0, or 1 when
+ * memory for the per-thread buffers cannot be had (nothing is written then). */
+int CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const int64_t *spans,
                              const SCALAR *mask, const SCALAR *width, const SCALAR *ddepth,
                              const SCALAR *offsets, const SCALAR *weights,
-                             const SCALAR *inv_scale, SCALAR *dst, SCALAR *packed,
-                             double focal_px,
-                             double width_scalar, double correction, double maxdd, int64_t n,
-                             int64_t k, int64_t h, int64_t w, int axis_y, int follow,
-                             int compact, int threads) {
+                             const SCALAR *inv_scale, SCALAR *dst, double focal_px,
+                             double width_scalar, double correction, double maxdd,
+                             int64_t n_spans, int64_t k, int64_t h, int64_t w, int axis_y,
+                             int follow, int copy, int threads) {
     enum { MAX_THREADS = 64 };
+    int64_t n = 0; /* active pixels */
+    for (int64_t s = 0; s < n_spans; ++s) n += spans[3 * s + 2] - spans[3 * s + 1];
+    if (n == 0 && !copy) return 0;
     if (threads < 1) threads = 1;
     if (threads > MAX_THREADS) threads = MAX_THREADS;
-    if (n < 16384 * threads) threads = 1; /* start-up and a still-spinning OpenMP pool cost more */
-    const int64_t hw = h * w;
-    SCALAR *weights4 = (SCALAR *)malloc(sizeof(SCALAR) * 4 * (size_t)k);
-    if (!weights4) return 1;
+    const int64_t work = n + (copy ? h * w / 16 : 0); /* a copied pixel is cheap, not free */
+    if (work < 4096 * (int64_t)threads) threads = work < 8192 ? 1 : (int)(work / 4096);
+    const int64_t strip = 4 * n < h * w && !copy ? NARROW_STRIP : WIDE_STRIP;
+    const int64_t n_lines = axis_y ? (w + strip - 1) / strip : h;
+    const int64_t line_len = axis_y ? h * strip : w; /* pixels of one line at most */
+    /* per line: (first entry, span count, work), then the entries: span indices,
+     * line after line in span order (a row is one line: its spans are already consecutive) */
+    int64_t entries = n_spans;
+    if (axis_y)
+        for (int64_t s = 0; s < n_spans; ++s)
+            entries += (spans[3 * s + 2] - 1) / strip - spans[3 * s + 1] / strip;
+    int64_t *lists = (int64_t *)calloc((size_t)(3 * n_lines + entries), sizeof(int64_t));
+    const size_t per_thread = (size_t)line_len * 5; /* window (4 lanes) + scales */
+    SCALAR *memory = (SCALAR *)malloc(sizeof(SCALAR) * ((size_t)k * 4 + per_thread * threads));
+    if (!lists || !memory) {
+        free(lists);
+        free(memory);
+        return 1;
+    }
+    int64_t *lines = lists, *ids = lists + 3 * n_lines;
+    for (int pass = 0; pass < 2; ++pass) { /* count, then fill */
+        for (int64_t s = 0; s < n_spans; ++s) {
+            const int64_t c0 = spans[3 * s + 1], c1 = spans[3 * s + 2];
+            const int64_t q0 = axis_y ? c0 / strip : spans[3 * s];
+            const int64_t q1 = axis_y ? (c1 - 1) / strip : q0;
+            for (int64_t q = q0; q <= q1; ++q) {
+                if (pass) {
+                    ids[lines[3 * q] + lines[3 * q + 1]++] = s;
+                    continue;
+                }
+                const int64_t a = axis_y && c0 < q * strip ? q * strip : c0;
+                const int64_t b = axis_y && c1 > (q + 1) * strip ? (q + 1) * strip : c1;
+                ++lines[3 * q + 1];
+                lines[3 * q + 2] += b - a; /* the line's active pixels, */
+            }
+        }
+        if (!pass) {
+            if (copy) /* and its share of the copy */
+                for (int64_t q = 0; q < n_lines; ++q) lines[3 * q + 2] += (work - n) / n_lines;
+            for (int64_t q = 1; q < n_lines; ++q) lines[3 * q] = lines[3 * q - 3] + lines[3 * q - 2];
+            for (int64_t q = 0; q < n_lines; ++q) lines[3 * q + 1] = 0;
+        }
+    }
+    SCALAR *weights4 = memory, max_offset = 0;
     for (int64_t t = 0; t < k; ++t) {
         for (int ch = 0; ch < 3; ++ch) weights4[4 * t + ch] = weights[3 * t + ch];
         weights4[4 * t + 3] = 0;
+        const SCALAR a = FABSF(offsets[t]);
+        if (!(a <= max_offset)) max_offset = a == a ? a : (SCALAR)INFINITY;
     }
-    /* packed, an (H*W, 4) buffer, given: interleave the image into it once, then one 4-lane
-     * load per fetch (the caller gives it when most of the image is covered); NULL: fetch
-     * from the planes (time follows covered pixels, no full-image pass) */
     CAT(job_, SUFFIX) jobs[MAX_THREADS];
-    for (int t = 0; t < threads; ++t) {
-        CAT(job_, SUFFIX) jb = {src, depth, lin, mask, width, ddepth, offsets, weights,
-                                inv_scale, dst, packed, weights4, (SCALAR)focal_px,
-                                (SCALAR)width_scalar, (SCALAR)correction, (SCALAR)maxdd, n, k, h,
-                                w, hw * t / threads, hw * (t + 1) / threads, axis_y, follow,
-                                compact};
+    int64_t q = 0, done = 0;
+    const int64_t total = copy ? n + (work - n) / n_lines * n_lines : n;
+    for (int t = 0; t < threads; ++t) { /* whole lines, split where the work passes 1/T */
+        const int64_t first = q;
+        while (q < n_lines && (t == threads - 1 || done < total * (t + 1) / threads))
+            done += lines[3 * q++ + 2];
+        SCALAR *mine = memory + (size_t)k * 4 + per_thread * (size_t)t;
+        CAT(job_, SUFFIX) jb = {src, depth, spans, mask, width, ddepth, offsets, weights4,
+                                inv_scale, dst, lines, ids, (SCALAR)focal_px,
+                                (SCALAR)width_scalar, (SCALAR)correction, (SCALAR)maxdd,
+                                max_offset, k, h, w, first, q, strip, axis_y, follow, copy,
+                                mine, mine + 4 * (size_t)line_len};
         jobs[t] = jb;
     }
-    if (packed) CAT(parallel_, SUFFIX)(CAT(run_pack_, SUFFIX), jobs, threads);
-    for (int t = 0; t < threads; ++t) { /* the taps: split the active pixels */
-        jobs[t].begin = n * t / threads;
-        jobs[t].end = n * (t + 1) / threads;
-    }
-    CAT(parallel_, SUFFIX)(CAT(run_taps_, SUFFIX), jobs, threads);
-    free(weights4);
+    CAT(parallel_, SUFFIX)(jobs, threads);
+    free(memory);
+    free(lists);
     return 0;
 }
 
+#undef NARROW_STRIP
+#undef WIDE_STRIP
 #undef CAT
 #undef CAT_
