@@ -76,13 +76,26 @@ def check_range(
     """Check that every element of ``value`` lies in the interval [low, high] (or open ends)."""
     if value.numel() == 0:
         return value
-    vmin, vmax = float(value.min()), float(value.max())
+    _check_bounds(name, float(value.min()), float(value.max()), low, high, low_inclusive,
+                  high_inclusive)  # fmt: skip
+    return value
+
+
+def _check_bounds(
+    name: str,
+    vmin: float,
+    vmax: float,
+    low: float | None,
+    high: float | None,
+    low_inclusive: bool,
+    high_inclusive: bool,
+) -> None:
+    """Raise unless [vmin, vmax] lies in the interval (Python floats: float64 comparisons)."""
     lo_ok = low is None or (vmin >= low if low_inclusive else vmin > low)
     hi_ok = high is None or (vmax <= high if high_inclusive else vmax < high)
     if not (lo_ok and hi_ok):
         interval = _interval(low, high, low_inclusive, high_inclusive)
         raise ValueError(f"{name} must lie{interval}, got values in [{vmin:g}, {vmax:g}]")
-    return value
 
 
 def check_scalar(
@@ -106,14 +119,8 @@ def check_scalar(
             f"{name} must be a finite number{_interval(low, high, low_inclusive, high_inclusive)}"
             f", got {value}"
         )
-    check_range(
-        name,
-        torch.tensor([value], dtype=torch.float64),  # float64: 1e-300 must not round to 0
-        low,
-        high,
-        low_inclusive=low_inclusive,
-        high_inclusive=high_inclusive,
-    )
+    # a Python float is a float64: 1e-300 does not round to 0
+    _check_bounds(name, value, value, low, high, low_inclusive, high_inclusive)
     return value
 
 
