@@ -50,6 +50,8 @@ class ArtistSSS(SeparableMethod):
         (True, 7)
     """
 
+    scatters_in_place = True
+
     needs = ("mask",)
 
     def __init__(

@@ -241,10 +241,11 @@ def separable_pass(
     focal_px = h_ / (2.0 * math.tan(gbuffer.fov_y / 2.0))  # pixels per mm at 1 mm depth
     axis = 3 if direction == "x" else 2
     follow = FOLLOW_SURFACE.index(follow_surface)
-    inv_scale = torch.zeros(c_, dtype=dtype, device=image.device)
-    if surface_scale is not None:
-        inv_scale = 1.0 / torch.as_tensor(surface_scale, dtype=dtype, device=image.device)
-        inv_scale = inv_scale.expand(c_)
+    if isinstance(surface_scale, torch.Tensor):  # per channel
+        inv_scale = surface_scale.to(dtype=dtype, device=image.device).reciprocal()
+    else:  # |Δz| / surface_scale; 0: unused
+        inv = 0.0 if surface_scale is None else 1.0 / float(surface_scale)
+        inv_scale = torch.full((c_,), inv, dtype=dtype, device=image.device)
     offsets = kernel.offsets.to(dtype)
     weights = kernel.weights.to(dtype)
     grads = _needs_grad(image, gbuffer, width)
@@ -252,8 +253,10 @@ def separable_pass(
     inplace = inplace and not grads and image.is_contiguous()
 
     start = time.perf_counter()
-    stencils = None if strength is None else image_stencils(strength)
-    spans = image_spans(strength, (b_, h_, w_)) if backend == "native" else None
+    if backend == "native":  # the stencil as runs of active pixels per row
+        spans, stencils = image_spans(strength, (b_, h_, w_)), None
+    else:  # as flat indices
+        spans, stencils = None, None if strength is None else image_stencils(strength)
     f_px, ddepth = focal_px, None  # pixels per mm at 1 mm depth; |∂depth/∂axis| (mm / px)
     if stretch is not None:  # 003 §7.3.1
         f_px, ddepth = focal_px * stretch.ssslevel, _axis_derivative(gbuffer.depth, axis)
@@ -269,18 +272,18 @@ def separable_pass(
         out = image.clone(memory_format=torch.contiguous_format)
     n_total = 0
     for bi in range(b_):  # per image: every tensor below is a view of one (C, H·W) plane set
+        if backend == "native":
+            if copy or spans[bi].shape[0]:
+                n_total += _native_pass(
+                    image[bi], out[bi], gbuffer.depth[bi], spans[bi],
+                    None if strength is None else strength[bi],
+                    width[bi] if isinstance(width, torch.Tensor) else width,
+                    None if ddepth is None else ddepth[bi], stretch, axis, f_px, offsets,
+                    weights, follow, inv_scale, copy,
+                )  # fmt: skip
+            continue
         lin = None if stencils is None else stencils[bi]
-        empty = lin is not None and lin.numel() == 0
-        if backend == "native" and not (empty and not copy):
-            _native_pass(
-                image[bi], out[bi], gbuffer.depth[bi], spans[bi],
-                None if strength is None else strength[bi],
-                width[bi] if isinstance(width, torch.Tensor) else width,
-                None if ddepth is None else ddepth[bi], stretch, axis, f_px, offsets, weights,
-                follow, inv_scale, copy,
-            )  # fmt: skip
-            n_total += h_ * w_ if lin is None else int(lin.numel())
-        if backend == "native" or empty:
+        if lin is not None and lin.numel() == 0:
             continue
         depth = gbuffer.depth[bi].reshape(-1)
         if lin is None:
@@ -356,7 +359,7 @@ def _native_pass(
     follow: int,
     inv_scale: torch.Tensor,
     copy: bool,
-) -> None:
+) -> int:
     """One image of a pass through the native loop (``native/gather_body.h``), which computes
     the per-pixel scale and the taps exactly as the torch code of :func:`separable_pass` and
     :func:`_accumulate` and writes ``out`` ``(3, H, W)`` (contiguous) at the active pixels,
@@ -364,7 +367,8 @@ def _native_pass(
     Per-image tensors are ``(1, H, W)``; ``f_px`` includes the stretch's ``ssslevel``. ``out``
     may be ``image``: the loop reads every sample of a row (x) or column strip (y) into its
     own buffer before it writes any result there. ``copy``: ``out`` is uninitialised and
-    gets ``image``'s pixels everywhere else (copied line by line as the loop goes)."""
+    gets ``image``'s pixels everywhere else (copied line by line as the loop goes).
+    Returns the number of active pixels."""
     lib = native.library()
     _, h, w = image.shape
     keep = []  # contiguous copies must outlive the call
@@ -372,7 +376,10 @@ def _native_pass(
     def ptr(t: torch.Tensor | None) -> int | None:
         if t is None:
             return None
-        t = (t.to(image.dtype) if t.is_floating_point() else t).contiguous()
+        if t.dtype != image.dtype and t.is_floating_point():
+            t = t.to(image.dtype)
+        if not t.is_contiguous():
+            t = t.contiguous()
         keep.append(t)
         return t.data_ptr()
 
@@ -386,8 +393,9 @@ def _native_pass(
         spans.shape[0], offsets.numel(), h, w, int(axis == 2), follow, int(copy),
         torch.get_num_threads(),
     )  # fmt: skip
-    if status != 0:
+    if status < 0:
         raise MemoryError(f"native gather: no memory for the line buffers of a {h}x{w} image")
+    return status
 
 
 def _lerp_fetch(planes: torch.Tensor, a: torch.Tensor, b: torch.Tensor, f: torch.Tensor):

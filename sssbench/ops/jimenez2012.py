@@ -56,6 +56,8 @@ class Jimenez2012SSS(SeparableMethod):
         (True, 17)
     """
 
+    scatters_in_place = True
+
     needs = ("mask",)
 
     def __init__(

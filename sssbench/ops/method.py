@@ -26,6 +26,9 @@ class SeparableMethod(nn.Module):
     :meth:`scatter`.
 
     Attributes:
+        scatters_in_place: the schedule can overwrite its input image pass after pass (a
+            horizontal then a vertical pass): with ``forward(inplace=True)`` it then writes
+            only the stencil's pixels. Others compute as usual and copy their result in.
         follow_surface: ``None``, ``"lerp"`` or ``"gaussian"`` (see ``separable_pass``).
         surface_scale: mm (float or per-channel ``(3,)``), used with ``follow_surface``.
         rotation: stochastic rotation radius fraction, or ``None``.
@@ -33,6 +36,7 @@ class SeparableMethod(nn.Module):
     """
 
     needs: tuple[str, ...] = ("mask",)
+    scatters_in_place: bool = False
     follow_surface: str | None = None
     surface_scale: float | torch.Tensor | None = None
     rotation: float | None = None
@@ -101,6 +105,7 @@ class SeparableMethod(nn.Module):
         width: torch.Tensor | None = None,
         guide: torch.Tensor | None = None,
         sample_weight: SampleWeight | None = None,
+        inplace: bool = False,
     ) -> torch.Tensor:
         """Scattered diffuse ``(B, 3, H, W)``.
 
@@ -109,6 +114,23 @@ class SeparableMethod(nn.Module):
             width: per-pixel kernel-width multiplier ``(B, 1, H, W)`` (curvature modulation).
             guide: ``(B, G, H, W)`` guide image of ``sample_weight`` (halo reduction).
             sample_weight: bilateral weight function (see ``separable_pass``).
+            inplace: write the result into ``gbuffer.diffuse`` and return it, as a renderer's
+                SSS pass overwrites its lit-diffuse target under the stencil (002 §4, 003
+                §7.3.1): a method that :attr:`scatters_in_place` then touches only the
+                stencil's pixels and makes no full-image copy, so its time follows the
+                covered pixels. ``gbuffer.diffuse`` no longer holds the input afterwards.
+                Not with autograd recording ``gbuffer.diffuse``.
         """
+        if inplace and torch.is_grad_enabled() and gbuffer.diffuse.requires_grad:
+            raise ValueError(
+                "inplace=True overwrites gbuffer.diffuse, which autograd records (it requires "
+                "grad): call without inplace, or under torch.no_grad()"
+            )
         with memo_scope():  # stencils are built once per call even for inference tensors
-            return self.scatter(gbuffer, self.pass_options(gbuffer, width, guide, sample_weight))
+            options = self.pass_options(gbuffer, width, guide, sample_weight)
+            if inplace and self.scatters_in_place:
+                options["inplace"] = True
+            out = self.scatter(gbuffer, options)
+        if inplace and out is not gbuffer.diffuse:
+            out = gbuffer.diffuse.copy_(out)
+        return out

@@ -25,9 +25,11 @@ def two_pass(
     **options: object,
 ) -> torch.Tensor:
     """Apply a rank-1 separable kernel: a horizontal then a vertical :func:`separable_pass`
-    (000 eq. 2 with N = 1). ``options`` are forwarded to both passes."""
-    tmp = separable_pass(image, kernel, "x", gbuffer, name=f"{name}.x", **options)
-    # tmp is this function's own: the second pass overwrites it (one full-image copy per call)
+    (000 eq. 2 with N = 1). ``options`` are forwarded to both passes; ``inplace`` among them
+    makes the first pass overwrite ``image`` too (no full-image copy at all)."""
+    inplace = bool(options.pop("inplace", False))
+    tmp = separable_pass(image, kernel, "x", gbuffer, name=f"{name}.x", inplace=inplace, **options)
+    # tmp is this function's own (or image, in place): the second pass overwrites it
     return separable_pass(tmp, kernel, "y", gbuffer, name=f"{name}.y", inplace=True, **options)
 
 
@@ -83,6 +85,8 @@ class PreintegratedSSS(SeparableMethod):
           ``w (B, 1, H, W)`` (curvature modulation, 004 §3.3.3) and an explicit bilateral
           weight (overrides ``halo``).
     """
+
+    scatters_in_place = True
 
     needs = ("mask",)
 

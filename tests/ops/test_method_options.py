@@ -33,3 +33,38 @@ def test_neutral_width_and_weights_change_nothing_and_zero_width_is_identity(nam
     # half the width everywhere is a different (narrower) blur, zero width the identity
     assert not torch.allclose(op(g, width=0.5 * ones), plain)
     torch.testing.assert_close(op(g, width=0 * ones), g.diffuse, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("backend", ["native", "torch"])
+@pytest.mark.parametrize("name", [*sorted(METHODS), "low_rank"])
+def test_inplace_call_writes_the_same_result_into_the_diffuse(name, backend):
+    """``inplace=True`` (a renderer overwriting its lit target) gives the copying call's
+    result bit for bit, in ``gbuffer.diffuse``; two-pass methods change no pixel outside the
+    stencil, so the untouched pixels are the input's."""
+    from sssbench.ops import LowRankSSS
+    from sssbench.ops.gather import get_backend, set_backend
+
+    make = METHODS.get(name, lambda: LowRankSSS(SKIN, 2, n=7))
+    g = data_synth.make_scene("head", resolution=(40, 48), dtype=torch.float64)
+    before = get_backend()
+    set_backend(backend)
+    try:
+        op = make()
+        ref = op(g)
+        work = g.replace(diffuse=g.diffuse.clone())
+        got = op(work, inplace=True)
+    finally:
+        set_backend(before)
+    assert got is work.diffuse
+    torch.testing.assert_close(got, ref, rtol=0, atol=0)
+    outside = g.mask == 0
+    assert bool(outside.any()) and torch.equal(got * outside, g.diffuse * outside)
+
+
+def test_inplace_call_refuses_a_diffuse_autograd_records():
+    g = data_synth.make_scene("head", resolution=(16, 16), dtype=torch.float64)
+    g = g.replace(diffuse=g.diffuse.clone().requires_grad_(True))
+    with pytest.raises(ValueError, match="inplace=True overwrites gbuffer.diffuse"):
+        PreintegratedSSS(SKIN, 5)(g, inplace=True)
+    with torch.no_grad():
+        assert PreintegratedSSS(SKIN, 5)(g, inplace=True) is g.diffuse

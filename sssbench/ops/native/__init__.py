@@ -81,7 +81,7 @@ def _build(cc: str) -> Path:
 def _declare(lib: ctypes.CDLL) -> None:
     p, i64, i32, f64 = ctypes.c_void_p, ctypes.c_int64, ctypes.c_int, ctypes.c_double
     for fn in (lib.sss_gather_f32, lib.sss_gather_f64):
-        fn.restype = ctypes.c_int
+        fn.restype = ctypes.c_int64  # active pixels, -1: out of memory
         fn.argtypes = [p] * 10 + [f64] * 4 + [i64] * 4 + [i32] * 4
 
 

@@ -208,9 +208,9 @@ static void CAT(parallel_, SUFFIX)(CAT(job_, SUFFIX) * jobs, int threads) {
     for (int t = 1; t < started; ++t) pthread_join(ids[t], NULL);
 }
 
-/* One pass over the active pixels of one image (see the job fields); returns 0, or 1 when
- * memory for the per-thread buffers cannot be had (nothing is written then). */
-int CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const int64_t *spans,
+/* One pass over the active pixels of one image (see the job fields); returns their number, or
+ * -1 when memory for the per-thread buffers cannot be had (nothing is written then). */
+int64_t CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const int64_t *spans,
                              const SCALAR *mask, const SCALAR *width, const SCALAR *ddepth,
                              const SCALAR *offsets, const SCALAR *weights,
                              const SCALAR *inv_scale, SCALAR *dst, double focal_px,
@@ -220,7 +220,7 @@ int CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const int64
     enum { MAX_THREADS = 64 };
     int64_t n = 0; /* active pixels */
     for (int64_t s = 0; s < n_spans; ++s) n += spans[3 * s + 2] - spans[3 * s + 1];
-    if (n == 0 && !copy) return 0;
+    if (n == 0 && !copy) return 0; /* nothing to compute or copy */
     if (threads < 1) threads = 1;
     if (threads > MAX_THREADS) threads = MAX_THREADS;
     const int64_t work = n + (copy ? h * w / 16 : 0); /* a copied pixel is cheap, not free */
@@ -240,7 +240,7 @@ int CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const int64
     if (!lists || !memory) {
         free(lists);
         free(memory);
-        return 1;
+        return -1;
     }
     int64_t *lines = lists, *ids = lists + 3 * n_lines;
     for (int pass = 0; pass < 2; ++pass) { /* count, then fill */
@@ -291,7 +291,7 @@ int CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const int64
     CAT(parallel_, SUFFIX)(jobs, threads);
     free(memory);
     free(lists);
-    return 0;
+    return n;
 }
 
 #undef NARROW_STRIP
