@@ -26,7 +26,7 @@ __all__ = [
 
 #: memo of :func:`memoised`: key -> (the key tensors themselves, value)
 _MEMO: OrderedDict[tuple, tuple[tuple, object]] = OrderedDict()
-_MEMO_SIZE = 32
+_MEMO_SIZE = 64
 
 T = TypeVar("T")
 
@@ -35,8 +35,7 @@ def _tensor_key(t: torch.Tensor | None) -> tuple:
     if t is None:
         return (None,)
     return (
-        t.untyped_storage().data_ptr(),
-        t.storage_offset(),
+        t.data_ptr(),  # the memo keeps t alive, so no other tensor can get this address
         tuple(t.shape),
         t.stride(),
         t.dtype,
@@ -72,7 +71,7 @@ def memoised(
     offset, shape, strides and version counter, and the memo keeps the tensors themselves, so
     a storage cannot be freed and reused while cached and an in-place torch write misses (a
     write through a NumPy view of the tensor is not seen: build a new tensor instead). The
-    least recently used entries beyond 32 are dropped. Inference tensors (made under
+    least recently used entries beyond 64 are dropped. Inference tensors (made under
     ``torch.inference_mode``) have no version counter: for them the value is cached only
     within the current :func:`memo_scope`. ``compute`` must depend only on ``tensors`` and
     ``tag``.

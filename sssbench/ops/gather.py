@@ -22,6 +22,7 @@ needed) and the torch loop fused by ``torch.compile``.
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from collections.abc import Callable
@@ -33,7 +34,7 @@ from sssbench._checks import check_choice, check_scalar, check_tensor
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.kernel1d import Kernel1D
 from sssbench.ops import native
-from sssbench.ops._stencil import image_spans, image_stencils
+from sssbench.ops._stencil import image_spans, image_stencils, memoised
 from sssbench.ops.timing import PassRecord, add_record
 
 __all__ = [
@@ -83,6 +84,12 @@ class Rotation:
 
     angles: torch.Tensor
     radius: float = 0.1
+
+
+@functools.lru_cache(maxsize=64)
+def _constant(value: float, n: int, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+    """A ``(n,)`` tensor of ``value``, made once (the passes only read it)."""
+    return torch.full((n,), value, dtype=dtype, device=device)
 
 
 def _axis_derivative(depth: torch.Tensor, axis: int) -> torch.Tensor:
@@ -245,9 +252,12 @@ def separable_pass(
         inv_scale = surface_scale.to(dtype=dtype, device=image.device).reciprocal()
     else:  # |Δz| / surface_scale; 0: unused
         inv = 0.0 if surface_scale is None else 1.0 / float(surface_scale)
-        inv_scale = torch.full((c_,), inv, dtype=dtype, device=image.device)
-    offsets = kernel.offsets.to(dtype)
-    weights = kernel.weights.to(dtype)
+        inv_scale = _constant(inv, c_, dtype, image.device)
+    offsets, weights = memoised(
+        (kernel.offsets, kernel.weights),
+        ("taps", dtype),
+        lambda: (kernel.offsets.to(dtype), kernel.weights.to(dtype)),
+    )
     grads = _needs_grad(image, gbuffer, width)
     backend = _backend_for(image, grads, rotation, sample_weight)
     inplace = inplace and not grads and image.is_contiguous()

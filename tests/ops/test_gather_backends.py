@@ -206,6 +206,85 @@ def test_native_lines_windows_and_threads_on_a_larger_image(dtype, cover):
         torch.set_num_threads(threads)
 
 
+def _big_pass(seed):
+    g = scene(seed=seed, h=90, w=203, cover=0.9)
+    return separable_pass(g.diffuse, kernel(9), "y", g, follow_surface="lerp", surface_scale=3.0)
+
+
+def test_native_pool_serves_concurrent_python_threads():
+    """The worker pool runs one pass at a time: a Python thread calling while another's pass
+    runs starts threads of its own. Every result equals the torch loop's."""
+    import threading
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        with backend("torch"):
+            refs = [_big_pass(seed) for seed in range(4)]
+        got = [None] * 4
+
+        def work(i):
+            for _ in range(5):
+                got[i] = _big_pass(i)
+
+        with backend("native"):
+            workers = [threading.Thread(target=work, args=(i,)) for i in range(4)]
+            for t in workers:
+                t.start()
+            for t in workers:
+                t.join()
+        for ref, out in zip(refs, got, strict=True):
+            torch.testing.assert_close(out, ref, **tol(torch.float64))
+    finally:
+        torch.set_num_threads(threads)
+
+
+def test_native_pool_restarts_in_a_forked_child():
+    """A child forked after the pool started has no workers: its first pass starts new ones
+    (and must not wait on the parent's). The child calls the native pass directly: torch's
+    own OpenMP pool does not survive a fork, so it runs no torch computation."""
+    import os
+    import time
+
+    import numpy as np
+
+    from sssbench.ops import gather
+    from sssbench.ops._stencil import image_spans
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        g = scene(seed=1, h=90, w=203, cover=0.9)
+        spans = image_spans(g.mask, (1, 90, 203))[0]
+        args = (g.depth[0], spans, g.mask[0], 1.0, None, None, 2, 40.0,
+                torch.linspace(-4.0, 4.0, 9, dtype=torch.float64),
+                torch.full((9, 3), 1 / 9, dtype=torch.float64), 1,
+                torch.full((3,), 1 / 3.0, dtype=torch.float64), True)  # fmt: skip
+        parent = torch.empty_like(g.diffuse[0])
+        n_active = int((g.mask > 0).sum())
+        assert gather._native_pass(g.diffuse[0], parent, *args) == n_active
+        pid = os.fork()
+        if pid == 0:  # the child: no torch computation, exit status = verdict
+            status = 2
+            try:
+                child = torch.empty_like(g.diffuse[0])
+                gather._native_pass(g.diffuse[0], child, *args)
+                status = 0 if np.array_equal(child.numpy(), parent.numpy()) else 1
+            finally:
+                os._exit(status)
+        deadline = time.monotonic() + 60
+        while (done := os.waitpid(pid, os.WNOHANG))[0] == 0 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        if done[0] == 0:
+            os.kill(pid, 9)
+            os.waitpid(pid, 0)
+            pytest.fail("the forked child's pass did not finish within 60 s")
+        assert os.waitstatus_to_exitcode(done[1]) == 0  # the child's result is the parent's
+        assert not torch.equal(parent, g.diffuse[0])  # which blurred something
+    finally:
+        torch.set_num_threads(threads)
+
+
 def test_spans_are_the_runs_of_the_stencil():
     """Against a Python walk over the mask, row by row."""
     from sssbench.ops._stencil import image_spans
@@ -241,12 +320,15 @@ def test_stencil_memo_misses_after_an_in_place_write():
 
 
 def test_memo_keeps_a_bounded_number_of_entries():
+    from sssbench.ops._stencil import _MEMO_SIZE
+
     calls = []
-    ts = [torch.zeros(2) for _ in range(40)]
+    n = _MEMO_SIZE + 8
+    ts = [torch.zeros(2) for _ in range(n)]
     for t in ts:
         memoised((t,), "probe", lambda t=t: calls.append(t) or len(calls))
-    assert len(calls) == 40
-    assert memoised((ts[-1],), "probe", lambda: -1) == 40  # recent: a hit
+    assert len(calls) == n
+    assert memoised((ts[-1],), "probe", lambda: -1) == n  # recent: a hit
     assert memoised((ts[0],), "probe", lambda: -1) == -1  # evicted: recomputed
 
 

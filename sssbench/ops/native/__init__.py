@@ -27,7 +27,7 @@ from pathlib import Path
 __all__ = ["library", "cache_dir"]
 
 _HERE = Path(__file__).resolve().parent
-_SOURCES = ("gather.c", "gather_body.h")
+_SOURCES = ("gather.c", "gather_body.h", "pool.h")
 _FLAGS = ["-O3", "-fPIC", "-shared", "-ffp-contract=off", "-fno-math-errno", "-Wno-psabi"]
 _STATE: dict[str, object] = {"lib": None, "tried": False}
 

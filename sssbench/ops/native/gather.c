@@ -6,6 +6,7 @@
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 /* lane-wise a < b ? a : b and a > b ? a : b (the second operand where either is NaN): the
  * SSE min / max instructions for float, lane masks otherwise */
@@ -21,6 +22,8 @@
 #endif
 #define VMIN_F64(a, b) VSELECT((a) < (b), a, b)
 #define VMAX_F64(a, b) VSELECT((a) > (b), a, b)
+
+#include "pool.h"
 
 #define SCALAR float
 #define SUFFIX f32

@@ -196,18 +196,6 @@ static void *CAT(run_, SUFFIX)(void *arg) {
     return NULL;
 }
 
-/* Run jobs[0..threads) on threads (jobs[0] on the caller's); a thread that cannot be started
- * has its share run by the caller. */
-static void CAT(parallel_, SUFFIX)(CAT(job_, SUFFIX) * jobs, int threads) {
-    pthread_t ids[64];
-    int started = 1;
-    for (int t = 1; t < threads; ++t, ++started)
-        if (pthread_create(&ids[t], NULL, CAT(run_, SUFFIX), &jobs[t]) != 0) break;
-    for (int t = started; t < threads; ++t) CAT(run_, SUFFIX)(&jobs[t]);
-    CAT(run_, SUFFIX)(&jobs[0]);
-    for (int t = 1; t < started; ++t) pthread_join(ids[t], NULL);
-}
-
 /* One pass over the active pixels of one image (see the job fields); returns their number, or
  * -1 when memory for the per-thread buffers cannot be had (nothing is written then). */
 int64_t CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const int64_t *spans,
@@ -288,7 +276,7 @@ int64_t CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const i
                                 mine, mine + 4 * (size_t)line_len};
         jobs[t] = jb;
     }
-    CAT(parallel_, SUFFIX)(jobs, threads);
+    pool_run(CAT(run_, SUFFIX), (char *)jobs, sizeof jobs[0], threads);
     free(memory);
     free(lists);
     return n;

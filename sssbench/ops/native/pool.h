@@ -1,0 +1,88 @@
+/* A persistent pool of worker threads for the tap loop (type-independent; included once).
+ *
+ * Starting and joining a thread costs about 25 us here, as much as a small object's whole
+ * pass; the workers are started once, sleep on a condition variable (no spinning: they never
+ * compete with the caller or torch's threads for a core) and are woken per pass. One pass
+ * at a time uses the pool; a concurrent caller (another Python thread) and a process forked
+ * while a pass was running start their own threads instead. */
+
+enum { POOL_MAX = 64 };
+
+typedef struct {
+    void *(*run)(void *);
+    void *arg;
+} pool_task;
+
+static struct {
+    pthread_mutex_t lock; /* guards the fields below */
+    pthread_cond_t wake, done;
+    pid_t pid;                        /* the process the workers belong to */
+    int started;                      /* workers 1..started run */
+    unsigned long generation;         /* bumped per pass */
+    unsigned long seen0[POOL_MAX];    /* generation at each worker's start */
+    pool_task tasks[POOL_MAX];        /* worker i runs tasks[i] when i < active */
+    int active, pending;
+} pool = {PTHREAD_MUTEX_INITIALIZER, PTHREAD_COND_INITIALIZER, PTHREAD_COND_INITIALIZER};
+static pthread_mutex_t pool_busy = PTHREAD_MUTEX_INITIALIZER; /* one pass at a time */
+
+static void *pool_worker(void *arg) {
+    const int i = (int)(intptr_t)arg;
+    pthread_mutex_lock(&pool.lock);
+    unsigned long seen = pool.seen0[i];
+    for (;;) {
+        while (pool.generation == seen) pthread_cond_wait(&pool.wake, &pool.lock);
+        seen = pool.generation;
+        if (i >= pool.active) continue;
+        const pool_task task = pool.tasks[i];
+        pthread_mutex_unlock(&pool.lock);
+        task.run(task.arg);
+        pthread_mutex_lock(&pool.lock);
+        if (--pool.pending == 0) pthread_cond_signal(&pool.done);
+    }
+    return NULL;
+}
+
+/* run(args + t * size) for t in [0, threads): t = 0 on the caller's thread, the others on
+ * pool workers (or on threads of their own, or the caller, when the pool is unavailable). */
+static void pool_run(void *(*run)(void *), char *args, size_t size, int threads) {
+    if (threads > POOL_MAX) threads = POOL_MAX;
+    if (threads > 1 && pthread_mutex_trylock(&pool_busy) == 0) {
+        if (pool.pid != getpid()) { /* first use, or a fork child: the workers are gone and
+                                       the lock and conditions may hold their state */
+            pthread_mutex_init(&pool.lock, NULL);
+            pthread_cond_init(&pool.wake, NULL);
+            pthread_cond_init(&pool.done, NULL);
+            pool.pid = getpid();
+            pool.started = 0;
+        }
+        pthread_mutex_lock(&pool.lock);
+        for (; pool.started < threads - 1; ++pool.started) {
+            pthread_t id;
+            const int i = pool.started + 1;
+            pool.seen0[i] = pool.generation;
+            if (pthread_create(&id, NULL, pool_worker, (void *)(intptr_t)i) != 0) break;
+            pthread_detach(id);
+        }
+        const int workers = pool.started < threads - 1 ? pool.started : threads - 1;
+        for (int t = 1; t <= workers; ++t) pool.tasks[t] = (pool_task){run, args + t * size};
+        pool.active = workers + 1;
+        pool.pending = workers;
+        ++pool.generation;
+        pthread_cond_broadcast(&pool.wake);
+        pthread_mutex_unlock(&pool.lock);
+        for (int t = workers + 1; t < threads; ++t) run(args + t * size);
+        run(args);
+        pthread_mutex_lock(&pool.lock);
+        while (pool.pending > 0) pthread_cond_wait(&pool.done, &pool.lock);
+        pthread_mutex_unlock(&pool.lock);
+        pthread_mutex_unlock(&pool_busy);
+        return;
+    }
+    pthread_t ids[POOL_MAX];
+    int started = 1;
+    for (int t = 1; t < threads; ++t, ++started)
+        if (pthread_create(&ids[t], NULL, run, args + t * size) != 0) break;
+    for (int t = started; t < threads; ++t) run(args + t * size);
+    run(args);
+    for (int t = 1; t < started; ++t) pthread_join(ids[t], NULL);
+}
