@@ -14,6 +14,7 @@ from dataclasses import dataclass, fields, replace
 import torch
 
 from sssbench._checks import check_range, check_scalar, check_tensor
+from sssbench._memo import memoised
 
 __all__ = ["GBuffer", "pixel_size_mm", "view_positions"]
 
@@ -156,7 +157,9 @@ class GBuffer:
 
         Fields that are not replaced were validated when this G-buffer was built and are not
         scanned again (a method that swaps in a per-step stencil would otherwise re-read every
-        image of a 1080p G-buffer per step). Replacing ``diffuse`` or ``fov_y`` validates all.
+        image of a 1080p G-buffer per step), nor is a replacing tensor already checked against
+        the same diffuse shape, dtype and ``fov_y`` (memoised on its identity and version,
+        :func:`~sssbench._memo.memoised`). Replacing ``diffuse`` or ``fov_y`` validates all.
         """
         if not changes.keys() <= {f.name for f in fields(self)}:
             unknown = sorted(changes.keys() - {f.name for f in fields(self)})
@@ -167,7 +170,14 @@ class GBuffer:
         for f in fields(self):
             object.__setattr__(new, f.name, changes.get(f.name, getattr(self, f.name)))
         for name in changes:
-            new._validate_field(name)
+            # a field checked against the same diffuse shape, dtype and fov_y before (e.g. a
+            # per-step stencil swapped in on every call) is not scanned again
+            tag = ("valid_field", name, tuple(self.diffuse.shape), self.dtype, self.fov_y)
+            value = changes[name]
+            if isinstance(value, torch.Tensor):
+                memoised((value,), tag, lambda name=name: new._validate_field(name) or True)
+            else:
+                new._validate_field(name)
         return new
 
 

@@ -76,3 +76,17 @@ def test_replace_equals_building_anew():
     assert new.fov_y == fresh.fov_y
     with pytest.raises(ValueError, match="fov_y"):
         g.replace(fov_y=4.0)  # fov_y / diffuse: everything is validated again
+
+
+def test_replace_checks_a_reused_tensor_again_after_an_in_place_change():
+    """The field check is memoised on the tensor's identity and version: reusing a checked
+    mask costs nothing, but writing into it in place (a new version) is checked again, and a
+    bad tensor is refused every time."""
+    g = GBuffer(torch.rand(1, 3, 4, 5), torch.full((1, 1, 4, 5), 100.0), 0.5)
+    mask = torch.ones(1, 1, 4, 5)
+    assert g.replace(mask=mask).mask is mask
+    assert g.replace(mask=mask).mask is mask
+    mask[0, 0, 0, 0] = 2.0  # in place: out of [0, 1]
+    for _ in range(2):
+        with pytest.raises(ValueError, match="mask must lie"):
+            g.replace(mask=mask)

@@ -31,14 +31,16 @@ from dataclasses import dataclass
 import torch
 
 from sssbench._checks import check_choice, check_scalar, check_tensor
+from sssbench._memo import memoised
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.kernel1d import Kernel1D
 from sssbench.ops import native
-from sssbench.ops._stencil import image_spans, image_stencils, memoised
+from sssbench.ops._stencil import image_spans, image_stencils
 from sssbench.ops.timing import PassRecord, add_record
 
 __all__ = [
     "separable_pass",
+    "blend_on_stencil",
     "set_backend",
     "get_backend",
     "BACKENDS",
@@ -406,6 +408,47 @@ def _native_pass(
     if status < 0:
         raise MemoryError(f"native gather: no memory for the line buffers of a {h}x{w} image")
     return status
+
+
+def blend_on_stencil(
+    out: torch.Tensor, end: torch.Tensor, weight: torch.Tensor, mask: torch.Tensor | None
+) -> torch.Tensor:
+    """``out ← lerp(out, end, weight)`` on the pixels with ``mask > 0`` (every pixel without a
+    mask), in place: the sum-of-Gaussians blend of a blurred step into the result (003
+    §7.3.3, Listing 7.2), on the stencil's pixels only.
+
+    Args:
+        out: ``(B, 3, H, W)`` contiguous, overwritten at the active pixels.
+        end: ``(B, 3, H, W)`` the blurred step.
+        weight: ``(3,)`` per-channel blend weight.
+        mask: ``(B, 1, H, W)`` stencil or ``None``.
+
+    Returns:
+        ``out``. With the native backend (no gradient needed) a C loop over the stencil's
+        runs; otherwise ``torch.lerp`` at the stencil's indices (the two agree to a rounding:
+        torch fuses the multiply-add).
+    """
+    b_, c_, h_, w_ = out.shape
+    weight = weight.to(dtype=out.dtype, device=out.device)
+    grads = torch.is_grad_enabled() and any(t.requires_grad for t in (out, end, weight))
+    if _backend_for(out, grads, None, None) == "native" and out.is_contiguous():
+        lib = native.library()
+        fn = lib.sss_blend_f32 if out.dtype == torch.float32 else lib.sss_blend_f64
+        end = end.contiguous()
+        weight = weight.contiguous()
+        for bi, spans in enumerate(image_spans(mask, (b_, h_, w_))):
+            if spans.shape[0]:
+                fn(out[bi].data_ptr(), end[bi].data_ptr(), spans.data_ptr(), weight.data_ptr(),
+                   spans.shape[0], h_, w_, torch.get_num_threads())  # fmt: skip
+        return out
+    stencils = [None] * b_ if mask is None else image_stencils(mask)
+    for bi, lin in enumerate(stencils):
+        flat, blurred = out[bi].view(c_, -1), end[bi].reshape(c_, -1)
+        if lin is None:
+            flat.copy_(torch.lerp(flat, blurred, weight.view(c_, 1)))
+        else:
+            flat[:, lin] = torch.lerp(flat[:, lin], blurred[:, lin], weight.view(c_, 1))
+    return out
 
 
 def _lerp_fetch(planes: torch.Tensor, a: torch.Tensor, b: torch.Tensor, f: torch.Tensor):

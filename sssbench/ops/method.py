@@ -13,8 +13,8 @@ import torch
 from torch import nn
 
 from sssbench._checks import check_choice, check_scalar
+from sssbench._memo import memo_scope
 from sssbench.gbuffer import GBuffer
-from sssbench.ops._stencil import memo_scope
 from sssbench.ops.gather import FOLLOW_SURFACE, SampleWeight
 from sssbench.ops.rotation import random_rotation
 

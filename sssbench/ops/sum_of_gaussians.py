@@ -11,12 +11,13 @@ from dataclasses import dataclass
 import torch
 
 from sssbench._checks import check_choice, check_int, check_scalar, check_tensor
+from sssbench._memo import memoised
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.kernel1d import Kernel1D
 from sssbench.kernels.preintegrated import preintegrated
 from sssbench.kernels.sampling import MAX_SAMPLES, SAMPLINGS
-from sssbench.ops._stencil import image_stencils, memoised
-from sssbench.ops.gather import Stretch, separable_pass
+from sssbench.ops._stencil import image_stencils
+from sssbench.ops.gather import Stretch, blend_on_stencil, separable_pass
 from sssbench.ops.method import SeparableMethod
 from sssbench.ops.timing import PassRecord, add_record
 from sssbench.profiles.sum_of_gaussians import SumOfGaussians
@@ -292,7 +293,7 @@ class SumOfGaussiansSSS(SeparableMethod):
     def _lod_mask(self, gbuffer: GBuffer, sigma: float) -> torch.Tensor:
         """The G-buffer mask with pixels where ``sigma`` (mm) is under the LOD width zeroed.
 
-        Memoised per G-buffer (:func:`~sssbench.ops._stencil.memoised`): like the stencil, a
+        Memoised per G-buffer (:func:`~sssbench._memo.memoised`): like the stencil, a
         renderer derives it once from depth, not per call."""
         if not self.lod:
             return gbuffer.mask_or_ones()
@@ -337,9 +338,7 @@ class SumOfGaussiansSSS(SeparableMethod):
                 rtf = rtf.clone(memory_format=torch.contiguous_format)
             # 003 §7.3.3, Listing 7.2: rtf ← blend · rt1 + (1 − blend) · rtf, as one lerp, on
             # the stencil's pixels only
-            for bi, lin in enumerate(stencils):
-                flat, blurred = rtf[bi].view(3, -1), rt1[bi].reshape(3, -1)
-                flat[:, lin] = torch.lerp(flat[:, lin], blurred[:, lin], blend.view(3, 1))
+            rtf = blend_on_stencil(rtf, rt1, blend.view(3), mask)
         return rtf
 
 

@@ -12,10 +12,11 @@ import sys
 import pytest
 import torch
 
+from sssbench._memo import memoised
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels import Kernel1D
 from sssbench.ops import Stretch, native, separable_pass
-from sssbench.ops._stencil import image_stencils, memoised
+from sssbench.ops._stencil import image_stencils
 from sssbench.ops.gather import get_backend, set_backend
 
 pytestmark = pytest.mark.skipif(native.library() is None, reason="no C compiler")
@@ -320,7 +321,7 @@ def test_stencil_memo_misses_after_an_in_place_write():
 
 
 def test_memo_keeps_a_bounded_number_of_entries():
-    from sssbench.ops._stencil import _MEMO_SIZE
+    from sssbench._memo import _MEMO_SIZE
 
     calls = []
     n = _MEMO_SIZE + 8
@@ -333,7 +334,7 @@ def test_memo_keeps_a_bounded_number_of_entries():
 
 
 def test_inference_tensors_are_memoised_only_within_a_call_scope():
-    from sssbench.ops._stencil import memo_scope
+    from sssbench._memo import memo_scope
 
     with torch.inference_mode():
         mask = torch.ones(1, 1, 4, 4)
@@ -384,3 +385,41 @@ def test_inplace_is_not_honoured_under_autograd_or_for_strided_images():
     before = strided.clone()
     out = separable_pass(strided, kernel(3), "x", g, inplace=True)
     assert out is not strided and torch.equal(strided, before)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_blend_on_stencil_native_equals_torch_lerp(dtype):
+    """The SoG blend, out ← lerp(out, end, w) on the stencil, against torch.lerp per pixel
+    (weights below and above one half take torch's two formulas); pixels off the stencil keep
+    ``out``."""
+    from sssbench.ops.gather import blend_on_stencil
+
+    g = scene(seed=9, b=2, h=70, w=90, dtype=dtype, cover=0.6)
+    gen = torch.Generator().manual_seed(4)
+    out0 = torch.rand(2, 3, 70, 90, generator=gen, dtype=dtype)
+    end = torch.rand(2, 3, 70, 90, generator=gen, dtype=dtype)
+    weight = torch.tensor([0.1, 0.5, 0.93], dtype=dtype)
+    on = (g.mask > 0).expand(2, 3, 70, 90)
+    expected = torch.where(on, torch.lerp(out0, end, weight.view(1, 3, 1, 1)), out0)
+    for name in ("native", "torch"):
+        with backend(name):
+            got = blend_on_stencil(out0.clone(), end, weight, g.mask)
+        torch.testing.assert_close(got, expected, **tol(dtype))
+        assert torch.equal(got[~on], out0[~on])
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_sum_of_gaussians_native_equals_torch(dtype):
+    """The whole 12-pass schedule (passes and blends, LOD stencils) on both backends."""
+    import data_synth
+    from sssbench.ops import SumOfGaussiansSSS
+    from sssbench.profiles import SumOfGaussians
+
+    g = data_synth.make_scene("head", resolution=(96, 80), dtype=dtype)
+    op = SumOfGaussiansSSS(SumOfGaussians.from_table("skin_deon6"), 9, follow_surface="lerp")
+    with backend("torch"):
+        ref = op(g)
+    with backend("native"):
+        got = op(g)
+    torch.testing.assert_close(got, ref, **tol(dtype))
+    assert not torch.allclose(ref, g.diffuse)

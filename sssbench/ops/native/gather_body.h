@@ -282,6 +282,55 @@ int64_t CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const i
     return n;
 }
 
+/* out <- lerp(out, end, weight) per channel at the active pixels of spans [first, last): the
+ * sum-of-Gaussians blend (003 §7.3.3), torch.lerp's formula with a separate multiply and add
+ * (torch fuses them: the results agree to a rounding) */
+typedef struct {
+    SCALAR *out;
+    const SCALAR *end, *weight;
+    const int64_t *spans;
+    int64_t first, last, hw, w;
+} CAT(blend_job_, SUFFIX);
+
+static void *CAT(run_blend_, SUFFIX)(void *arg) {
+    const CAT(blend_job_, SUFFIX) *j = (const CAT(blend_job_, SUFFIX) *)arg;
+    for (int ch = 0; ch < 3; ++ch) {
+        const SCALAR wt = j->weight[ch], small = FABSF(wt) < (SCALAR)0.5;
+        SCALAR *o = j->out + ch * j->hw;
+        const SCALAR *e = j->end + ch * j->hw;
+        for (int64_t s = j->first; s < j->last; ++s) {
+            const int64_t base = j->spans[3 * s] * j->w;
+            for (int64_t l = base + j->spans[3 * s + 1]; l < base + j->spans[3 * s + 2]; ++l)
+                o[l] = small ? o[l] + wt * (e[l] - o[l]) : e[l] - (e[l] - o[l]) * ((SCALAR)1 - wt);
+        }
+    }
+    return NULL;
+}
+
+int64_t CAT(sss_blend_, SUFFIX)(SCALAR *out, const SCALAR *end, const int64_t *spans,
+                               const SCALAR *weight, int64_t n_spans, int64_t h, int64_t w,
+                               int threads) {
+    enum { MAX_THREADS = 64 };
+    int64_t n = 0;
+    for (int64_t s = 0; s < n_spans; ++s) n += spans[3 * s + 2] - spans[3 * s + 1];
+    if (threads < 1) threads = 1;
+    if (threads > MAX_THREADS) threads = MAX_THREADS;
+    if (n < 65536 * (int64_t)threads) threads = n < 131072 ? 1 : (int)(n / 65536);
+    CAT(blend_job_, SUFFIX) jobs[MAX_THREADS];
+    int64_t s = 0, done = 0;
+    for (int t = 0; t < threads; ++t) { /* whole spans, split where the count passes 1/T */
+        const int64_t first = s;
+        while (s < n_spans && (t == threads - 1 || done < n * (t + 1) / threads)) {
+            done += spans[3 * s + 2] - spans[3 * s + 1];
+            ++s;
+        }
+        CAT(blend_job_, SUFFIX) jb = {out, end, weight, spans, first, s, h * w, w};
+        jobs[t] = jb;
+    }
+    pool_run(CAT(run_blend_, SUFFIX), (char *)jobs, sizeof jobs[0], threads);
+    return n;
+}
+
 #undef NARROW_STRIP
 #undef WIDE_STRIP
 #undef CAT
