@@ -6,6 +6,7 @@
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 #include <unistd.h>
 
 /* lane-wise a < b ? a : b and a > b ? a : b (the second operand where either is NaN): the

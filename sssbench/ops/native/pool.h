@@ -1,12 +1,29 @@
 /* A persistent pool of worker threads for the tap loop (type-independent; included once).
  *
  * Starting and joining a thread costs about 25 us here, as much as a small object's whole
- * pass; the workers are started once, sleep on a condition variable (no spinning: they never
- * compete with the caller or torch's threads for a core) and are woken per pass. One pass
+ * pass; the workers are started once and sleep on a condition variable between passes. A
+ * worker that finishes looks for the next pass for 50 us before it sleeps (the two passes of
+ * a call follow each other within microseconds; waking a sleeping thread costs more); that is
+ * the only time it spins, so it never holds a core against torch's threads for long. One pass
  * at a time uses the pool; a concurrent caller (another Python thread) and a process forked
  * while a pass was running start their own threads instead. */
 
 enum { POOL_MAX = 64 };
+static const double POOL_SPIN_S = 200e-6; /* how long an idle worker looks for the next pass */
+
+#if defined(__x86_64__) || defined(__i386__)
+#define POOL_PAUSE() __builtin_ia32_pause()
+#elif defined(__aarch64__)
+#define POOL_PAUSE() __asm__ __volatile__("yield")
+#else
+#define POOL_PAUSE() ((void)0)
+#endif
+
+static double pool_now(void) {
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
 
 typedef struct {
     void *(*run)(void *);
@@ -30,6 +47,15 @@ static void *pool_worker(void *arg) {
     pthread_mutex_lock(&pool.lock);
     unsigned long seen = pool.seen0[i];
     for (;;) {
+        if (pool.generation == seen) { /* a pass often follows the last within microseconds:
+                                          look for it a little before sleeping (bounded) */
+            pthread_mutex_unlock(&pool.lock);
+            const double until = pool_now() + POOL_SPIN_S;
+            while (__atomic_load_n(&pool.generation, __ATOMIC_ACQUIRE) == seen &&
+                   pool_now() < until)
+                POOL_PAUSE();
+            pthread_mutex_lock(&pool.lock);
+        }
         while (pool.generation == seen) pthread_cond_wait(&pool.wake, &pool.lock);
         seen = pool.generation;
         if (i >= pool.active) continue;
@@ -67,7 +93,7 @@ static void pool_run(void *(*run)(void *), char *args, size_t size, int threads)
         for (int t = 1; t <= workers; ++t) pool.tasks[t] = (pool_task){run, args + t * size};
         pool.active = workers + 1;
         pool.pending = workers;
-        ++pool.generation;
+        __atomic_store_n(&pool.generation, pool.generation + 1, __ATOMIC_RELEASE);
         pthread_cond_broadcast(&pool.wake);
         pthread_mutex_unlock(&pool.lock);
         for (int t = workers + 1; t < threads; ++t) run(args + t * size);
