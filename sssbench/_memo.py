@@ -26,14 +26,9 @@ T = TypeVar("T")
 def _tensor_key(t: torch.Tensor | None) -> tuple:
     if t is None:
         return (None,)
-    return (
-        t.data_ptr(),  # the memo keeps t alive, so no other tensor can get this address
-        tuple(t.shape),
-        t.stride(),
-        t.dtype,
-        t.device,
-        None if t.is_inference() else t._version,
-    )
+    # the memo keeps t alive, so no other tensor object can get its id while cached; the data
+    # pointer catches a storage swapped in under it, the version an in-place write
+    return (id(t), t.data_ptr(), None if t.is_inference() else t._version)
 
 
 #: the memo of the innermost :func:`memo_scope`, or ``None`` outside any
