@@ -222,14 +222,15 @@ int64_t CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const i
     if (axis_y)
         for (int64_t s = 0; s < n_spans; ++s)
             entries += (spans[3 * s + 2] - 1) / strip - spans[3 * s + 1] / strip;
-    int64_t *lists = (int64_t *)calloc((size_t)(3 * n_lines + entries), sizeof(int64_t));
     const size_t per_thread = (size_t)line_len * 5; /* window (4 lanes) + scales */
-    SCALAR *memory = (SCALAR *)malloc(sizeof(SCALAR) * ((size_t)k * 4 + per_thread * threads));
-    if (!lists || !memory) {
-        free(lists);
-        free(memory);
-        return -1;
-    }
+    const size_t list_bytes = ((size_t)(3 * n_lines + entries) * sizeof(int64_t) + 63) / 64 * 64;
+    int owned;
+    char *block = (char *)workspace_acquire(
+        list_bytes + sizeof(SCALAR) * ((size_t)k * 4 + per_thread * (size_t)threads), &owned);
+    if (!block) return -1;
+    int64_t *lists = (int64_t *)block;
+    memset(lists, 0, list_bytes);
+    SCALAR *memory = (SCALAR *)(block + list_bytes);
     int64_t *lines = lists, *ids = lists + 3 * n_lines;
     for (int pass = 0; pass < 2; ++pass) { /* count, then fill */
         for (int64_t s = 0; s < n_spans; ++s) {
@@ -277,8 +278,7 @@ int64_t CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const i
         jobs[t] = jb;
     }
     pool_run(CAT(run_, SUFFIX), (char *)jobs, sizeof jobs[0], threads);
-    free(memory);
-    free(lists);
+    workspace_release(block, owned);
     return n;
 }
 

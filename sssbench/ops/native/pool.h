@@ -1,4 +1,5 @@
-/* A persistent pool of worker threads for the tap loop (type-independent; included once).
+/* A persistent pool of worker threads and a kept workspace for the tap loop (type-independent;
+ * included once).
  *
  * Starting and joining a thread costs about 25 us here, as much as a small object's whole
  * pass; the workers are started once and sleep on a condition variable between passes. A
@@ -111,4 +112,39 @@ static void pool_run(void *(*run)(void *), char *args, size_t size, int threads)
     for (int t = started; t < threads; ++t) run(args + t * size);
     run(args);
     for (int t = 1; t < started; ++t) pthread_join(ids[t], NULL);
+}
+
+/* A workspace kept between passes: a pass's line buffers and span lists (a few MB at most)
+ * are allocated once and reused instead of being mapped and faulted in anew on every call.
+ * One pass at a time holds it; another (concurrent, or in a child forked mid-pass) allocates
+ * its own. */
+static struct {
+    pthread_mutex_t lock;
+    void *ptr;
+    size_t size;
+} workspace = {PTHREAD_MUTEX_INITIALIZER, NULL, 0};
+
+/* size bytes; *owned says whether workspace_release frees them or returns the workspace */
+static void *workspace_acquire(size_t size, int *owned) {
+    if (pthread_mutex_trylock(&workspace.lock) == 0) {
+        if (workspace.size < size) {
+            free(workspace.ptr);
+            workspace.ptr = malloc(size);
+            workspace.size = workspace.ptr ? size : 0;
+        }
+        if (workspace.ptr) {
+            *owned = 0;
+            return workspace.ptr;
+        }
+        pthread_mutex_unlock(&workspace.lock);
+    }
+    *owned = 1;
+    return malloc(size);
+}
+
+static void workspace_release(void *ptr, int owned) {
+    if (owned)
+        free(ptr);
+    else
+        pthread_mutex_unlock(&workspace.lock);
 }
