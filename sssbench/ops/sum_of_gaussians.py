@@ -302,9 +302,12 @@ class SumOfGaussiansSSS(SeparableMethod):
         level = 1.0 if self.stretch is None else self.stretch.ssslevel
 
         def compute() -> torch.Tensor:
-            mask = gbuffer.mask_or_ones()
-            width_px = sigma * level * focal_px / gbuffer.depth * mask  # 003 §7.3.2, dd = 0
-            return torch.where(width_px >= self.lod_threshold, mask, torch.zeros_like(mask))
+            # a normal tensor even in inference mode: its own stencil is then memoised across
+            # calls too (an inference tensor's only within one call)
+            with torch.inference_mode(False):
+                mask = gbuffer.mask_or_ones()
+                width_px = sigma * level * focal_px / gbuffer.depth * mask  # 003 §7.3.2, dd = 0
+                return torch.where(width_px >= self.lod_threshold, mask, torch.zeros_like(mask))
 
         tag = ("sog_lod", sigma, level, focal_px, self.lod_threshold)
         return memoised((gbuffer.depth, gbuffer.mask), tag, compute)

@@ -161,6 +161,23 @@ def test_lod_is_per_pixel_on_a_depth_ramp():
     assert 0 < pixels[0] < pixels[1] < pixels[2] == h * w
 
 
+def test_lod_stencils_are_built_once_per_gbuffer_even_in_inference_mode():
+    """A renderer derives the LOD stencils once from depth: under ``torch.inference_mode`` (as
+    the experiments and the app run) they are still normal tensors, memoised across calls,
+    and the second call's result is the first's."""
+    h, w = 16, 32
+    depth = torch.linspace(10.0, 80.0, w, dtype=torch.float64).expand(1, 1, h, w).contiguous()
+    img = torch.rand(1, 3, h, w, generator=torch.Generator().manual_seed(3), dtype=torch.float64)
+    g = GBuffer(img, depth, FOV)
+    op = SumOfGaussiansSSS(SumOfGaussians.from_table("skin_jg10"))
+    sigma = math.sqrt(op.steps[1].increment)
+    with torch.inference_mode():
+        first, out1 = op._lod_mask(g, sigma), op(g)
+        second, out2 = op._lod_mask(g, sigma), op(g)
+    assert second is first and not first.is_inference()
+    assert torch.equal(out1, out2)
+
+
 @pytest.mark.parametrize("dtype, tol", [(torch.float32, 1e-5), (torch.float64, 1e-12)])
 @pytest.mark.parametrize("table", ["skin_deon6", "skin_jg10", "marble_jg10"])
 def test_constant_image_is_unchanged(dtype, tol, table):
