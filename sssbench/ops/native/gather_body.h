@@ -263,8 +263,8 @@ int64_t CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const i
         if (!(a <= max_offset)) max_offset = a == a ? a : (SCALAR)INFINITY;
     }
     CAT(job_, SUFFIX) jobs[MAX_THREADS];
-    int64_t q = 0, done = 0;
-    const int64_t total = copy ? n + (work - n) / n_lines * n_lines : n;
+    int64_t q = 0, done = 0, total = 0;
+    for (int64_t l = 0; l < n_lines; ++l) total += lines[3 * l + 2];
     for (int t = 0; t < threads; ++t) { /* whole lines, split where the work passes 1/T */
         const int64_t first = q;
         while (q < n_lines && (t == threads - 1 || done < total * (t + 1) / threads))
