@@ -16,8 +16,8 @@ from pathlib import Path
 import pytest
 from hydra import compose, initialize_config_dir
 
-from sssbench import app, report
-from sssbench.tracking import RunStore
+from sssbench import app, registry, report, runner
+from sssbench.tracking import RunStore, config_hash
 
 REPO = Path(__file__).resolve().parents[1]
 TINY = ["scene=sphere", "resolution=[24,24]", "repeats=1", "warmup=0", "previews=true"]
@@ -54,6 +54,7 @@ def _sssbench(tmp_path: Path, *args: str, multirun: bool = False, timeout: float
         "hydra.run.dir=" + str(tmp_path / "run"),
         "hydra.sweep.dir=" + str(tmp_path / "sweep"),
         "store=" + str(tmp_path / "store.sqlite"),
+        "reference_cache=" + str(tmp_path / "reference_cache"),
     ]
     cmd = [sys.executable, "-m", "sssbench", *(["-m"] if multirun else []), *args, *out]
     return subprocess.run(
@@ -72,15 +73,18 @@ def _compose(*overrides: str, hydra: bool = False):
 
 # ----------------------------------------------------------------------------- compose API
 def test_conf_dir_found_from_package():
-    assert app.CONF_DIR == REPO / "conf" and (app.CONF_DIR / "config.yaml").is_file()
+    assert app.CONF_DIR == REPO / "sssbench" / "conf" and (app.CONF_DIR / "config.yaml").is_file()
 
 
-@pytest.mark.parametrize("group", ["method", "scene", "profile", "sampling"])
+@pytest.mark.parametrize(
+    "group",
+    ["method", "scene", "profile", "sampling", "translucency", "curvature", "halo", "texturing"],
+)
 def test_every_group_option_composes(group):
     for path in sorted((app.CONF_DIR / group).glob("*.yaml")):
         cfg = _compose(f"{group}={path.stem}")
         assert cfg[group]["name"]
-        if group == "method" and app.METHODS[cfg.method.name] not in dir(
+        if group == "method" and registry.METHODS[cfg.method.name].cls not in dir(
             __import__("sssbench.ops", fromlist=["x"])
         ):
             continue  # YAML present before its operator: skip building the spec
@@ -106,7 +110,7 @@ def test_spec_defaults_and_identity():
 def test_spec_rejects_bad_values():
     with pytest.raises(ValueError, match="resolution must be"):
         app.spec_from_cfg(_compose("resolution=[1,2,3]"))
-    with pytest.raises(ValueError, match="dtype must be one of"):
+    with pytest.raises(ValueError, match="dtype must be float32 or float64"):
         app.spec_from_cfg(_compose("dtype=float16"))
     with pytest.raises(ValueError, match="repeats must be"):
         app.spec_from_cfg(_compose("repeats=0"))
@@ -118,7 +122,7 @@ def test_backend_is_part_of_the_point_and_defaults_to_native():
     spec = app.spec_from_cfg(_compose())
     assert spec.backend == "native" and spec.point()["backend"] == "native"
     torch_spec = app.spec_from_cfg(_compose("backend=torch"))
-    assert app.config_hash(torch_spec.point()) != app.config_hash(spec.point())
+    assert config_hash(torch_spec.point()) != config_hash(spec.point())
 
 
 def test_benchmark_preset_sets_the_grid():
@@ -132,7 +136,7 @@ def test_pass_stats_median_min_max():
     from sssbench.ops.timing import PassRecord
 
     runs = [[PassRecord("a", 3, 10, ms), PassRecord("b", 3, 10, 2 * ms)] for ms in (1.0, 3.0, 2.0)]
-    stats = app.pass_stats(runs)
+    stats = runner.pass_stats(runs)
     assert [(s.name, s.ms_median, s.ms_min, s.ms_max, s.repeats) for s in stats] == [
         ("a", 2.0, 1.0, 3.0, 3),
         ("b", 4.0, 2.0, 6.0, 3),
@@ -140,10 +144,10 @@ def test_pass_stats_median_min_max():
 
 
 def test_time_limit_raises():
-    with pytest.raises(app.RunTimeout, match="timeout_s=0.1"):
-        with app.time_limit(0.1):
+    with pytest.raises(runner.RunTimeout, match="timeout_s=0.1"):
+        with runner.time_limit(0.1):
             time.sleep(2)
-    with app.time_limit(None):
+    with runner.time_limit(None):
         pass
 
 
@@ -151,7 +155,7 @@ def test_execute_records_timeout_in_process(tmp_path):
     spec = app.spec_from_cfg(
         _compose(*TINY, f"store={tmp_path / 's.sqlite'}", "timeout_s=0.001", "previews=false")
     )
-    outcome = app.execute(spec, tmp_path / "run")
+    outcome = runner.execute(spec, tmp_path / "run")
     assert outcome.status == "timeout"
     (row,) = RunStore(tmp_path / "s.sqlite").runs()
     assert row["status"] == "timeout" and "timeout_s" in row["error"]
@@ -177,7 +181,8 @@ def test_single_run_writes_everything(tmp_path):
     # same point again: skipped (store unchanged), the reference comes from the cache
     proc = _sssbench(tmp_path, *TINY, "force=true")
     assert proc.returncode == 0, proc.stderr
-    assert "reference cache hit" in proc.stdout + proc.stderr
+    assert json.loads((run / "metrics.json").read_text())["reference_cache_hit"] is True
+    assert f"output in {run}" in proc.stdout
     assert len(RunStore(tmp_path / "store.sqlite")) == 2
 
 
@@ -259,3 +264,62 @@ def test_submitit_local_sweep(tmp_path):
     rows = RunStore(tmp_path / "store.sqlite").runs()
     assert sorted(r["samples"] for r in rows) == [3, 5]
     assert {r["status"] for r in rows} == {"ok"}
+
+
+# ----------------------------------------------------------------------------- the point
+def test_stages_are_part_of_the_point():
+    off = app.spec_from_cfg(_compose("translucency=off"))
+    on = app.spec_from_cfg(_compose("translucency=on"))
+    assert off.stages["translucency"] is None and on.stages["translucency"]["form"] == "deon"
+    assert config_hash(off.point()) != config_hash(on.point())
+    assert on.point()["stages"] == {"translucency": on.stages["translucency"]}
+
+
+def test_every_swept_option_is_used_or_refused():
+    # low_rank's tap count is its n: a samples sweep gives distinct points
+    a = app.spec_from_cfg(_compose("method=low_rank", "samples=15"), ("method", "samples"))
+    b = app.spec_from_cfg(_compose("method=low_rank", "samples=31"), ("method", "samples"))
+    assert config_hash(a.point()) != config_hash(b.point())
+    # an option the method does not take is refused when given explicitly
+    with pytest.raises(ValueError, match="no sampling option"):
+        app.spec_from_cfg(_compose("method=low_rank", "sampling=uniform"), ("sampling",))
+    with pytest.raises(ValueError, match="no tap count"):
+        app.spec_from_cfg(_compose("method=reference", "samples=13"), ("samples",))
+    # and an unknown method option is refused when the method is built
+    with pytest.raises(ValueError, match="has no option"):
+        registry.build_method("preintegrated", None, params={"taps": 3})
+
+
+@pytest.mark.parametrize(
+    ("argv", "expected"),
+    [
+        (["sampels=3"], "did you mean samples"),
+        (["method="], "empty value for method"),
+        (["timeout_s=abc"], "timeout_s must be a float"),
+        (["repeats=1.5"], "repeats must be an int"),
+        (["method=preintegrate"], "did you mean preintegrated"),
+        (["translucency=maybe"], "unknown translucency 'maybe'"),
+    ],
+)
+def test_bad_overrides_named_in_one_line(argv, expected):
+    assert expected in app.check_overrides(argv)
+
+
+def test_good_overrides_pass():
+    ok = ["samples=3,5", "method=glob(*)", "+experiment=benchmark", "scene.params.pixel_mm=0.3"]
+    assert app.check_overrides(ok) is None
+
+
+def test_version_is_sssbench(tmp_path):
+    proc = subprocess.run(
+        [sys.executable, "-m", "sssbench", "--version"],
+        env=_env(),
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    from importlib import metadata
+
+    assert (
+        proc.returncode == 0 and proc.stdout.strip() == f"sssbench {metadata.version('sssbench')}"
+    )

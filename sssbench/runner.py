@@ -1,0 +1,555 @@
+"""Run one point: build, time, compare, record (DESIGN §6).
+
+:func:`execute` is the one run function of the project: the Hydra app calls it for every job
+of a sweep, and the experiments call it for their grids. It
+
+1. skips the point if the run store already holds it with status ``ok`` (unless ``force``);
+2. builds the scene with the fields the pipeline needs, runs the pipeline ``warmup`` times
+   untimed and ``repeats`` times timed (per pass: median / min / max; run time = sum of the
+   pass medians);
+3. loads the exact reference from the cache (:mod:`sssbench.refcache`) or computes it;
+4. computes the metrics (:mod:`sssbench.metrics`) over the SSS region (mask > 0), the
+   do-nothing baseline's errors on the same scene and the run's skill against it
+   (:mod:`sssbench.verdict`), and the error budget (:mod:`sssbench.budget`);
+5. writes ``metrics.json``, ``passes.csv``, ``point.json`` and previews into the run directory
+   and records the run in the store.
+
+A run that raises is stored ``failed`` (with its message; the traceback goes to
+``error.txt``), one over ``timeout_s`` is stored ``timeout``; :func:`execute` never raises
+for a failure of the run itself. Process-wide torch settings it changes (threads, the gather
+backend) are restored when it returns.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import json
+import logging
+import math
+import os
+import platform
+import signal
+import statistics
+import threading
+import time
+import traceback
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from sssbench import registry
+from sssbench.refcache import cached_reference, reference_key
+from sssbench.spec import RunSpec
+from sssbench.tracking import PassStats, RunRecord, RunStore, config_hash, utc_now
+
+log = logging.getLogger("sssbench")
+
+__all__ = [
+    "RunOutcome",
+    "RunTimeout",
+    "execute",
+    "measure",
+    "pass_stats",
+    "time_limit",
+    "versions",
+    "write_previews",
+    "METRIC_KEYS",
+]
+
+#: per-run numbers copied into the store's metrics (besides the image metrics)
+METRIC_KEYS = (
+    "rmse",
+    "rel_rms",
+    "psnr",
+    "ssim",
+    "delta_e",
+    "flip",
+    "rel_rms_identity",
+    "flip_identity",
+    "skill",
+    "skill_flip",
+    "visibility",
+    "err_model",
+    "err_taps",
+    "err_screen",
+    "err_recon",
+    "samples_per_pixel",
+    "reference_ms",
+    "pixel_mm",
+)
+
+
+def pass_stats(runs: list[list[Any]]) -> list[PassStats]:
+    """Per-pass median / min / max over repeats (passes matched by position and name)."""
+    if not runs:
+        return []
+    n = len(runs[0])
+    for r in runs[1:]:
+        if [p.name for p in r] != [p.name for p in runs[0]]:
+            raise RuntimeError(
+                "the pipeline ran different passes in different repeats: "
+                f"{[p.name for p in runs[0]]} vs {[p.name for p in r]}"
+            )
+    out = []
+    for i in range(n):
+        ms = [r[i].ms for r in runs]
+        first = runs[0][i]
+        out.append(
+            PassStats(
+                first.name,
+                first.samples,
+                first.pixels,
+                statistics.median(ms),
+                min(ms),
+                max(ms),
+                len(ms),
+            )
+        )
+    return out
+
+
+class RunTimeout(Exception):
+    """The run exceeded ``timeout_s``."""
+
+
+@contextlib.contextmanager
+def time_limit(seconds: float | None) -> Iterator[None]:
+    """Raise :class:`RunTimeout` after ``seconds`` of wall time (SIGALRM in the main thread;
+    elsewhere the limit is checked when the block ends)."""
+    if not seconds or seconds <= 0:
+        yield
+        return
+    start = time.monotonic()
+    use_signal = (
+        hasattr(signal, "setitimer") and threading.current_thread() is threading.main_thread()
+    )
+    if use_signal:
+
+        def handler(signum: int, frame: Any) -> None:
+            raise RunTimeout(f"run exceeded timeout_s={seconds:g} s")
+
+        previous = signal.signal(signal.SIGALRM, handler)
+        signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        if use_signal:
+            signal.setitimer(signal.ITIMER_REAL, 0)
+            signal.signal(signal.SIGALRM, previous)
+    if time.monotonic() - start > seconds:
+        raise RunTimeout(f"run exceeded timeout_s={seconds:g} s")
+
+
+@contextlib.contextmanager
+def torch_settings(threads: int | None, backend: str) -> Iterator[None]:
+    """Set torch's intra-op threads and the gather backend for a block; restore both."""
+    from sssbench.ops import get_backend, set_backend
+
+    before_threads, before_backend = torch.get_num_threads(), get_backend()
+    if threads is not None:
+        torch.set_num_threads(int(threads))
+    try:
+        set_backend(backend)
+        yield
+    finally:
+        set_backend(before_backend)
+        torch.set_num_threads(before_threads)
+
+
+def backend_used(backend: str) -> str:
+    """The tap-loop backend a run really used: ``native`` falls back to ``torch`` without a C
+    compiler (see :mod:`sssbench.ops.native`)."""
+    from sssbench.ops import native
+
+    return "torch" if backend == "native" and native.library() is None else backend
+
+
+def versions() -> dict[str, str]:
+    """Python and package versions of the run."""
+    out = {"python": platform.python_version()}
+    for pkg in (
+        "sssbench",
+        "torch",
+        "kornia",
+        "numpy",
+        "scikit-image",
+        "hydra-core",
+        "flip-evaluator",
+        "pandas",
+    ):
+        try:
+            out[pkg] = metadata.version(pkg)
+        except metadata.PackageNotFoundError:
+            out[pkg] = "not installed"
+    return out
+
+
+def write_previews(
+    run_dir: Path,
+    result: torch.Tensor,
+    reference: torch.Tensor,
+    *,
+    error_scale: float | None = None,
+    title: str = "",
+) -> list[str]:
+    """``preview.png`` (a labelled strip result | reference | |error| with a colour bar, the
+    error relative to the reference's peak on the scale ``error_scale``), and
+    ``result.png`` / ``reference.png`` / ``error.png`` at native resolution.
+
+    Args:
+        error_scale: top of the error colour scale (relative error); ``None`` uses the run's
+            own maximum. A report passes one scale per scene so error maps compare.
+    """
+    from sssbench.previews import preview_strip
+
+    return preview_strip(run_dir, result, reference, error_scale=error_scale, title=title)
+
+
+# ----------------------------------------------------------------------------- one run
+@dataclass
+class RunOutcome:
+    """What :func:`execute` returns: the status and the stored metrics."""
+
+    status: str  # ok, failed, timeout, skipped
+    config_hash: str
+    message: str = ""
+    metrics: dict[str, Any] = field(default_factory=dict)
+
+
+def _reference(
+    spec: RunSpec, gbuffer: Any, profile: Any, cache_dir: Path | None
+) -> tuple[torch.Tensor, bool, float]:
+    from sssbench.ops import ReferenceSSS
+
+    key = reference_key(
+        scene=spec.scene,
+        scene_params=spec.scene_params,
+        profile=profile,
+        resolution=spec.resolution,
+        seed=spec.seed,
+        dtype=spec.dtype,
+        reference_params=spec.reference_params,
+        stages=_reference_stages(spec),
+    )
+    pipeline = registry.build_pipeline(
+        ReferenceSSS(profile, **spec.reference_params), profile, spec.stages, for_reference=True
+    )
+    image, hit, ms = cached_reference(
+        key, lambda: pipeline.run(gbuffer).image, cache_dir, shape=tuple(gbuffer.diffuse.shape)
+    )
+    return image.to(gbuffer.dtype), hit, ms
+
+
+def _reference_stages(spec: RunSpec) -> dict[str, Any]:
+    return {k: v for k, v in spec.stages.items() if v is not None and registry.STAGES[k][1]}
+
+
+def _mask(gbuffer: Any, dtype: torch.dtype) -> torch.Tensor | None:
+    if gbuffer.mask is None:
+        return None
+    support = (gbuffer.mask > 0).to(dtype)
+    if bool(support.reshape(support.shape[0], -1).sum(1).gt(0).all()):
+        return support
+    return None
+
+
+def measure(spec: RunSpec, run_dir: Path) -> tuple[dict[str, Any], list[PassStats]]:
+    """Build, time, compare; return the ``metrics.json`` payload and the pass statistics."""
+    from sssbench import _verdict_tmp as verdict
+    from sssbench.metrics import compute_all, flip, rel_rms
+
+    with torch_settings(spec.threads, spec.backend):
+        profile = registry.build_profile(spec.profile, spec.profile_kind, **spec.profile_params)
+        method = registry.build_method(
+            spec.method,
+            profile,
+            samples=spec.samples,
+            sampling=spec.sampling,
+            seed=spec.seed,
+            params=spec.method_params,
+        )
+        pipeline = registry.build_pipeline(method, profile, spec.stages)
+        from sssbench.ops import ReferenceSSS
+
+        ref_pipeline = registry.build_pipeline(
+            ReferenceSSS(profile), profile, spec.stages, for_reference=True
+        )
+        fields = tuple(sorted(set(pipeline.needs) | set(ref_pipeline.needs)))
+        gbuffer = registry.build_scene(
+            spec.scene,
+            spec.resolution,
+            seed=spec.seed,
+            fields=fields,
+            dtype=spec.dtype,
+            params=spec.scene_params,
+        )
+        is_reference = spec.method == "reference"
+        warmup, repeats = (0, 1) if is_reference else (spec.warmup, spec.repeats)
+        if is_reference and (spec.warmup, spec.repeats) != (0, 1):
+            log.info("method=reference is timed once (warmup 0, repeats 1)")
+        cache_dir = spec.reference_cache
+        with torch.inference_mode():
+            for _ in range(warmup):
+                pipeline.run(gbuffer)
+            records = []
+            for _ in range(repeats):
+                out = pipeline.run(gbuffer)
+                records.append(out.records)
+            result = out.image
+            reference, hit, ref_ms = _reference(spec, gbuffer, profile, cache_dir)
+            # the do-nothing baseline on the same scene: the SSS stage left out
+            identity = (
+                registry.build_pipeline(
+                    registry.build_method("identity", profile),
+                    profile,
+                    spec.stages,
+                    for_reference=True,
+                )
+                .run(gbuffer)
+                .image
+            )
+        stats = pass_stats(records)
+        mask = _mask(gbuffer, result.dtype)
+        values = compute_all(result, reference, mask)
+        base_rel = rel_rms(identity, reference, mask)
+        base_flip = flip(identity, reference, mask)
+        budget = _budget(spec, method, profile, gbuffer, reference, mask) if spec.budget else {}
+    time_ms = float(sum(p.ms_median for p in stats))
+    payload: dict[str, Any] = {
+        "scene": spec.scene,
+        "method": spec.method,
+        "profile": spec.profile,
+        "sampling": spec.sampling,
+        "samples": spec.samples,
+        "stages": {k: v for k, v in spec.stages.items() if v is not None},
+        "passes": len(stats),
+        "time_ms": time_ms,
+        "pass_times": [
+            {
+                "name": p.name,
+                "samples": p.samples,
+                "pixels": p.pixels,
+                "ms_median": p.ms_median,
+                "ms_min": p.ms_min,
+                "ms_max": p.ms_max,
+            }
+            for p in stats
+        ],
+        **values,
+        "rel_rms_identity": base_rel,
+        "flip_identity": base_flip,
+        "skill": verdict.skill(values["rel_rms"], base_rel),
+        "skill_flip": verdict.skill(values["flip"], base_flip),
+        "visibility": base_flip,
+        "visible": verdict.is_visible(base_flip),
+        **budget,
+        "pixel_mm": _pixel_mm(gbuffer),
+        "samples_per_pixel": int(sum(p.samples for p in stats)),
+        "plan": [{"stage": e.stage, "runs": e.runs, "reason": e.reason} for e in out.plan],
+        "skipped_stages": [list(s) for s in out.skipped],
+        "metric_region": "mask>0" if mask is not None else "all",
+        "resolution": list(spec.resolution),
+        "seed": spec.seed,
+        "dtype": spec.dtype,
+        "repeats": repeats,
+        "warmup": warmup,
+        "threads": spec.threads if spec.threads is not None else torch.get_num_threads(),
+        "backend": backend_used(spec.backend),
+        "reference_cache_hit": hit,
+        "reference_ms": ref_ms,
+        "versions": versions(),
+    }
+    if spec.previews:
+        payload["previews"] = write_previews(
+            run_dir, result, reference, title=f"{spec.scene} · {spec.method}"
+        )
+        payload["error_scale"] = _error_scale(result, reference)
+    return payload, stats
+
+
+def _error_scale(result: torch.Tensor, reference: torch.Tensor) -> float:
+    """The run's largest |error| relative to the reference peak (the preview's scale)."""
+    err = (result[:1] - reference[:1]).abs().mean(1)
+    peak = float(reference[:1].max()) or 1.0
+    return float(err.max()) / peak
+
+
+def _pixel_mm(gbuffer: Any) -> float:
+    """Footprint of a pixel (mm) at the median depth of the SSS region (mask > 0, or all)."""
+    from sssbench.gbuffer import pixel_size_mm
+
+    depth = gbuffer.depth[:1]
+    if gbuffer.mask is not None and bool((gbuffer.mask[:1] > 0).any()):
+        depth = depth[gbuffer.mask[:1] > 0]
+    z = float(depth.double().median())
+    return float(pixel_size_mm(torch.tensor(z), gbuffer.fov_y, gbuffer.shape[1]))
+
+
+def _budget(
+    spec: RunSpec,
+    method: Any,
+    profile: Any,
+    gbuffer: Any,
+    reference: torch.Tensor,
+    mask: torch.Tensor | None,
+) -> dict[str, float]:
+    """The error budget of the run (see :mod:`sssbench.budget`); NaNs where it does not apply."""
+    try:
+        from sssbench import budget
+    except ImportError:  # pragma: no cover - the budget module is part of the package
+        return {}
+    if spec.method in ("reference", "identity"):
+        return {}
+    return budget.error_budget(
+        spec.method,
+        method,
+        profile,
+        gbuffer,
+        reference,
+        mask,
+        rebuild=lambda samples: registry.build_method(
+            spec.method,
+            profile,
+            samples=samples,
+            sampling=spec.sampling,
+            seed=spec.seed,
+            params=spec.method_params,
+        ),
+    )
+
+
+def _write_json(path: Path, payload: dict[str, Any]) -> None:
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(payload, indent=2, default=str))
+    os.replace(tmp, path)
+
+
+def run_label(spec: RunSpec) -> str:
+    """``scene/method/profile/sampling/samples`` (``-`` for what does not apply)."""
+    return "/".join(
+        str(v) if v is not None else "-"
+        for v in (spec.scene, spec.method, spec.profile, spec.sampling, spec.samples)
+    )
+
+
+def execute(spec: RunSpec, run_dir: str | Path, sweep_dir: str | Path | None = None) -> RunOutcome:
+    """Run one point and record it; never raises for a failure of the run itself."""
+    run_dir = Path(run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    store = RunStore(spec.store, journal_mode=spec.store_journal)
+    point = spec.point()
+    h = config_hash(point)
+    label = run_label(spec)
+    point_file = run_dir / "point.json"
+    info = {"config_hash": h, "store": str(store.path), "config": point, "status": "running"}
+    _write_json(point_file, info)
+    if not spec.force and store.is_done(h):
+        log.info("skip %s: already stored ok in %s (force=true re-runs)", label, store.path)
+        _write_json(point_file, {**info, "status": "skipped"})
+        return RunOutcome("skipped", h)
+    started = utc_now()
+    t0 = time.perf_counter()
+    status, message, payload, stats = "ok", "", {}, []
+    try:
+        with time_limit(spec.timeout_s):
+            payload, stats = measure(spec, run_dir)
+    except RunTimeout as exc:
+        status, message = "timeout", str(exc)
+    except Exception as exc:
+        status, message = "failed", f"{type(exc).__name__}: {exc}"
+        (run_dir / "error.txt").write_text(traceback.format_exc())
+    wall = time.perf_counter() - t0
+    metrics = {k: payload[k] for k in METRIC_KEYS if k in payload}
+    if payload:
+        _write_json(
+            run_dir / "metrics.json",
+            {**payload, "status": status, "config_hash": h, "wall_s": wall},
+        )
+        with open(run_dir / "passes.csv", "w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(["name", "samples", "pixels", "ms_median", "ms_min", "ms_max", "repeats"])
+            for p in stats:
+                w.writerow(
+                    [p.name, p.samples, p.pixels, p.ms_median, p.ms_min, p.ms_max, p.repeats]
+                )
+    record = RunRecord(
+        config=point,
+        status=status,
+        metrics=metrics,
+        passes=stats,
+        time_ms=payload.get("time_ms"),
+        error=message or None,
+        info={
+            k: payload[k]
+            for k in (
+                "threads",
+                "backend",
+                "versions",
+                "plan",
+                "skipped_stages",
+                "reference_cache_hit",
+                "metric_region",
+                "visible",
+                "error_scale",
+            )
+            if k in payload
+        }
+        | {"wall_s": wall},
+        run_dir=str(run_dir.resolve()),
+        sweep_dir=str(Path(sweep_dir).resolve()) if sweep_dir else None,
+        started_at=started,
+        finished_at=utc_now(),
+    )
+    store.record(record)
+    _write_json(point_file, {**info, "status": status, "error": message or None})
+    if spec.mlflow:
+        _mirror(spec, point, metrics, payload, run_dir, status, h, sweep_dir)
+    if status == "ok":
+        log.info(
+            "ok %s: %d passes, %.2f ms, rel_rms %.4g, skill %+.2f, flip %.4f (%.1f s)%s",
+            label,
+            len(stats),
+            payload["time_ms"],
+            payload["rel_rms"],
+            payload["skill"],
+            payload["flip"],
+            wall,
+            "" if payload["visible"] else " [SSS not visible at this scale]",
+        )
+    else:
+        log.error("%s %s: %s (%.1f s)", status, label, message, wall)
+    return RunOutcome(status, h, message, metrics)
+
+
+def _mirror(
+    spec: RunSpec,
+    point: dict[str, Any],
+    metrics: dict[str, Any],
+    payload: dict[str, Any],
+    run_dir: Path,
+    status: str,
+    h: str,
+    sweep_dir: str | Path | None,
+) -> None:
+    """Mirror the run into MLflow (the store stays the source of truth: a failure here is
+    logged, never raised)."""
+    try:
+        from sssbench.mlflow_mirror import mirror_run
+
+        artifacts = [run_dir / "metrics.json", *(run_dir / p for p in payload.get("previews", []))]
+        mirror_run(
+            spec.mlflow_uri or f"sqlite:///{spec.store.parent / 'mlflow.db'}",
+            point,
+            {k: v for k, v in metrics.items() if isinstance(v, (int, float)) and math.isfinite(v)},
+            [a for a in artifacts if a.is_file()],
+            status=status,
+            config_hash=h,
+            sweep_dir=str(sweep_dir) if sweep_dir else None,
+        )
+    except Exception as exc:
+        log.error("MLflow mirror failed for %s: %s: %s", run_label(spec), type(exc).__name__, exc)

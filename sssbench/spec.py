@@ -1,0 +1,91 @@
+"""One run as plain values: :class:`RunSpec` (DESIGN §6, §7).
+
+The app reads the Hydra config once into a :class:`RunSpec` (:func:`sssbench.app.spec_from_cfg`);
+the runner, the experiments and the library take it (or its fields) and never see a config
+object. :meth:`RunSpec.point` is what identifies the run in the store (its hash); it holds
+exactly the values that determine the result — see ``docs/architecture.md``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+__all__ = ["RunSpec", "REFERENCES"]
+
+#: what a run's error is measured against: ``exact`` (:class:`~sssbench.ops.ReferenceSSS`)
+REFERENCES = ("exact",)
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """Everything one run needs, as plain values.
+
+    Attributes:
+        scene, scene_params: a scene name of :func:`sssbench.registry.scene_names` and its
+            builder's keyword arguments (``pixel_mm``: mm of skin per pixel at the focus).
+        method, method_params: a key of :data:`sssbench.registry.METHODS` and its options.
+        profile, profile_kind, profile_params: the diffusion profile.
+        sampling: tap placement, ``None`` for methods without one.
+        samples: taps per pass, ``None`` for methods without a tap count.
+        stages: pipeline stage name -> its parameters (``None`` = off); see
+            :data:`sssbench.registry.STAGES`.
+        resolution: ``(H, W)`` pixels.
+        reference_params: options of the exact reference (``tol``, ``reconstruction``).
+        budget: compute the error budget (model / taps / screen space) of the run.
+        The rest is run control (not part of the point): repeats, warm-up, threads, backend,
+        store, force, timeout, caches, previews.
+    """
+
+    scene: str
+    method: str
+    profile: str
+    sampling: str | None
+    samples: int | None
+    resolution: tuple[int, int]
+    seed: int = 0
+    dtype: str = "float32"
+    scene_params: dict[str, Any] = field(default_factory=dict)
+    method_params: dict[str, Any] = field(default_factory=dict)
+    profile_kind: str = "sum_of_gaussians_table"
+    profile_params: dict[str, Any] = field(default_factory=dict)
+    stages: dict[str, dict[str, Any] | None] = field(default_factory=dict)
+    reference_params: dict[str, Any] = field(default_factory=dict)
+    budget: bool = True
+    repeats: int = 5
+    warmup: int = 1
+    threads: int | None = None
+    backend: str = "native"
+    store: Path = Path("sssbench.sqlite")
+    store_journal: str = "wal"
+    force: bool = False
+    timeout_s: float | None = None
+    reference_cache: Path | None = None
+    previews: bool = True
+    mlflow: bool = False
+    mlflow_uri: str | None = None
+
+    def point(self) -> dict[str, Any]:
+        """The keys that define the point (hashed for the store; run control left out).
+
+        ``threads`` and ``backend`` are in the point: they change the timing, which is part
+        of the result."""
+        return {
+            "scene": self.scene,
+            "scene_params": self.scene_params,
+            "method": self.method,
+            "method_params": self.method_params,
+            "profile": self.profile,
+            "profile_kind": self.profile_kind,
+            "profile_params": self.profile_params,
+            "sampling": self.sampling,
+            "samples": self.samples,
+            "stages": {k: v for k, v in sorted(self.stages.items()) if v is not None},
+            "reference_params": self.reference_params,
+            "resolution": list(self.resolution),
+            "seed": self.seed,
+            "dtype": self.dtype,
+            "threads": self.threads,
+            "backend": self.backend,
+        }
