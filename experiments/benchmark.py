@@ -11,16 +11,13 @@ same sweep as a Hydra preset is ``sssbench -m +experiment=paper_benchmark``.
 from __future__ import annotations
 
 import math
-import statistics
 import sys
 
 import matplotlib.pyplot as plt
-import torch
 
-from experiments.common import Context, Section, errors, main, md_table, reference
+from experiments.common import Context, Section, errors, main, md_table, reference, timed
 from experiments.common import scene as make
 from experiments.methods import available, missing
-from sssbench.ops import record_passes
 from sssbench.profiles import SumOfGaussians
 from sssbench.report import pareto_front
 
@@ -37,18 +34,6 @@ SCENES = (
     "halo",
     "backlit_ear",
 )
-
-
-def timed(op, g, repeats: int) -> tuple[torch.Tensor, float]:
-    """Output and the median over repeats of the summed pass times (ms)."""
-    with torch.inference_mode():
-        op(g)  # warm-up
-        totals = []
-        for _ in range(repeats):
-            with record_passes() as recs:
-                out = op(g)
-            totals.append(sum(r.ms for r in recs))
-    return out, statistics.median(totals)
 
 
 def run(ctx: Context) -> Section:

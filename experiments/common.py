@@ -12,6 +12,7 @@ import argparse
 import datetime as _dt
 import math
 import platform
+import statistics
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -135,6 +136,21 @@ def md_table(rows: Sequence[Sequence[Any]], headers: Sequence[str]) -> str:
     return "\n".join(lines)
 
 
+def timed(op: Callable[[Any], torch.Tensor], g: Any, repeats: int) -> tuple[torch.Tensor, float]:
+    """Output of ``op(g)`` and the median over ``repeats`` of its summed pass times (ms;
+    :func:`sssbench.ops.record_passes`), after one warm-up call."""
+    from sssbench.ops import record_passes
+
+    with torch.inference_mode():
+        op(g)  # warm-up
+        totals = []
+        for _ in range(repeats):
+            with record_passes() as recs:
+                out = op(g)
+            totals.append(sum(r.ms for r in recs))
+    return out, statistics.median(totals)
+
+
 def median_ms(fn: Callable[[], Any], repeats: int = 5, warmup: int = 1) -> float:
     """Median wall time of ``fn()`` in ms over ``repeats`` after ``warmup`` calls."""
     for _ in range(warmup):
@@ -151,10 +167,27 @@ def median_ms(fn: Callable[[], Any], repeats: int = 5, warmup: int = 1) -> float
 def parse_args(name: str, argv: Sequence[str] | None = None) -> Context:
     ap = argparse.ArgumentParser(prog=f"python -m experiments.{name}")
     ap.add_argument("--quick", action="store_true", help="tiny sizes (seconds): the test variant")
-    ap.add_argument("--out", type=Path, default=ROOT, help="output root (sections/, figures/)")
+    ap.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="output root (default: experiments/, or experiments/_quick/ with --quick)",
+    )
     ap.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1)")
     a = ap.parse_args(argv)
-    return Context(name, a.quick, a.out.resolve(), a.threads)
+    return Context(name, a.quick, default_out(a.quick, a.out), a.threads)
+
+
+#: where ``--quick`` runs write unless ``--out`` is given (ignored by git): quick sections are
+#: not results and never overwrite the tracked report
+QUICK_OUT = ROOT / "_quick"
+
+
+def default_out(quick: bool, out: Path | None) -> Path:
+    """``out`` if given, else :data:`ROOT` (full runs) or :data:`QUICK_OUT` (quick runs)."""
+    if out is not None:
+        return out.resolve()
+    return QUICK_OUT if quick else ROOT
 
 
 def execute(name: str, run: Callable[[Context], Section], ctx: Context) -> Path:
@@ -181,65 +214,58 @@ def main(name: str, run: Callable[[Context], Section], argv: Sequence[str] | Non
 
 
 # ----------------------------------------------------------------------------- scenes
-#: on-disk cache of exact references (outside the repository)
-CACHE_DIR = Path.home() / ".cache" / "sssbench-experiments"
-
-
 #: scene parameters the experiments override: ``pores`` defaults to 0.05 mm pixels, where the
 #: exact reference's window is ~560 px wide (hours); 0.4 mm keeps it to ~70 px
 SCENE_PARAMS: dict[str, dict[str, Any]] = {"pores": {"pixel_mm": 0.4}}
 
 
 def scene(name: str, resolution: tuple[int, int], fields: Sequence[str] | None = None, **params):
-    """``data_synth.make_scene`` in float32 with seed 0 (and :data:`SCENE_PARAMS`)."""
-    import data_synth
+    """The scene as the app builds it (:func:`sssbench.registry.build_scene`), float32, seed 0
+    (and :data:`SCENE_PARAMS`)."""
+    from sssbench import registry
 
     params = {**SCENE_PARAMS.get(name, {}), **params}
-    return data_synth.make_scene(name, resolution, 0, fields=fields, **params)
-
-
-def reference(name: str, resolution: tuple[int, int], profile: Any, **params) -> torch.Tensor:
-    """The exact :class:`~sssbench.ops.ReferenceSSS` image of a scene (all fields), cached on
-    disk by (scene, resolution, params, profile) — the reference is the expensive part."""
-    import hashlib
-    import json
-
-    from sssbench.ops import ReferenceSSS
-    from sssbench.ops.reference import reference_code_digest
-
-    params = {**SCENE_PARAMS.get(name, {}), **params}
-    key = json.dumps(
-        [
-            name,
-            list(resolution),
-            params,
-            repr(profile),
-            _profile_digest(profile),
-            reference_code_digest(),
-        ],
-        sort_keys=True,
-        default=str,
+    return registry.build_scene(
+        name, resolution, seed=0, fields=None if fields is None else tuple(fields), params=params
     )
-    path = CACHE_DIR / f"ref_{hashlib.sha1(key.encode()).hexdigest()[:16]}.pt"
-    if path.is_file():
-        return torch.load(path, weights_only=True)
-    g = scene(name, resolution, **params)
-    with torch.inference_mode():
-        img = ReferenceSSS(profile)(g)
-    CACHE_DIR.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(f".{time.time_ns()}.tmp")
-    torch.save(img, tmp)
-    tmp.replace(path)
-    return img
 
 
-def _profile_digest(profile: Any) -> str:
-    parts = []
-    for attr in ("variances", "weights", "sigma_s_prime", "sigma_a"):
-        v = getattr(profile, attr, None)
-        if isinstance(v, torch.Tensor):
-            parts.append(",".join(f"{x:.12g}" for x in v.reshape(-1).tolist()))
-    return "|".join(parts)
+def reference(
+    name: str,
+    resolution: tuple[int, int],
+    profile: Any,
+    stages: dict[str, Any] | None = None,
+    **params,
+) -> torch.Tensor:
+    """The exact :class:`~sssbench.ops.ReferenceSSS` image of a scene (all fields) from the
+    app's reference cache (:mod:`sssbench.refcache`, same key and directory as ``sssbench``
+    runs): the reference is the expensive part. ``stages`` that change the light (e.g.
+    translucency) are applied to the reference as the app applies them
+    (:func:`sssbench.registry.build_pipeline`)."""
+    from sssbench import registry
+    from sssbench.ops import ReferenceSSS
+    from sssbench.refcache import cached_reference, reference_key
+
+    params = {**SCENE_PARAMS.get(name, {}), **params}
+    key = reference_key(
+        scene=name,
+        scene_params=params,
+        profile=profile,
+        resolution=resolution,
+        seed=0,
+        dtype="float32",
+        stages={k: v for k, v in (stages or {}).items() if v is not None and registry.STAGES[k][1]},
+    )
+
+    def compute() -> torch.Tensor:
+        g = scene(name, resolution, **params)
+        pipeline = registry.build_pipeline(
+            ReferenceSSS(profile), profile, stages, for_reference=True
+        )
+        with torch.inference_mode():
+            return pipeline.run(g).image
+
+    return cached_reference(key, compute)[0]
 
 
 def errors(result: torch.Tensor, ref: torch.Tensor, g: Any) -> dict[str, float]:

@@ -13,8 +13,7 @@ import sys
 
 import matplotlib.pyplot as plt
 
-from experiments.benchmark import timed
-from experiments.common import Context, Section, main, md_table
+from experiments.common import Context, Section, main, md_table, timed
 from experiments.common import scene as make
 from experiments.methods import available
 from sssbench.profiles import SumOfGaussians

@@ -1,44 +1,50 @@
-"""The screen-space methods as ``factory(profile, samples) -> nn.Module`` for the experiments.
+"""The screen-space methods as the app configures them, for the experiments.
 
-Each entry builds one method at a taps-per-pass count; methods not landed in
-:mod:`sssbench.ops` are left out (:func:`available`).
+``factory(profile, samples) -> nn.Module`` builds method ``name`` exactly as a ``sssbench
+method=<name> samples=<n>`` run would (the app's config defaults, e.g. the 2012 kernel's
+width, through :func:`sssbench.app.compose_spec` and :func:`sssbench.registry.build_method`),
+so an experiment and a sweep never disagree on what a method is.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from functools import cache
 
 from torch import nn
 
-import sssbench.ops as ops
+from sssbench import registry
+from sssbench.app import compose_spec
+from sssbench.spec import RunSpec
 
-#: 002's shader-default 2012 kernel needs a width in mm (a scene parameter): 2 mm, as perf uses
-JIMENEZ2012_WIDTH_MM = 2.0
+#: the screen-space methods the experiments compare (the baseline and the exact reference
+#: are handled by the experiments themselves)
+SCREEN_SPACE = ("preintegrated", "sum_of_gaussians", "low_rank", "artist", "jimenez2012")
 
 
-def _factories() -> dict[str, tuple[str, Callable[..., nn.Module]]]:
-    return {
-        "preintegrated": ("PreintegratedSSS", lambda p, n: ops.PreintegratedSSS(p, n)),
-        "sum_of_gaussians": ("SumOfGaussiansSSS", lambda p, n: ops.SumOfGaussiansSSS(p, n)),
-        "low_rank3": (
-            "LowRankSSS",
-            lambda p, n: ops.LowRankSSS(p, 3, n=n, extent=4 * float(p.length_scales()[1])),
-        ),
-        "artist": (
-            "ArtistSSS",
-            lambda p, n: ops.ArtistSSS.preset("multi_layer_close_fit", n),
-        ),
-        "jimenez2012": (
-            "Jimenez2012SSS",
-            lambda p, n: ops.Jimenez2012SSS.preset("shader_default", JIMENEZ2012_WIDTH_MM, n),
-        ),
-    }
+@cache
+def _spec(name: str) -> RunSpec:
+    return compose_spec(f"method={name}")
+
+
+def build(name: str, profile, samples: int | None = None) -> nn.Module:
+    """Method ``name`` with the app's defaults and ``samples`` taps per pass."""
+    spec = _spec(name)
+    return registry.build_method(
+        name,
+        profile,
+        samples=spec.samples if samples is None else samples,
+        sampling=spec.sampling,
+        seed=spec.seed,
+        params=spec.method_params,
+    )
 
 
 def available() -> dict[str, Callable[..., nn.Module]]:
-    """Method name -> factory, for the methods present in :mod:`sssbench.ops`."""
-    return {k: f for k, (cls, f) in _factories().items() if hasattr(ops, cls)}
+    """Method name -> ``factory(profile, samples)`` for every screen-space method."""
+    return {name: (lambda p, n, _name=name: build(_name, p, n)) for name in SCREEN_SPACE}
 
 
 def missing() -> list[str]:
-    return [k for k, (cls, _) in _factories().items() if not hasattr(ops, cls)]
+    """Screen-space methods without an operator (none once every method has landed)."""
+    return []

@@ -17,7 +17,7 @@ import sys
 import time
 from pathlib import Path
 
-from experiments.common import ROOT, Context, execute
+from experiments.common import Context, default_out, execute
 
 #: experiment name -> module (in report order; see make_report.ORDER)
 EXPERIMENTS = {
@@ -54,7 +54,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m experiments.run")
     ap.add_argument("names", nargs="+", help="experiment names, 'all', 'report' or 'list'")
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--out", type=Path, default=ROOT)
+    ap.add_argument("--out", type=Path, default=None)
     ap.add_argument("--threads", type=int, default=1)
     a = ap.parse_args(argv)
     if a.names == ["list"]:
@@ -63,7 +63,7 @@ def main(argv: list[str] | None = None) -> int:
     names = list(EXPERIMENTS) if a.names == ["all"] else [n for n in a.names if n != "report"]
     failed = []
     for name in names:
-        ctx = Context(name, a.quick, a.out.resolve(), a.threads)
+        ctx = Context(name, a.quick, default_out(a.quick, a.out), a.threads)
         t = time.perf_counter()
         try:
             run_one(name, ctx)
@@ -75,7 +75,7 @@ def main(argv: list[str] | None = None) -> int:
     if a.names == ["all"] or "report" in a.names:
         from experiments.make_report import make_report
 
-        print(f"report -> {make_report(a.out.resolve())}")
+        print(f"report -> {make_report(default_out(a.quick, a.out))}")
     return 1 if failed else 0
 
 

@@ -29,7 +29,13 @@ from sssbench.tracking import RunRecord, RunStore, config_hash
 
 log = logging.getLogger("sssbench")
 
-__all__ = ["CONF_DIR", "GROUPS", "spec_from_cfg", "task", "ExitStatusCallback", "main"]
+__all__ = [
+    "CONF_DIR",
+    "GROUPS",
+    "compose_spec",
+    "expand_grid",
+    "preset_grid",
+    "spec_from_cfg", "task", "ExitStatusCallback", "main"]
 
 #: the Hydra config directory, inside the installed package
 CONF_DIR = Path(__file__).resolve().parent / "conf"
@@ -176,6 +182,68 @@ def spec_from_cfg(cfg: Any, overridden: tuple[str, ...] = ()) -> RunSpec:
         mlflow=bool(tracking.get("mlflow", False)),
         mlflow_uri=tracking.get("mlflow_uri"),
     )
+
+
+def compose_spec(*overrides: str, store: str | Path | None = None) -> RunSpec:
+    """The :class:`RunSpec` the app would run for ``overrides`` (Hydra's compose API) — how the
+    experiments and scripts build exactly the app's runs (same defaults, same validation)."""
+    from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+
+    extra = [f"store={store}"] if store is not None else ["store=sssbench.sqlite"]
+    if GlobalHydra.instance().is_initialized():
+        GlobalHydra.instance().clear()
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        cfg = compose(config_name="config", overrides=[*extra, *overrides])
+    keys = tuple(o.split("=", 1)[0].lstrip("+~") for o in overrides)
+    return spec_from_cfg(cfg, keys)
+
+
+def expand_grid(params: dict[str, str]) -> list[list[str]]:
+    """The override lists of a basic-sweeper grid ``{key: "a,b,c" | "glob(*,exclude=x)"}``
+    (group globs expand over the group's options in :data:`CONF_DIR`), in Hydra's order."""
+    import fnmatch
+    import itertools
+
+    axes = []
+    for key, value in params.items():
+        value = str(value)
+        if value.startswith("glob("):
+            inner = value[len("glob(") : -1]
+            parts = [p.strip() for p in inner.split(",")]
+            include = [p for p in parts if not p.startswith("exclude=")]
+            exclude = [p.split("=", 1)[1] for p in parts if p.startswith("exclude=")]
+            options = [
+                o
+                for o in _group_options(key)
+                if any(fnmatch.fnmatch(o, i) for i in include)
+                and not any(fnmatch.fnmatch(o, e) for e in exclude)
+            ]
+        else:
+            options = [v.strip() for v in value.split(",")]
+        axes.append([f"{key}={o}" for o in options])
+    return [list(c) for c in itertools.product(*axes)]
+
+
+def preset_grid(preset: str, *overrides: str) -> list[list[str]]:
+    """The override lists of the jobs of ``sssbench -m +experiment=<preset> <overrides>``."""
+    from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+    from omegaconf import OmegaConf
+
+    if GlobalHydra.instance().is_initialized():
+        GlobalHydra.instance().clear()
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        cfg = compose(
+            config_name="config",
+            overrides=["store=x", f"+experiment={preset}"],
+            return_hydra_config=True,
+        )
+    params = OmegaConf.to_container(cfg.hydra.sweeper.params) or {}
+    for o in overrides:
+        key, value = o.split("=", 1)
+        params[key.lstrip("+")] = value
+    return [[f"+experiment={preset}", *job] for job in expand_grid(params)]
 
 
 # ----------------------------------------------------------------------------- Hydra edge
