@@ -1,112 +1,112 @@
-"""Claim 9 — the benchmark: every method × every scene × taps {5, 7, 9, 13, 17, 25, 33}.
+"""Claim 9 — the benchmark: every method (and the do-nothing baseline) × scenes × scales × taps.
 
-Per scene, the error-versus-run-time Pareto front (:func:`sssbench.report.pareto_front`) and
-the ranking: the cheapest method point within 1 dB PSNR of the best. Run directly with the
-library in one process (one thread, median of repeats of ``record_passes`` pass times); the
-same sweep as a Hydra preset is ``sssbench -m +experiment=paper_benchmark``.
+Runs the app's ``paper_benchmark`` preset (``paper_benchmark_quick`` with ``--quick``): every
+job of the preset's grid goes through :func:`sssbench.runner.execute` — the run function of
+``sssbench -m +experiment=paper_benchmark`` — into a fresh run store, with the app's shared
+reference cache. The section is then built from that store by :mod:`sssbench.report`: per
+scene and scale, the skill of every configuration against doing nothing, the Pareto front,
+the recommendation (the cheapest configuration within 10 % of the best skill) and the error
+budget; points where SSS is not visible at the scale are stored but not ranked. Every
+sentence of the section is computed from the numbers of this run.
 
     python -m experiments.run benchmark [--quick]
 """
 
 from __future__ import annotations
 
-import math
 import sys
+import tempfile
+import time
+from pathlib import Path
 
-import matplotlib.pyplot as plt
+import pandas as pd
 
-from experiments.common import Context, Section, errors, main, md_table, reference, timed
-from experiments.common import scene as make
-from experiments.methods import available, missing
-from sssbench.profiles import SumOfGaussians
-from sssbench.report import pareto_front
+from experiments.common import Context, Section, main, md_table
+from sssbench import report, runner
+from sssbench.app import compose_spec, preset_grid
 
-TITLE = "9. The benchmark: error against run time, per scene"
-SAMPLES = (5, 7, 9, 13, 17, 25, 33)
-SCENES = (
-    "step_edge",
-    "light_dot",
-    "pores",
-    "sphere",
-    "head_close",
-    "head_mid",
-    "head_far",
-    "halo",
-    "backlit_ear",
-)
+TITLE = "9. The benchmark: error against run time, per scene and scale"
+
+
+def run_preset(preset: str, store: Path, run_root: Path, *overrides: str) -> pd.DataFrame:
+    """Run every job of ``+experiment=<preset>`` through the app's runner (progress and ETA
+    on stdout); return the report's summary table of those points."""
+    jobs = preset_grid(preset, *overrides)
+    hashes = []
+    t0 = time.perf_counter()
+    for k, job in enumerate(jobs):
+        spec = compose_spec(*job, "previews=false", store=store)
+        outcome = runner.execute(spec, run_root / f"{k}", sweep_dir=run_root)
+        hashes.append(outcome.config_hash)
+        per = (time.perf_counter() - t0) / (k + 1)
+        print(
+            f"  [{k + 1}/{len(jobs)}] {runner.run_label(spec)}: {outcome.status} "
+            f"(ETA {per * (len(jobs) - k - 1):.0f} s)",
+            flush=True,
+        )
+    runs, _ = report.load_runs(store, hashes)
+    return report.summary_table(runs)
 
 
 def run(ctx: Context) -> Section:
-    prof = SumOfGaussians.from_table("skin_deon6")
-    methods = available()
-    scenes = ("step_edge", "head_close") if ctx.quick else SCENES
-    samples = (5, 9) if ctx.quick else SAMPLES
-    res = (16, 16) if ctx.quick else (64, 64)
-    repeats = 1 if ctx.quick else 3
-    points = []
-    for sc in scenes:
-        g = make(sc, res, fields=["mask"])
-        ref = reference(sc, res, prof)
-        for m, factory in methods.items():
-            for n in samples:
-                out, ms = timed(factory(prof, n), g, repeats)
-                e = errors(out, ref, g)
-                points.append({"scene": sc, "method": m, "samples": n, "ms": ms, **e})
+    preset = "paper_benchmark_quick" if ctx.quick else "paper_benchmark"
+    with tempfile.TemporaryDirectory(prefix="sssbench-benchmark-") as tmp:
+        table = run_preset(preset, Path(tmp) / "runs.sqlite", Path(tmp))
+    ok = table[table["status"] == "ok"]
+    recs = report.recommendations(table)
+    fig_path = ctx.figures / "benchmark.png"
+    ctx.figures.mkdir(parents=True, exist_ok=True)
+    figures = []
+    if report._plot_error_vs_time(table, fig_path) is not None:
+        figures.append(f"figures/{fig_path.name}")
+    budget_path = ctx.figures / "benchmark_budget.png"
+    if report._plot_budget(table, budget_path) is not None:
+        figures.append(f"figures/{budget_path.name}")
 
-    ncol = 3
-    nrow = math.ceil(len(scenes) / ncol)
-    fig, axes = plt.subplots(nrow, ncol, figsize=(10, 2.8 * nrow), squeeze=False)
-    colours = {m: plt.get_cmap("tab10")(i) for i, m in enumerate(methods)}
-    rank_rows, fronts = [], {}
-    for ax, sc in zip(axes.ravel(), scenes, strict=False):
-        pts = [p for p in points if p["scene"] == sc]
-        for m in methods:
-            mp = [p for p in pts if p["method"] == m]
-            ax.loglog(
-                [p["ms"] for p in mp],
-                [p["rel_rms"] for p in mp],
-                "o",
-                ms=3,
-                color=colours[m],
-                label=m,
-            )
-        front = pareto_front([p["ms"] for p in pts], [p["rel_rms"] for p in pts])
-        fp = [pts[i] for i in front]
-        fronts[sc] = [(p["method"], p["samples"]) for p in fp]
-        ax.step([p["ms"] for p in fp], [p["rel_rms"] for p in fp], "k-", where="post", lw=0.8)
-        ax.set_title(sc, fontsize=9)
-        best = max(p["psnr"] for p in pts)
-        ok = [p for p in pts if p["psnr"] >= best - 1.0]
-        cheap = min(ok, key=lambda p: p["ms"])
-        top = max(pts, key=lambda p: p["psnr"])
-        rank_rows.append(
-            [
-                sc,
-                f"{cheap['method']} ({cheap['samples']} taps)",
-                cheap["ms"],
-                cheap["psnr"],
-                f"{top['method']} ({top['samples']})",
-                top["psnr"],
-            ]
-        )
-    for ax in axes.ravel()[len(scenes) :]:
-        ax.axis("off")
-    axes[0][0].legend(fontsize=6)
-    fig.supxlabel("run time (ms, median, 1 thread)")
-    fig.supylabel("rel. RMS error")
-    link = ctx.figure(fig)
-
-    winners = [r[1].split(" (")[0] for r in rank_rows]
-    counts = {m: winners.count(m) for m in methods}
+    screen = ok[~ok["method"].isin((report.BASELINE, report.REFERENCE))]
+    visible = screen[screen["visible"].map(lambda v: v is not False)]
+    hidden_groups = recs[recs["best"] == report.MISSING] if len(recs) else recs
+    worse = visible[visible["worse_than_nothing"]]
+    n_groups = len(recs)
+    wins = (
+        recs[recs["recommended"] != report.MISSING]["recommended"].str.split(" ").str[0]
+        if len(recs)
+        else pd.Series(dtype=str)
+    )
+    counts = wins.value_counts().to_dict()
+    failed = int((table["status"] != "ok").sum())
+    resolutions = ", ".join(sorted(set(table["resolution"].dropna())))
     measured = (
-        f"{len(points)} points ({len(methods)} methods × {len(scenes)} scenes × "
-        f"{len(samples)} tap counts, {res[0]}×{res[1]}). Cheapest within 1 dB of the best, "
-        "per scene: " + ", ".join(f"{r[0]}: {r[1]}" for r in rank_rows) + "."
+        f"{len(table)} points ({table['method'].nunique()} methods incl. the baseline × "
+        f"{table['scene'].nunique()} scenes × {table['scale'].nunique()} scales, "
+        f"{resolutions}), {failed} failed. {len(hidden_groups)} of {n_groups} scene/scale "
+        "groups show no visible SSS and are not ranked. Of the "
+        f"{len(visible)} ranked screen-space configurations, {len(worse)} are worse than "
+        f"doing nothing. Recommended (cheapest within 10 % of the best skill) per group: "
+        + (", ".join(f"{m} ×{n}" for m, n in sorted(counts.items())) or "none")
+        + "."
     )
-    front_txt = "\n".join(
-        f"- **{sc}**: " + " → ".join(f"{m} {n}" for m, n in f) for sc, f in fronts.items()
+    rec_rows = [
+        [r["scene"], r["scale"], r["resolution"], r["recommended"], r["best"], r["verdict"]]
+        for _, r in recs.iterrows()
+    ]
+    skill_rows = (
+        visible.groupby(["method"])["skill"].agg(["min", "median", "max"]).reset_index()
+        if len(visible)
+        else pd.DataFrame(columns=["method", "min", "median", "max"])
     )
-    note = f" Methods not landed, left out: {', '.join(missing())}." if missing() else ""
+    body = (
+        "Recommendation per scene and scale (computed from this run):\n\n"
+        + md_table(
+            rec_rows, ["scene", "scale", "resolution", "recommended", "best skill", "verdict"]
+        )
+        + "\n\nSkill against doing nothing over the ranked points (1 = exact, 0 = no better "
+        "than the unblurred input, < 0 worse):\n\n"
+        + md_table(
+            [[r["method"], r["min"], r["median"], r["max"]] for _, r in skill_rows.iterrows()],
+            ["method", "min skill", "median skill", "max skill"],
+        )
+    )
     return Section(
         TITLE,
         "Not a claim of one paper: 004 (§3.1, Ch. 5) compares the methods side by side; the "
@@ -116,14 +116,11 @@ def run(ctx: Context) -> Section:
         measured,
         "not comparable",
         "This is our own benchmark on synthetic scenes against the exact reference, not a "
-        "number any paper states; it is the framework's answer to “which method for my scene”. "
-        f"Winners count: {counts}.{note}",
-        body="Ranking (cheapest within 1 dB PSNR of the best point):\n\n"
-        + md_table(rank_rows, ["scene", "cheapest within 1 dB", "ms", "PSNR", "best", "PSNR"])
-        + "\n\nPareto front per scene (fastest first):\n\n"
-        + front_txt,
-        figures=[link],
-        data={"points": points},
+        "number any paper states; it is the framework's answer to “which method for my "
+        "scene”, with doing nothing as the bar every method must clear.",
+        body=body,
+        figures=figures,
+        data={"points": table.drop(columns=["run_dir"]).to_dict("records")},
     )
 
 

@@ -13,7 +13,9 @@ Adding a method = one YAML file in ``conf/method/`` plus one entry in
 
 from __future__ import annotations
 
+import copy
 import difflib
+import functools
 import json
 import logging
 import sys
@@ -35,7 +37,11 @@ __all__ = [
     "compose_spec",
     "expand_grid",
     "preset_grid",
-    "spec_from_cfg", "task", "ExitStatusCallback", "main"]
+    "spec_from_cfg",
+    "task",
+    "ExitStatusCallback",
+    "main",
+]
 
 #: the Hydra config directory, inside the installed package
 CONF_DIR = Path(__file__).resolve().parent / "conf"
@@ -184,17 +190,36 @@ def spec_from_cfg(cfg: Any, overridden: tuple[str, ...] = ()) -> RunSpec:
     )
 
 
-def compose_spec(*overrides: str, store: str | Path | None = None) -> RunSpec:
-    """The :class:`RunSpec` the app would run for ``overrides`` (Hydra's compose API) — how the
-    experiments and scripts build exactly the app's runs (same defaults, same validation)."""
+@functools.lru_cache(maxsize=256)
+def _compose_groups(groups: tuple[str, ...]) -> Any:
+    """The composed config for config-group choices ``groups`` (Hydra's compose API; cached:
+    composing costs ~0.3 s, and a grid has few distinct group combinations)."""
     from hydra import compose, initialize_config_dir
     from hydra.core.global_hydra import GlobalHydra
 
-    extra = [f"store={store}"] if store is not None else ["store=sssbench.sqlite"]
     if GlobalHydra.instance().is_initialized():
         GlobalHydra.instance().clear()
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
-        cfg = compose(config_name="config", overrides=[*extra, *overrides])
+        return compose(config_name="config", overrides=["store=sssbench.sqlite", *groups])
+
+
+def compose_spec(*overrides: str, store: str | Path | None = None) -> RunSpec:
+    """The :class:`RunSpec` the app would run for ``overrides`` — how the experiments and
+    scripts build exactly the app's runs (same defaults, same validation).
+
+    Config-group choices (``method=artist``, ``+experiment=...``) are composed by Hydra
+    (cached per combination); other ``key=value`` overrides are applied to the composed
+    config with OmegaConf (values parsed as YAML, as Hydra parses plain values)."""
+    from omegaconf import OmegaConf
+
+    groups = tuple(o for o in overrides if o.split("=", 1)[0].lstrip("+~") in GROUPS)
+    values = [o for o in overrides if o not in groups]
+    cfg = copy.deepcopy(_compose_groups(groups))
+    for o in [*values, *([f"store={store}"] if store is not None else [])]:
+        if "=" not in o:
+            raise ValueError(f"override must be key=value, got {o!r}")
+        key, value = o.split("=", 1)
+        OmegaConf.update(cfg, key.lstrip("+"), _parse_scalar(value), force_add=key.startswith("+"))
     keys = tuple(o.split("=", 1)[0].lstrip("+~") for o in overrides)
     return spec_from_cfg(cfg, keys)
 

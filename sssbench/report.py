@@ -40,19 +40,43 @@ __all__ = [
     "main",
 ]
 
-POINT_COLUMNS = ["scene", "method", "profile", "sampling", "samples", "resolution"]
+POINT_COLUMNS = ["scene", "method", "profile", "sampling", "samples", "stages", "resolution"]
+#: per-run numbers beyond the image metrics (from the store's metrics / info)
+DECISION_COLUMNS = [
+    "pixel_mm",
+    "rel_rms_identity",
+    "skill",
+    "skill_flip",
+    "visible",
+    "err_model",
+    "err_taps",
+    "err_screen",
+    "err_recon",
+    "error_scale",
+]
+#: columns the report adds per ranking group (:func:`annotate`)
+FLAG_COLUMNS = ["pareto", "best", "worse_than_nothing", "note"]
 SUMMARY_COLUMNS = [
     *POINT_COLUMNS,
     "status",
     "passes",
     "time_ms",
     *METRIC_COLUMNS,
+    *DECISION_COLUMNS,
     "error",
     "run_id",
     "run_dir",
 ]
 #: the error metric of the error-versus-time plot and the Pareto front
 PLOT_METRIC = "rel_rms"
+#: the methods that are not screen-space candidates: the exact reference (zero error by
+#: definition) and the do-nothing baseline (drawn and ranked as the bar to beat)
+REFERENCE, BASELINE = "reference", "identity"
+#: a configuration within this fraction of the best skill counts as "as good" for the
+#: recommendation (the cheapest of those is recommended)
+WITHIN = 0.10
+#: missing values are written as this everywhere (terminal, Markdown, HTML)
+MISSING = "–"
 
 
 @dataclass(frozen=True)
@@ -65,11 +89,18 @@ class Report:
     error_vs_time: Path | None
     pass_times: Path | None
     table: pd.DataFrame
+    error_budget: Path | None = None
 
     def paths(self) -> list[Path]:
         return [
             p
-            for p in (self.summary_csv, self.summary_md, self.error_vs_time, self.pass_times)
+            for p in (
+                self.summary_csv,
+                self.summary_md,
+                self.error_vs_time,
+                self.pass_times,
+                self.error_budget,
+            )
             if p is not None
         ]
 
@@ -118,10 +149,20 @@ def load_runs(
 
 
 def summary_table(runs: pd.DataFrame) -> pd.DataFrame:
-    """One row per point, columns :data:`SUMMARY_COLUMNS`, sorted by scene, method, samples."""
+    """One row per point, columns :data:`SUMMARY_COLUMNS` then :data:`FLAG_COLUMNS` (see
+    :func:`annotate`), sorted by scene, scale, method, sampling, samples."""
     table = runs.rename(columns={"id": "run_id"})
-    if "config" in table.columns:
-        table["resolution"] = [_resolution(c) for c in table["config"]]
+    configs = list(table["config"]) if "config" in table.columns else [{}] * len(table)
+    metrics = list(table["metrics"]) if "metrics" in table.columns else [{}] * len(table)
+    infos = list(table["info"]) if "info" in table.columns else [{}] * len(table)
+    table["resolution"] = [_resolution(c) for c in configs]
+    table["stages"] = [_stages(c) for c in configs]
+    for col in DECISION_COLUMNS:
+        values = []
+        for m, i in zip(metrics, infos, strict=True):
+            m, i = m if isinstance(m, dict) else {}, i if isinstance(i, dict) else {}
+            values.append(m.get(col, i.get(col)))
+        table[col] = values
     for col in SUMMARY_COLUMNS:
         if col not in table.columns:
             table[col] = None
@@ -129,9 +170,14 @@ def summary_table(runs: pd.DataFrame) -> pd.DataFrame:
     table["samples"] = pd.array(
         [None if pd.isna(v) else int(v) for v in table["samples"]], dtype="Int64"
     )
-    return table.sort_values(["scene", "method", "profile", "sampling", "samples"]).reset_index(
-        drop=True
-    )
+    for col in DECISION_COLUMNS:
+        if col != "visible":
+            table[col] = pd.to_numeric(table[col], errors="coerce")
+    table = table.sort_values(
+        ["scene", "pixel_mm", "resolution", "method", "profile", "sampling", "samples"],
+        na_position="first",
+    ).reset_index(drop=True)
+    return annotate(table)
 
 
 def _resolution(config: Any) -> str | None:
@@ -139,6 +185,134 @@ def _resolution(config: Any) -> str | None:
     if isinstance(res, list) and len(res) == 2:
         return f"{res[0]}x{res[1]}"
     return None if res is None else str(res)
+
+
+def _stages(config: Any) -> str:
+    stages = config.get("stages") if isinstance(config, dict) else None
+    if not stages:
+        return MISSING
+    return "+".join(sorted(k for k, v in stages.items() if v is not None)) or MISSING
+
+
+def group_keys(table: pd.DataFrame) -> list[str]:
+    """The columns that make a ranking group: one scene at one scale, resolution, profile and
+    set of stages (points are only compared with points of the same question)."""
+    return ["scene", "scale", "resolution", "profile", "stages"]
+
+
+def _scale(pixel_mm: Any) -> str:
+    if pixel_mm is None or pd.isna(pixel_mm):
+        return MISSING
+    return f"{float(pixel_mm):.3g} mm/px"
+
+
+def _candidates(group: pd.DataFrame) -> pd.DataFrame:
+    """Screen-space points of a group that may be ranked: ok, SSS visible, not the reference."""
+    ok = group[(group["status"] == "ok") & (group["method"] != REFERENCE)]
+    return ok[ok["visible"].map(lambda v: v is not False and not pd.isna(v))]
+
+
+def annotate(table: pd.DataFrame) -> pd.DataFrame:
+    """Add :data:`FLAG_COLUMNS` and ``scale``: per ranking group (:func:`group_keys`),
+
+    - ``pareto``: on the Pareto front of (time, rel_rms) among the ranked points (the
+      baseline included: it costs nothing, so it is always on the front);
+    - ``best``: the highest skill among the screen-space points;
+    - ``worse_than_nothing``: skill <= 0 (no better than the unblurred input);
+    - ``note``: ``SSS not visible at this scale`` for points whose reference barely differs
+      from the input (:mod:`sssbench.verdict`); they are stored but never ranked.
+    """
+    table = table.copy()
+    table["scale"] = [_scale(v) for v in table["pixel_mm"]]
+    for col in ("pareto", "best", "worse_than_nothing"):
+        table[col] = False
+    table["note"] = ""
+    if table.empty:
+        return table
+    for _, group in table.groupby(group_keys(table), dropna=False, sort=False):
+        hidden = group[(group["visible"] == False)].index  # noqa: E712 - None means unknown
+        table.loc[hidden, "note"] = "SSS not visible at this scale"
+        ranked = _candidates(group)
+        if ranked.empty:
+            continue
+        times = ranked["time_ms"].astype(float).fillna(math.inf).tolist()
+        errors = ranked[PLOT_METRIC].astype(float).tolist()
+        front = pareto_front(times, errors)
+        table.loc[ranked.index[front], "pareto"] = True
+        screen = ranked[ranked["method"] != BASELINE]
+        skill = screen["skill"].astype(float)
+        if skill.notna().any():
+            table.loc[skill.idxmax(), "best"] = True
+        worse = screen[skill <= 0].index
+        table.loc[worse, "worse_than_nothing"] = True
+    return table
+
+
+def recommendations(table: pd.DataFrame) -> pd.DataFrame:
+    """Per ranking group: the best configuration, the cheapest within :data:`WITHIN` of its
+    skill, the Pareto set and a verdict sentence computed from the numbers."""
+    rows = []
+    if table.empty:
+        return pd.DataFrame(columns=[*group_keys(table), "best", "recommended", "verdict"])
+    for key, group in table.groupby(group_keys(table), dropna=False, sort=True):
+        base = group[(group["method"] == BASELINE) & (group["status"] == "ok")]
+        ranked = _candidates(group)
+        screen = ranked[(ranked["method"] != BASELINE) & ranked["skill"].notna()]
+        info = dict(zip(group_keys(table), key, strict=True))
+        if group["visible"].eq(False).all():
+            rows.append(
+                {
+                    **info,
+                    "best": MISSING,
+                    "recommended": MISSING,
+                    "pareto": MISSING,
+                    "verdict": "SSS not visible at this scale: "
+                    "every method scores like the unblurred input; not ranked.",
+                }
+            )
+            continue
+        if screen.empty:
+            continue
+        best = screen.loc[screen["skill"].astype(float).idxmax()]
+        threshold = float(best["skill"]) - WITHIN * abs(float(best["skill"]))
+        good = screen[screen["skill"].astype(float) >= threshold]
+        cheap = good.loc[good["time_ms"].astype(float).idxmin()]
+        front = ranked[group.loc[ranked.index, "pareto"].astype(bool)]
+        worse = screen[screen["skill"].astype(float) <= 0]
+        base_err = float(base[PLOT_METRIC].iloc[0]) if len(base) else float("nan")
+        sentence = (
+            f"{label(cheap)} is the cheapest within {WITHIN:.0%} of the best skill "
+            f"({float(cheap['skill']):+.2f} vs {float(best['skill']):+.2f} for {label(best)}, "
+            f"{float(cheap['time_ms']):.3g} ms vs {float(best['time_ms']):.3g} ms)"
+        )
+        if not math.isnan(base_err):
+            sentence += f"; doing nothing scores rel RMS {base_err:.3g}"
+        if len(worse):
+            sentence += (
+                f"; {len(worse)} of {len(screen)} configurations are worse than doing nothing"
+                f" ({', '.join(label(r) for _, r in worse.head(4).iterrows())}"
+                f"{', …' if len(worse) > 4 else ''})"
+            )
+        rows.append(
+            {
+                **info,
+                "best": label(best),
+                "recommended": label(cheap),
+                "pareto": " → ".join(label(r) for _, r in front.sort_values("time_ms").iterrows()),
+                "verdict": sentence + ".",
+            }
+        )
+    return pd.DataFrame(rows)
+
+
+def label(row: Any) -> str:
+    """``method sampling N`` of a table row (what tells two configurations apart)."""
+    parts = [str(row["method"])]
+    if isinstance(row.get("sampling"), str):
+        parts.append(row["sampling"])
+    if not pd.isna(row.get("samples")):
+        parts.append(str(int(row["samples"])))
+    return " ".join(parts)
 
 
 # ----------------------------------------------------------------------------- analysis
@@ -169,8 +343,10 @@ def pareto_front(time_ms: list[float], error: list[float]) -> list[int]:
 
 # ----------------------------------------------------------------------------- writing
 def _fmt(value: Any) -> str:
-    if value is None or (isinstance(value, float) and math.isnan(value)):
-        return "–"
+    if value is None or value is pd.NA or (isinstance(value, float) and math.isnan(value)):
+        return MISSING
+    if isinstance(value, bool):
+        return "yes" if value else ""
     if isinstance(value, float):
         if math.isinf(value):
             return "∞" if value > 0 else "-∞"
@@ -193,29 +369,64 @@ def _markdown(df: pd.DataFrame) -> str:
 
 MD_COLUMNS = [
     "method",
-    "resolution",
-    "profile",
     "sampling",
     "samples",
     "passes",
     "time_ms",
     *METRIC_COLUMNS,
+    "skill",
+    "err_model",
+    "err_taps",
+    "err_screen",
     "status",
+    "flags",
 ]
 
 
+def _flags(row: Any) -> str:
+    out = []
+    if row["best"]:
+        out.append("best")
+    if row["pareto"]:
+        out.append("Pareto")
+    if row["worse_than_nothing"]:
+        out.append("**worse than doing nothing**")
+    if row["method"] == BASELINE:
+        out.append("baseline")
+    if row["note"]:
+        out.append(row["note"])
+    return ", ".join(out)
+
+
 def summary_markdown(table: pd.DataFrame, source: str) -> str:
-    """``summary.md``: per scene, one row per method point; failures listed at the end."""
+    """``summary.md``: per ranking group, one row per point with skill and flags, then the
+    recommendation; failures listed at the end."""
     parts = [
         "# sssbench summary",
         "",
         f"Source: `{source}` — {len(table)} points, "
         f"{int((table['status'] == 'ok').sum())} ok. Time = sum of per-pass medians (ms); "
         "rel_rms = RMS error / RMS reference; psnr in dB (∞ = exact); delta_e = mean CIE ΔE76 "
-        "of tone-mapped sRGB; flip = mean LDR-FLIP.",
+        "of tone-mapped sRGB; flip = mean LDR-FLIP; skill = 1 − rel_rms / rel_rms of doing "
+        "nothing (the `identity` baseline: > 0 beats it); err_* = the error budget "
+        f"(docs/error_budget.md). {MISSING} = not applicable.",
     ]
-    for scene, group in table.groupby("scene", sort=True):
-        parts += ["", f"## {scene}", "", _markdown(group[MD_COLUMNS])]
+    recs = recommendations(table)
+    table = table.assign(flags=[_flags(r) for _, r in table.iterrows()])
+    for key, group in table.groupby(group_keys(table), dropna=False, sort=True):
+        info = dict(zip(group_keys(table), key, strict=True))
+        title = f"{info['scene']} · {info['scale']} · {info['resolution']} · {info['profile']}"
+        if info["stages"] != MISSING:
+            title += f" · stages {info['stages']}"
+        parts += ["", f"## {title}", "", _markdown(group[MD_COLUMNS])]
+        rec = recs
+        for k, v in info.items():
+            rec = rec[rec[k] == v] if k in rec.columns else rec
+        if len(rec):
+            r = rec.iloc[0]
+            parts += ["", f"**Recommendation.** {r['verdict']}"]
+            if r["pareto"] != MISSING:
+                parts += ["", f"Pareto front (fastest first): {r['pareto']}."]
     failed = table[table["status"] != "ok"]
     if len(failed):
         parts += ["", "## Failed or timed-out runs", ""]
@@ -223,74 +434,181 @@ def summary_markdown(table: pd.DataFrame, source: str) -> str:
     return "\n".join(parts) + "\n"
 
 
+#: marker per sampling rule (the same in every plot)
+MARKERS = {"importance": "o", "uniform": "s", "power": "^", None: "D"}
+
+
+def _marker(sampling: Any) -> str:
+    if isinstance(sampling, str):
+        return MARKERS.get(sampling, "P")
+    return MARKERS[None]
+
+
+def _log_ticks(axis: Any, lo: float, hi: float) -> None:
+    """Readable log ticks: 1-2-5 labels within two decades, one label per decade beyond,
+    no minor labels (they overlap into unreadable runs)."""
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+
+    decades = math.log10(max(hi, 1e-300) / max(lo, 1e-300)) if lo > 0 and hi > 0 else 3
+    subs = (1.0, 2.0, 5.0) if decades <= 2 else (1.0,)
+    axis.set_major_locator(LogLocator(base=10, subs=subs, numticks=12))
+    axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    axis.set_minor_formatter(NullFormatter())
+
+
+def _panels(n: int, width: float = 5.0, height: float = 4.0):
+    import matplotlib.pyplot as plt
+
+    ncols = min(3, max(n, 1))
+    nrows = math.ceil(max(n, 1) / ncols)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(width * ncols, height * nrows), squeeze=False)
+    for ax in list(axes.flat)[n:]:
+        ax.axis("off")
+    return fig, list(axes.flat)[:n]
+
+
+def _title(info: dict[str, Any]) -> str:
+    t = f"{info['scene']} · {info['scale']} · {info['resolution']}"
+    return t + (f" · {info['stages']}" if info.get("stages", MISSING) != MISSING else "")
+
+
 def _plot_error_vs_time(table: pd.DataFrame, path: Path) -> Path | None:
+    """Per ranking group: time against rel_rms, colour per method, marker per sampling,
+    samples written next to each point, the Pareto front, the do-nothing baseline as a dashed
+    line and the exact reference as the zero-error anchor (a star on the floor)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from matplotlib.ticker import NullFormatter
+    from matplotlib.lines import Line2D
 
     ok = table[(table["status"] == "ok") & table["time_ms"].notna() & table[PLOT_METRIC].notna()]
     if ok.empty:
         return None
-    scenes = sorted(ok["scene"].unique())
     methods = sorted(ok["method"].unique())
     colours = {m: plt.get_cmap("tab10")(i % 10) for i, m in enumerate(methods)}
-    ncols = min(3, len(scenes))
-    nrows = math.ceil(len(scenes) / ncols)
-    fig, axes = plt.subplots(nrows, ncols, figsize=(5 * ncols, 4 * nrows), squeeze=False)
-    for ax, scene in zip(axes.flat, scenes, strict=False):
-        sub = ok[ok["scene"] == scene].reset_index(drop=True)
+    groups = list(ok.groupby(group_keys(ok), dropna=False, sort=True))
+    fig, axes = _panels(len(groups))
+    for ax, (key, sub) in zip(axes, groups, strict=True):
+        info = dict(zip(group_keys(ok), key, strict=True))
+        sub = sub.reset_index()
         err = sub[PLOT_METRIC].astype(float)
+        time = sub["time_ms"].astype(float)
         positive = err[err > 0]
         floor = float(positive.min()) / 3 if len(positive) else 1e-6
-        shown = err.clip(lower=floor)
-        for m in methods:
-            sel = sub["method"] == m
-            if not sel.any():
+        tpos = time[time > 0]
+        tmin = float(tpos.min()) if len(tpos) else 1e-3
+        for _, r in sub.iterrows():
+            if r["method"] in (BASELINE, REFERENCE):
                 continue
-            exact = sel & (err <= 0)
-            if (sel & ~exact).any():
-                ax.scatter(
-                    sub.loc[sel & ~exact, "time_ms"],
-                    shown[sel & ~exact],
-                    color=colours[m],
-                    label=m,
-                    s=30,
-                    zorder=3,
+            e = max(float(r[PLOT_METRIC]), floor)
+            t = max(float(r["time_ms"]), tmin / 3)
+            ax.scatter(
+                t,
+                e,
+                color=colours[r["method"]],
+                marker=_marker(r["sampling"]),
+                s=34,
+                zorder=3,
+                edgecolors="k" if r["worse_than_nothing"] else "none",
+            )
+            if not pd.isna(r["samples"]):
+                ax.annotate(
+                    str(int(r["samples"])),
+                    (t, e),
+                    textcoords="offset points",
+                    xytext=(4, 3),
+                    fontsize=6,
+                    color=colours[r["method"]],
                 )
-            if exact.any():
-                ax.scatter(
-                    sub.loc[exact, "time_ms"],
-                    shown[exact],
-                    color=colours[m],
-                    marker="v",
-                    s=40,
-                    zorder=3,
-                    label=f"{m} (exact)",
-                )
-        front = pareto_front(sub["time_ms"].astype(float).tolist(), err.tolist())
-        ft = sub.loc[front, "time_ms"].astype(float)
-        fe = shown[front]
-        ax.step(ft, fe, where="post", color="k", lw=1, alpha=0.6, zorder=2, label="Pareto front")
-        ax.scatter(ft, fe, s=120, facecolors="none", edgecolors="k", zorder=4)
+        base = sub[sub["method"] == BASELINE]
+        if len(base):
+            be = float(base[PLOT_METRIC].iloc[0])
+            ax.axhline(max(be, floor), color="0.3", ls="--", lw=1, zorder=1)
+            ax.annotate(
+                "doing nothing (identity)",
+                (0.02, max(be, floor)),
+                xycoords=("axes fraction", "data"),
+                textcoords="offset points",
+                xytext=(0, 3),
+                fontsize=7,
+                color="0.3",
+            )
+        ref = sub[sub["method"] == REFERENCE]
+        if len(ref):
+            ax.scatter(
+                max(float(ref["time_ms"].iloc[0]), tmin / 3),
+                floor,
+                marker="*",
+                s=140,
+                color="gold",
+                edgecolors="k",
+                zorder=5,
+            )
+            ax.annotate(
+                "exact reference (zero error)",
+                (float(ref["time_ms"].iloc[0]), floor),
+                textcoords="offset points",
+                xytext=(-10, 6),
+                fontsize=6,
+                ha="right",
+            )
+        front = sub[sub["pareto"].astype(bool)].sort_values("time_ms")
+        if len(front):
+            ft = [max(float(t), tmin / 3) for t in front["time_ms"]]
+            fe = [max(float(e), floor) for e in front[PLOT_METRIC]]
+            ax.step(ft, fe, where="post", color="k", lw=1, alpha=0.6, zorder=2)
+            ax.scatter(ft, fe, s=120, facecolors="none", edgecolors="k", zorder=4)
         ax.set_xscale("log")
         ax.set_yscale("log")
-        ax.xaxis.set_minor_formatter(NullFormatter())
-        ax.set_title(scene)
+        lo_t, hi_t = ax.get_xlim()
+        lo_e, hi_e = ax.get_ylim()
+        _log_ticks(ax.xaxis, lo_t, hi_t)
+        _log_ticks(ax.yaxis, lo_e, hi_e)
+        hidden = " (SSS not visible)" if sub["visible"].eq(False).all() else ""
+        ax.set_title(_title(info) + hidden, fontsize=9)
         ax.set_xlabel("time (ms, sum of pass medians)")
-        ax.set_ylabel(f"{PLOT_METRIC} (zero shown at the floor)")
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=7)
-    for ax in list(axes.flat)[len(scenes) :]:
-        ax.axis("off")
-    fig.tight_layout()
+        ax.set_ylabel(f"{PLOT_METRIC} (zero drawn at the floor)")
+        ax.grid(True, which="major", alpha=0.3)
+    handles = [
+        Line2D([], [], ls="", marker="o", color=colours[m], label=m)
+        for m in methods
+        if m not in (BASELINE, REFERENCE)
+    ]
+    samplings = sorted({s for s in ok["sampling"] if isinstance(s, str)})
+    handles += [
+        Line2D([], [], ls="", marker=_marker(s), color="0.4", label=f"{s} sampling")
+        for s in samplings
+    ]
+    handles += [
+        Line2D([], [], color="k", alpha=0.6, label="Pareto front"),
+        Line2D([], [], color="0.3", ls="--", label="doing nothing"),
+        Line2D(
+            [],
+            [],
+            ls="",
+            marker="o",
+            mfc="none",
+            mec="k",
+            label="worse than doing nothing (black edge)",
+        ),
+    ]
+    fig.legend(
+        handles=handles,
+        loc="lower center",
+        ncol=min(6, len(handles)),
+        fontsize=7,
+        bbox_to_anchor=(0.5, 0.0),
+    )
+    fig.tight_layout(rect=(0, 0.07, 1, 1))
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
 
 
 def _plot_pass_times(table: pd.DataFrame, passes: pd.DataFrame, path: Path) -> Path | None:
+    """Per scene: a stacked bar per method of its median pass times (mean over the method's
+    points in that scene)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -299,27 +617,91 @@ def _plot_pass_times(table: pd.DataFrame, passes: pd.DataFrame, path: Path) -> P
     ok = table[table["status"] == "ok"]
     if ok.empty or passes.empty:
         return None
-    merged = passes.merge(ok[["run_id", "method"]], on="run_id")
+    merged = passes.merge(ok[["run_id", "method", "scene"]], on="run_id")
+    merged = merged[merged["method"] != REFERENCE]
     if merged.empty:
         return None
-    # per method: sum a pass name's medians within a run, then average over the method's runs
-    per_run = merged.groupby(["method", "run_id", "name"], as_index=False)["ms_median"].sum()
-    n_runs = per_run.groupby("method")["run_id"].nunique()
-    total = per_run.groupby(["method", "name"])["ms_median"].sum()
-    mean = total.div(n_runs, level="method").unstack("name").fillna(0.0)
     order = list(dict.fromkeys(merged.sort_values(["run_id", "idx"])["name"]))
-    mean = mean[[c for c in order if c in mean.columns]]
-    fig, ax = plt.subplots(figsize=(7, 1.2 + 0.5 * len(mean)))
-    left = pd.Series(0.0, index=mean.index)
     cmap = plt.get_cmap("tab20")
-    for i, name in enumerate(mean.columns):
-        ax.barh(mean.index, mean[name], left=left, color=cmap(i % 20), label=name)
-        left = left + mean[name]
-    ax.set_xlabel("mean time per run (ms, median of repeats per pass)")
-    ax.set_title("where each method spends its time")
-    ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.0, 0.5))
+    colours = {n: cmap(i % 20) for i, n in enumerate(order)}
+    scenes = sorted(merged["scene"].unique())
+    fig, axes = _panels(len(scenes), width=5.5, height=0.9 + 0.35 * merged["method"].nunique())
+    for ax, scene in zip(axes, scenes, strict=True):
+        sub = merged[merged["scene"] == scene]
+        per_run = sub.groupby(["method", "run_id", "name"], as_index=False)["ms_median"].sum()
+        n_runs = per_run.groupby("method")["run_id"].nunique()
+        total = per_run.groupby(["method", "name"])["ms_median"].sum()
+        mean = total.div(n_runs, level="method").unstack("name").fillna(0.0)
+        mean = mean[[c for c in order if c in mean.columns]]
+        left = pd.Series(0.0, index=mean.index)
+        for name in mean.columns:
+            ax.barh(mean.index, mean[name], left=left, color=colours[name], label=name)
+            left = left + mean[name]
+        ax.set_title(scene, fontsize=9)
+        ax.set_xlabel("mean time per run (ms)")
+        ax.tick_params(labelsize=7)
+    handles = [plt.Rectangle((0, 0), 1, 1, color=colours[n]) for n in order]
+    fig.legend(handles, order, fontsize=6, loc="center left", bbox_to_anchor=(1.0, 0.5))
+    fig.suptitle("where each method spends its time, per scene", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
+#: the parts of the error budget, bottom to top (docs/error_budget.md)
+BUDGET_PARTS = ("err_model", "err_taps", "err_screen")
+
+
+def _plot_budget(table: pd.DataFrame, path: Path) -> Path | None:
+    """Per ranking group: stacked bars of the error budget of each method's configurations
+    (model / taps / screen space), the reconstruction convention as a hatched marker — so a
+    user sees whether more taps, a better kernel or depth awareness would help."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ok = table[(table["status"] == "ok") & table["err_model"].notna()]
+    ok = ok[~ok["method"].isin((BASELINE, REFERENCE))]
+    if ok.empty:
+        return None
+    groups = list(ok.groupby(group_keys(ok), dropna=False, sort=True))
+    fig, axes = _panels(len(groups), width=5.5, height=3.6)
+    colours = dict(zip(BUDGET_PARTS, ("tab:blue", "tab:orange", "tab:green"), strict=True))
+    for ax, (key, sub) in zip(axes, groups, strict=True):
+        info = dict(zip(group_keys(ok), key, strict=True))
+        sub = sub.sort_values(["method", "samples"]).head(14)
+        labels = [label(r) for _, r in sub.iterrows()]
+        bottom = [0.0] * len(sub)
+        for part in BUDGET_PARTS:
+            vals = sub[part].astype(float).fillna(0.0).clip(lower=0).tolist()
+            ax.bar(labels, vals, bottom=bottom, color=colours[part], label=part)
+            bottom = [b + v for b, v in zip(bottom, vals, strict=True)]
+        ax.scatter(
+            labels,
+            sub[PLOT_METRIC].astype(float),
+            marker="_",
+            s=200,
+            color="k",
+            zorder=3,
+            label="rel_rms (total)",
+        )
+        if sub["err_recon"].notna().any():
+            ax.scatter(
+                labels,
+                sub["err_recon"].astype(float),
+                marker="x",
+                color="0.3",
+                zorder=3,
+                label="reconstruction convention",
+            )
+        ax.set_title(_title(info), fontsize=9)
+        ax.tick_params(axis="x", labelrotation=60, labelsize=6)
+        ax.set_ylabel("rel. RMS")
+    axes[0].legend(fontsize=6)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
 
@@ -365,30 +747,59 @@ def write_report(
     md_path.write_text(summary_markdown(table, str(source)))
     plot = _plot_error_vs_time(table, out / "error_vs_time.png")
     bars = _plot_pass_times(table, passes, out / "pass_times.png")
-    return Report(out, csv_path, md_path, plot, bars, table)
+    budget = _plot_budget(table, out / "error_budget.png")
+    return Report(out, csv_path, md_path, plot, bars, table, budget)
 
 
 def format_console(table: pd.DataFrame) -> str:
-    """A compact text table for the terminal."""
+    """A compact text table for the terminal: sampling and scale shown, skill against doing
+    nothing, flags (``*`` best, ``P`` Pareto, ``!`` worse than doing nothing, ``~`` SSS not
+    visible), then one recommendation line per scene and scale."""
+    if table.empty:
+        return "(no runs)"
     cols = [
         "scene",
+        "scale",
         "method",
+        "sampling",
         "samples",
-        "resolution",
         "passes",
         "time_ms",
         "rel_rms",
-        "psnr",
+        "skill",
         "flip",
         "status",
     ]
-    if table.empty:
-        return "(no runs)"
     shown = table[cols].copy()
-    shown["samples"] = ["–" if pd.isna(v) else str(int(v)) for v in shown["samples"]]
-    for c in ("time_ms", "rel_rms", "psnr", "flip"):
+    shown["samples"] = [MISSING if pd.isna(v) else str(int(v)) for v in shown["samples"]]
+    shown["sampling"] = [v if isinstance(v, str) else MISSING for v in shown["sampling"]]
+    shown["passes"] = [MISSING if pd.isna(v) else str(int(v)) for v in shown["passes"]]
+    for c in ("time_ms", "rel_rms", "skill", "flip"):
         shown[c] = [_fmt(None if pd.isna(v) else float(v)) for v in shown[c]]
-    return shown.to_string(index=False)
+    shown["flags"] = [
+        "".join(
+            f
+            for f, on in (
+                ("*", r["best"]),
+                ("P", r["pareto"]),
+                ("!", r["worse_than_nothing"]),
+                ("~", bool(r["note"])),
+            )
+            if on
+        )
+        for _, r in table.iterrows()
+    ]
+    lines = [
+        shown.to_string(index=False),
+        "",
+        "flags: * best skill, P Pareto front, ! worse than doing nothing, "
+        "~ SSS not visible at this scale (not ranked)",
+    ]
+    for _, r in recommendations(table).iterrows():
+        where = f"{r['scene']} · {r['scale']} · {r['resolution']}"
+        where += f" · {r['stages']}" if r["stages"] != MISSING else ""
+        lines.append(f"{where}: {r['verdict']}")
+    return "\n".join(lines)
 
 
 def print_report(report: Report, file: Any = None) -> None:
