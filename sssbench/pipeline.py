@@ -47,6 +47,16 @@ __all__ = ["Pipeline", "PipelineResult", "PlanEntry", "PassRecord", "STAGES"]
 #: stages in execution order
 STAGES = ("translucency", "texturing", "curvature", "halo", "sss", "specular")
 
+#: automatic plan (``auto=True``, DESIGN §5): translucency is left out when the transmittance
+#: at the thinnest back-lit pixel is below this (the stage could add at most this fraction of
+#: the back light)
+AUTO_TRANSMITTANCE = 1e-3
+#: ... curvature modulation when no pixel's kernel width changes by more than this fraction
+AUTO_WIDTH_CHANGE = 0.02
+#: ... halo reduction when no depth step between neighbouring stencil pixels exceeds this many
+#: pixel footprints (a surface steeper than atan(8) ≈ 83° to the view: a silhouette)
+AUTO_SILHOUETTE_STEP = 8.0
+
 _ZERO_MASK = "mask is zero everywhere (stencil)"
 
 
@@ -85,6 +95,34 @@ def _accepts(method: nn.Module, names: tuple[str, ...]) -> bool:
     return all(n in params for n in names)
 
 
+def _largest_depth_step_px(g: GBuffer) -> float:
+    """The largest depth step (in pixel footprints) between neighbouring pixels of which at
+    least one is in the stencil (DESIGN §2: footprint = 2 z tan(fov_y/2) / H)."""
+    from sssbench.gbuffer import pixel_size_mm
+
+    z = g.depth.double()
+    foot = pixel_size_mm(z, g.fov_y, g.shape[1])
+    inside = g.mask_or_ones() > 0
+    worst = 0.0
+    for dim in (2, 3):
+        if z.shape[dim] < 2:
+            continue
+        dz = (z.narrow(dim, 1, z.shape[dim] - 1) - z.narrow(dim, 0, z.shape[dim] - 1)).abs()
+        f = torch.minimum(
+            foot.narrow(dim, 1, z.shape[dim] - 1), foot.narrow(dim, 0, z.shape[dim] - 1)
+        )
+        near = inside.narrow(dim, 1, z.shape[dim] - 1) | inside.narrow(dim, 0, z.shape[dim] - 1)
+        if bool(near.any()):
+            worst = max(worst, float((dz / f)[near].max()))
+    return worst
+
+
+def _width_change(width: torch.Tensor, g: GBuffer) -> float:
+    """Largest |width − 1| over the stencil (the curvature stage's effect on kernel widths)."""
+    inside = g.mask_or_ones() > 0
+    return float((width - 1).abs()[inside].max()) if bool(inside.any()) else 0.0
+
+
 def _gate(stage: str, configured: bool, missing: str | None, covered: bool) -> PlanEntry:
     """A stage runs when configured, its G-buffer fields exist and some pixel is masked in
     (DESIGN §5); otherwise the entry carries the first reason it does not."""
@@ -114,6 +152,12 @@ class Pipeline(nn.Module):
         halo: ``None``, ``"bilateral"`` (004 §3.3.1) or ``"lab"`` (004 §3.3.2).
         halo_sigma: range σ of ``halo`` (``None``: :data:`~sssbench.ops.halo.DEFAULT_SIGMA`).
         add_specular: add ``gbuffer.specular`` after scattering (DESIGN §5: only if present).
+        auto: leave out configured stages the scene does not need, decided from the scene
+            itself and recorded in the plan: translucency where no back-lit pixel is thin
+            enough to transmit (:data:`AUTO_TRANSMITTANCE`), halo reduction where the stencil
+            has no silhouette (:data:`AUTO_SILHOUETTE_STEP`), curvature modulation where it
+            changes no width by more than :data:`AUTO_WIDTH_CHANGE`. ``False`` runs every
+            configured stage whose fields exist.
 
     Example:
         >>> from sssbench.ops import PreintegratedSSS
@@ -134,6 +178,7 @@ class Pipeline(nn.Module):
         halo: str | None = None,
         halo_sigma: float | None = None,
         add_specular: bool = True,
+        auto: bool = True,
     ) -> None:
         super().__init__()
         if not isinstance(method, nn.Module):
@@ -174,6 +219,7 @@ class Pipeline(nn.Module):
         self.halo = halo
         self.halo_sigma = halo_sigma
         self.add_specular = add_specular
+        self.auto = bool(auto)
 
     @property
     def needs(self) -> tuple[str, ...]:
@@ -210,7 +256,41 @@ class Pipeline(nn.Module):
                 False,
                 f"no back light: n·(-l) <= {bound} at every masked pixel (light in front)",
             )
+        if self.auto:
+            t = self.translucency
+            thinnest = float(g.thickness[lit].min())
+            s = thinnest  # 001 eq. 16: the distance through the material, mm
+            if t.form == "jimenez2012":  # 004 Fig. 3.11: scale = 8.25 (1 − translucency) / width
+                s = thinnest * 8.25 * (1.0 - t.translucency) / t.width
+            from sssbench.ops.translucency import transmittance
+
+            most = float(transmittance(torch.tensor([s], dtype=torch.float64), t.profile).max())
+            total = float(t.profile.weights.sum(0).max()) if hasattr(t.profile, "weights") else 1.0
+            if most / total < AUTO_TRANSMITTANCE:
+                return PlanEntry(
+                    "translucency",
+                    False,
+                    f"auto: too thick to transmit (T = {most / total:.2g} < {AUTO_TRANSMITTANCE:g}"
+                    f" at the thinnest back-lit pixel, {thinnest:.3g} mm)",
+                )
         return PlanEntry("translucency", True)
+
+    def _plan_halo(self, g: GBuffer, covered: bool) -> PlanEntry:
+        no_normals = None if g.normal is not None else "no normals in the G-buffer"
+        entry = _gate(
+            "halo", self.halo is not None, no_normals if self.halo == "bilateral" else None, covered
+        )
+        if not (entry.runs and self.auto):
+            return entry
+        step = _largest_depth_step_px(g)
+        if step <= AUTO_SILHOUETTE_STEP:
+            return PlanEntry(
+                "halo",
+                False,
+                f"auto: no silhouette in the stencil (largest depth step {step:.3g} pixel "
+                f"footprints <= {AUTO_SILHOUETTE_STEP:g})",
+            )
+        return entry
 
     def plan(self, gbuffer: GBuffer) -> list[PlanEntry]:
         """Decide which stages run on ``gbuffer`` and why the others do not (DESIGN §5).
@@ -233,12 +313,7 @@ class Pipeline(nn.Module):
                 covered,
             ),
             _gate("curvature", self.curvature is not None, no_normals, covered),
-            _gate(
-                "halo",
-                self.halo is not None,
-                no_normals if self.halo == "bilateral" else None,
-                covered,
-            ),
+            self._plan_halo(g, covered),
             _gate("sss", True, None, covered),
             _gate(
                 "specular",
@@ -269,7 +344,22 @@ class Pipeline(nn.Module):
                 image = self.texturing.before(image, g)
             extras: dict[str, object] = {}
             if "curvature" in runs:
-                extras["width"] = self.curvature(g)
+                width = self.curvature(g)
+                change = _width_change(width, g)
+                if self.auto and change <= AUTO_WIDTH_CHANGE:
+                    plan = [
+                        PlanEntry(
+                            "curvature",
+                            False,
+                            f"auto: widths change by at most {change:.2g} <= "
+                            f"{AUTO_WIDTH_CHANGE:g} (computed, not applied)",
+                        )
+                        if e.stage == "curvature"
+                        else e
+                        for e in plan
+                    ]
+                else:
+                    extras["width"] = width
             if "halo" in runs:
                 with timed_pass(f"halo.{self.halo}", 1, b * h * w):
                     extras["guide"], extras["sample_weight"] = halo_weight(
