@@ -478,38 +478,42 @@ def load_scene_file(
     Args:
         path: an ``.exr`` or ``.npz`` G-buffer file.
         fields: the optional fields the run needs (``Pipeline.needs``), a subset of
-            :data:`OPTIONAL_FIELDS`. Each must be in the file — a missing one is an error
-            naming it, never a silent default (a missing ``mask`` would scatter the whole
-            frame): write ``mask.A`` = 1 to scatter everywhere. Optional fields not requested
-            are dropped, as ``make_scene`` does; ``None`` keeps every field of the file.
+            :data:`OPTIONAL_FIELDS` and ``light_dir``. Each must be in the file — a missing one
+            is an error naming it, never a silent default (a missing ``mask`` would scatter the
+            whole frame): write ``mask.A`` = 1 to scatter everywhere. Optional image fields
+            not requested are dropped, as ``make_scene`` does (``light_dir`` is kept); ``None``
+            keeps every field of the file.
         dtype: the run's dtype.
 
     Returns:
         A validated :class:`~sssbench.gbuffer.GBuffer`.
     """
     path = Path(path)
+    requestable = (*OPTIONAL_FIELDS, "light_dir")
     wanted = None
     if fields is not None:
         if isinstance(fields, str):
             raise TypeError(f"fields must be a collection of field names, got {fields!r}")
         wanted = list(fields)
-        unknown = sorted(set(wanted) - set(OPTIONAL_FIELDS))
+        unknown = sorted(set(wanted) - set(requestable))
         if unknown:
-            raise ValueError(f"fields must be a subset of {list(OPTIONAL_FIELDS)}, got {unknown}")
+            raise ValueError(f"fields must be a subset of {list(requestable)}, got {unknown}")
     gbuffer = read_gbuffer(path, dtype=dtype)
     if wanted is None:
         return gbuffer
-    have = [f for f in OPTIONAL_FIELDS if getattr(gbuffer, f) is not None]
-    missing = sorted(set(wanted) - set(have))
+    have = [f for f in requestable if getattr(gbuffer, f) is not None]
+    missing = [f for f in requestable if f in wanted and f not in have]
     if missing:
-        hint = ""
         if path.suffix.lower() == ".exr":
-            hint = "; add channel(s) " + ", ".join(n for f in missing for n in EXR_CHANNELS[f])
+            names = [n for f in missing for n in EXR_CHANNELS.get(f, (f"attribute {f}",))]
+            hint = "; add " + ", ".join(names)
+        else:
+            hint = "; add array(s) " + ", ".join(missing)
         raise ValueError(
             f"{path}: the run needs field(s) {', '.join(missing)} that the file does not have "
             f"(it has diffuse, depth{''.join(', ' + f for f in have)}){hint}"
         )
-    drop = {f: None for f in have if f not in wanted}
+    drop = {f: None for f in have if f in OPTIONAL_FIELDS and f not in wanted}
     return gbuffer.replace(**drop) if drop else gbuffer
 
 

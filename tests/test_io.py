@@ -4,6 +4,7 @@ tool under the documented channel names, and one clear line for each kind of bad
 from __future__ import annotations
 
 import math
+import struct
 from pathlib import Path
 
 import numpy as np
@@ -73,6 +74,43 @@ def plane_channels(depth: float = 500.0, dtype: str = "f") -> dict[str, np.ndarr
     out = {f"diffuse.{c}": rng.random((H, W)).astype(dtype) for c in "RGB"}
     out["depth.Z"] = np.full((H, W), depth, dtype=dtype)
     return out
+
+
+def subsampled_exr(path: Path) -> Path:
+    """An uncompressed scanline EXR built byte by byte (the binding cannot write subsampled
+    channels): ``diffuse.R/G/B`` 4x4 and ``depth.Z`` sampled every 2nd pixel (2x2)."""
+    h = w = 4
+
+    def attr(name: str, typ: str, payload: bytes) -> bytes:
+        return f"{name}\0{typ}\0".encode() + struct.pack("<i", len(payload)) + payload
+
+    chans = [("depth.Z", 2), ("diffuse.B", 1), ("diffuse.G", 1), ("diffuse.R", 1)]  # sorted
+    chlist = b"".join(n.encode() + b"\0" + struct.pack("<iB3xii", 2, 0, s, s) for n, s in chans)
+    box = struct.pack("<4i", 0, 0, w - 1, h - 1)
+    header = b"".join(
+        [
+            attr("channels", "chlist", chlist + b"\0"),
+            attr("compression", "compression", b"\0"),
+            attr("dataWindow", "box2i", box),
+            attr("displayWindow", "box2i", box),
+            attr("fov_y", "float", struct.pack("<f", 0.5)),
+            attr("lineOrder", "lineOrder", b"\0"),
+            attr("pixelAspectRatio", "float", struct.pack("<f", 1.0)),
+            attr("screenWindowCenter", "v2f", struct.pack("<2f", 0, 0)),
+            attr("screenWindowWidth", "float", struct.pack("<f", 1.0)),
+            attr("units", "string", b"mm"),
+        ]
+    )
+    first = 8 + len(header) + 1 + 8 * h  # magic+version, header, its end byte, offset table
+    chunks: list[bytes] = []
+    offsets = []
+    for y in range(h):
+        data = b"".join(np.full(w // s, 500.0, "<f4").tobytes() for _, s in chans if y % s == 0)
+        offsets.append(first + sum(len(c) for c in chunks))
+        chunks.append(struct.pack("<ii", y, len(data)) + data)
+    body = struct.pack(f"<{h}Q", *offsets) + b"".join(chunks)
+    path.write_bytes(b"\x76\x2f\x31\x01" + struct.pack("<i", 2) + header + b"\0" + body)
+    return path
 
 
 def one_line_error(match: str, fn, *args, **kwargs) -> str:
@@ -254,6 +292,10 @@ def test_not_an_exr(tmp_path):
 
 
 def test_mismatched_sizes(tmp_path):
+    path = subsampled_exr(tmp_path / "sub.exr")
+    assert OpenEXR.File(str(path), separate_channels=True).channels()["depth.Z"].xSampling == 2
+    msg = one_line_error("mismatched sizes", read_gbuffer, path)
+    assert str(path) in msg and "diffuse.R 4x4" in msg and "depth.Z 2x2" in msg
     g = GBuffer(torch.rand(1, 3, H, W), torch.full((1, 1, H, W), 500.0), 0.5)
     arrays = dict(np.load(write_gbuffer(tmp_path / "good.npz", g)))
     np.savez(tmp_path / "g.npz", **(arrays | {"mask": np.ones((1, 1, H, W + 1), "f")}))
@@ -295,12 +337,18 @@ def test_load_scene_file_fields(tmp_path):
     assert torch.equal(got.light_dir, g.light_dir.double())
     assert_same(load_scene_file(path), g)  # fields=None keeps all
 
-    bare = write_gbuffer(tmp_path / "bare.exr", g.replace(mask=None, thickness=None))
+    bare = g.replace(mask=None, thickness=None, light_dir=None)
+    wanted = ["mask", "normal", "thickness", "light_dir"]
     msg = one_line_error(
-        "needs field", load_scene_file, bare, fields=["mask", "normal", "thickness"]
+        "needs field", load_scene_file, write_gbuffer(tmp_path / "bare.exr", bare), fields=wanted
     )
-    assert "mask, thickness that the file does not have" in msg
-    assert "add channel(s) mask.A, thickness.Y" in msg
+    assert "mask, thickness, light_dir that the file does not have" in msg
+    assert "(it has diffuse, depth, albedo, specular, normal)" in msg
+    assert "add mask.A, thickness.Y, attribute light_dir" in msg
+    msg = one_line_error(
+        "needs field", load_scene_file, write_gbuffer(tmp_path / "bare.npz", bare), fields=wanted
+    )
+    assert "add array(s) mask, thickness, light_dir" in msg
     with pytest.raises(ValueError, match="subset of"):
         load_scene_file(path, fields=["diffuse"])
     with pytest.raises(TypeError, match="collection"):
