@@ -24,6 +24,7 @@ install.
 from __future__ import annotations
 
 import hashlib
+import importlib.util
 import json
 import numbers
 import os
@@ -34,7 +35,14 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
-__all__ = ["MlflowMirror", "default_tracking_uri", "flatten_params", "numeric_metrics", "STATUS"]
+__all__ = [
+    "MlflowMirror",
+    "STATUS",
+    "default_tracking_uri",
+    "flatten_params",
+    "numeric_metrics",
+    "require_mlflow",
+]
 
 #: sssbench run status -> MLflow run status
 STATUS = {"ok": "FINISHED", "failed": "FAILED", "timeout": "KILLED"}
@@ -48,6 +56,19 @@ MAX_METRICS_PER_BATCH = 1000
 _BAD_KEY_CHARS = re.compile(r"[^A-Za-z0-9_\-. /:]")
 _INSTALL_HINT = 'pip install "sssbench[mlflow]"'
 _SWEEP_ID_TAG = "sssbench.sweep_id"
+
+
+def require_mlflow() -> None:
+    """Raise the mirror's ``ImportError`` now if mlflow is not installed, without importing it
+    (for the app to check its config before any run starts)."""
+    try:
+        found = importlib.util.find_spec("mlflow") is not None
+    except (ImportError, ValueError):  # a broken or None entry in sys.modules
+        found = False
+    if not found:
+        raise ImportError(
+            f"the MLflow mirror is switched on but mlflow is not installed: {_INSTALL_HINT}"
+        )
 
 
 def _mlflow() -> Any:

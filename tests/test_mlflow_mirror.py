@@ -18,6 +18,7 @@ from sssbench.mlflow_mirror import (
     MlflowMirror,
     flatten_params,
     numeric_metrics,
+    require_mlflow,
 )
 
 REPO = Path(__file__).resolve().parents[1]
@@ -54,6 +55,12 @@ def test_missing_mlflow_says_what_to_install(monkeypatch, tmp_path):
     monkeypatch.setitem(sys.modules, "mlflow", None)  # import mlflow -> ImportError
     with pytest.raises(ImportError, match=r'pip install "sssbench\[mlflow\]"'):
         MlflowMirror(directory=tmp_path)
+    with pytest.raises(ImportError, match=r'pip install "sssbench\[mlflow\]"'):
+        require_mlflow()
+
+
+def test_require_mlflow_passes_when_installed(mlflow):
+    require_mlflow()
 
 
 def test_needs_a_uri_or_directory():
