@@ -153,6 +153,16 @@ def spec_from_cfg(cfg: Any, overridden: tuple[str, ...] = ()) -> RunSpec:
     for key in ("repeats", "warmup"):
         if c[key] < (1 if key == "repeats" else 0):
             raise ValueError(f"{key} must be an integer >= {int(key == 'repeats')}, got {c[key]!r}")
+    scene_params = dict(c["scene"].get("params") or {})
+    if c["scene"]["name"] == registry.FILE_SCENE:
+        from sssbench.io import read_gbuffer, scene_file_digest
+
+        raw = c["scene"].get("path")
+        if not raw or raw == "???":
+            raise ValueError("scene=file needs scene.path=<G-buffer .exr or .npz>")
+        path = Path(raw).expanduser().resolve()
+        scene_params = {"path": str(path), "sha256": scene_file_digest(path)}
+        res = list(read_gbuffer(path).shape[1:])
     stages = {}
     for group in STAGE_GROUPS:
         entry = c.get(group) or {}
@@ -161,7 +171,7 @@ def spec_from_cfg(cfg: Any, overridden: tuple[str, ...] = ()) -> RunSpec:
     tracking = c.get("tracking") or {}
     return RunSpec(
         scene=c["scene"]["name"],
-        scene_params=c["scene"].get("params") or {},
+        scene_params=scene_params,
         method=method,
         method_params=c["method"].get("params") or {},
         profile=c["profile"]["name"],
@@ -185,7 +195,7 @@ def spec_from_cfg(cfg: Any, overridden: tuple[str, ...] = ()) -> RunSpec:
         timeout_s=c.get("timeout_s"),
         reference_cache=Path(cache).expanduser().resolve() if cache else None,
         previews=c.get("previews", True),
-        mlflow=bool(tracking.get("mlflow", False)),
+        mlflow=_check_type("tracking.mlflow", tracking.get("mlflow", False), "bool"),
         mlflow_uri=tracking.get("mlflow_uri"),
     )
 
@@ -383,6 +393,9 @@ class ExitStatusCallback(_HydraCallback):
         self._start = time.time()
         _STATE["start"] = self._start
         _STATE["total"] = _sweep_size(config)
+        mirror = _sweep_mirror(config)
+        if mirror is not None:  # the parent run of the sweep's runs (created once, up front)
+            mirror.start_sweep(str(Path(str(config.hydra.sweep.dir)).resolve()))
 
     def on_multirun_end(self, config: Any, **kwargs: Any) -> None:
         from sssbench.refcache import STATS
@@ -407,6 +420,25 @@ class ExitStatusCallback(_HydraCallback):
         if bad:
             log.error("failed or timed-out jobs: %s", ", ".join(bad))
             _STATE["failed"] += len(bad)
+        mirror = _sweep_mirror(config)
+        if mirror is not None and mirror.find_sweep(str(sweep_dir)) is not None:
+            mirror.end_sweep(counts)
+
+
+def _sweep_mirror(config: Any) -> Any:
+    """The MLflow mirror of a sweep when ``tracking.mlflow`` is on (errors logged, not raised:
+    the run store stays the source of truth)."""
+    tracking = config.get("tracking") or {}
+    if not tracking.get("mlflow"):
+        return None
+    try:
+        from sssbench.mlflow_mirror import MlflowMirror
+
+        store = Path(str(config.store)).expanduser().resolve()
+        return MlflowMirror(tracking.get("mlflow_uri"), directory=store.parent)
+    except Exception as exc:
+        log.error("MLflow mirror unavailable: %s: %s", type(exc).__name__, exc)
+        return None
 
 
 def _sweep_size(config: Any) -> int:

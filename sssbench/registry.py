@@ -207,13 +207,16 @@ def build_scene(
 
     params = dict(params or {})
     if name == FILE_SCENE:
-        from sssbench.io import load_scene_file
+        from sssbench.io import load_scene_file, scene_file_digest
 
         path = params.pop("path", None)
+        digest = params.pop("sha256", None)
         if not path:
-            raise ValueError("scene file needs scene.params.path=<G-buffer .exr or .npz>")
+            raise ValueError("scene file needs scene.path=<G-buffer .exr or .npz>")
         if params:
-            raise ValueError(f"scene file takes only the parameter path, got {sorted(params)}")
+            raise ValueError(f"scene file takes only path (and sha256), got {sorted(params)}")
+        if digest is not None and scene_file_digest(path) != digest:
+            raise ValueError(f"scene file {path} changed since the run was configured (sha256)")
         return load_scene_file(path, fields=fields, dtype=_dtype(dtype))
     if name not in data_synth.SCENES:
         raise ValueError(f"scene must be one of {scene_names()}, got {name!r}")

@@ -26,7 +26,6 @@ import contextlib
 import csv
 import json
 import logging
-import math
 import os
 import platform
 import signal
@@ -181,6 +180,8 @@ def versions() -> dict[str, str]:
         "hydra-core",
         "flip-evaluator",
         "pandas",
+        "openexr",
+        "mlflow",
     ):
         try:
             out[pkg] = metadata.version(pkg)
@@ -365,9 +366,14 @@ def measure(spec: RunSpec, run_dir: Path) -> tuple[dict[str, Any], list[PassStat
         "versions": versions(),
     }
     if spec.previews:
+        from sssbench.io import write_image_exr
+
         payload["previews"] = write_previews(
             run_dir, result, reference, title=f"{spec.scene} · {spec.method}"
         )
+        for name, image in (("result", result), ("reference", reference)):
+            write_image_exr(run_dir / f"{name}.exr", image[:1], allow_rounding=True)
+            payload["previews"].append(f"{name}.exr")
         payload["error_scale"] = _error_scale(result, reference)
     return payload, stats
 
@@ -536,20 +542,22 @@ def _mirror(
     h: str,
     sweep_dir: str | Path | None,
 ) -> None:
-    """Mirror the run into MLflow (the store stays the source of truth: a failure here is
-    logged, never raised)."""
+    """Mirror the run into MLflow (:mod:`sssbench.mlflow_mirror`) under its sweep's parent
+    run. The store stays the source of truth: a failure here is logged, never raised."""
     try:
-        from sssbench.mlflow_mirror import mirror_run
+        from sssbench.mlflow_mirror import MlflowMirror
 
-        artifacts = [run_dir / "metrics.json", *(run_dir / p for p in payload.get("previews", []))]
-        mirror_run(
-            spec.mlflow_uri or f"sqlite:///{spec.store.parent / 'mlflow.db'}",
+        mirror = MlflowMirror(spec.mlflow_uri, directory=spec.store.parent)
+        parent = mirror.find_sweep(sweep_dir) if sweep_dir else None
+        names = ["metrics.json", "passes.csv", "error.txt", *payload.get("previews", [])]
+        mirror.log_run(
             point,
-            {k: v for k, v in metrics.items() if isinstance(v, (int, float)) and math.isfinite(v)},
-            [a for a in artifacts if a.is_file()],
-            status=status,
+            {**metrics, "time_ms": payload.get("time_ms")},
+            [run_dir / n for n in names if (run_dir / n).is_file()],
+            status,
+            parent=parent,
             config_hash=h,
-            sweep_dir=str(sweep_dir) if sweep_dir else None,
+            run_name=run_label(spec),
         )
     except Exception as exc:
         log.error("MLflow mirror failed for %s: %s: %s", run_label(spec), type(exc).__name__, exc)

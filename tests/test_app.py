@@ -323,3 +323,41 @@ def test_version_is_sssbench(tmp_path):
     assert (
         proc.returncode == 0 and proc.stdout.strip() == f"sssbench {metadata.version('sssbench')}"
     )
+
+
+def test_users_gbuffer_file_runs_and_writes_exr(tmp_path):
+    import data_synth
+    from sssbench.io import read_image_exr, write_gbuffer
+
+    g = data_synth.make_scene("head_close", (20, 24))
+    write_gbuffer(tmp_path / "frame.exr", g)
+    proc = _sssbench(tmp_path, "scene=file", f"scene.path={tmp_path / 'frame.exr'}", "repeats=1")
+    assert proc.returncode == 0, proc.stderr
+    metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert metrics["status"] == "ok" and metrics["resolution"] == [20, 24]
+    result = read_image_exr(tmp_path / "run" / "result.exr")
+    assert result.shape == (1, 3, 20, 24)
+    # the point names the file's content: a changed file is a different point
+    (row,) = RunStore(tmp_path / "store.sqlite").runs()
+    assert len(row["config"]["scene_params"]["sha256"]) == 16
+
+
+def test_sweep_mirrored_into_mlflow_matches_the_store(tmp_path):
+    mlflow = pytest.importorskip("mlflow")
+    proc = _sssbench(
+        tmp_path, *TINY, "samples=3,5", "tracking.mlflow=true", "previews=false", multirun=True
+    )
+    assert proc.returncode == 0, proc.stderr
+    stored = {r["config_hash"]: r for r in RunStore(tmp_path / "store.sqlite").runs()}
+    mlflow.set_tracking_uri(f"sqlite:///{tmp_path / 'mlflow.db'}")
+    client = mlflow.tracking.MlflowClient()
+    exp = client.get_experiment_by_name("sssbench")
+    runs = client.search_runs([exp.experiment_id])
+    children = [r for r in runs if "mlflow.parentRunId" in r.data.tags]
+    parents = {r.info.run_id for r in runs} - {r.info.run_id for r in children}
+    assert len(children) == len(stored) == 2 and len(parents) == 1
+    for r in children:
+        row = stored[r.data.tags["config_hash"]]
+        assert r.data.tags["mlflow.parentRunId"] in parents
+        assert r.data.metrics["rel_rms"] == pytest.approx(row["rel_rms"])
+        assert r.data.params["samples"] == str(row["samples"])
