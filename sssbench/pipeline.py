@@ -152,6 +152,11 @@ class Pipeline(nn.Module):
         halo: ``None``, ``"bilateral"`` (004 §3.3.1) or ``"lab"`` (004 §3.3.2).
         halo_sigma: range σ of ``halo`` (``None``: :data:`~sssbench.ops.halo.DEFAULT_SIGMA`).
         add_specular: add ``gbuffer.specular`` after scattering (DESIGN §5: only if present).
+        irradiance: extra stages on the irradiance before the blur (after translucency), in
+            order: modules with a ``name`` (str), ``needs`` (G-buffer fields) and
+            ``forward(gbuffer, image) -> image``; optionally ``skip(gbuffer) -> str | None``
+            (a reason to leave the stage out on this scene). Each runs as one timed pass over
+            the stencil and appears in the plan as ``irradiance.<name>`` (docs/extending.md).
         auto: leave out configured stages the scene does not need, decided from the scene
             itself and recorded in the plan: translucency where no back-lit pixel is thin
             enough to transmit (:data:`AUTO_TRANSMITTANCE`), halo reduction where the stencil
@@ -178,6 +183,7 @@ class Pipeline(nn.Module):
         halo: str | None = None,
         halo_sigma: float | None = None,
         add_specular: bool = True,
+        irradiance: tuple[nn.Module, ...] | list[nn.Module] = (),
         auto: bool = True,
     ) -> None:
         super().__init__()
@@ -220,14 +226,23 @@ class Pipeline(nn.Module):
         self.halo_sigma = halo_sigma
         self.add_specular = add_specular
         self.auto = bool(auto)
+        for stage in irradiance:
+            if not isinstance(stage, nn.Module) or not isinstance(
+                getattr(stage, "name", None), str
+            ):
+                raise TypeError(
+                    "irradiance stages must be nn.Modules with a name attribute, got "
+                    f"{type(stage).__name__}"
+                )
+        self.irradiance = nn.ModuleList(irradiance)
 
     @property
     def needs(self) -> tuple[str, ...]:
         """Optional G-buffer fields the configured pipeline uses (scenes build only these)."""
         fields = set(getattr(self.method, "needs", ()))
-        for stage in (self.translucency, self.texturing, self.curvature):
+        for stage in (self.translucency, self.texturing, self.curvature, *self.irradiance):
             if stage is not None:
-                fields |= set(stage.needs)
+                fields |= set(getattr(stage, "needs", ()))
         if self.halo == "bilateral":
             fields.add("normal")
         elif self.halo == "lab":
@@ -303,6 +318,17 @@ class Pipeline(nn.Module):
         g = gbuffer
         covered = g.mask is None or bool((g.mask > 0).any())
         entries = [self._plan_translucency(g, covered)]
+        for stage in self.irradiance:
+            missing = [f for f in getattr(stage, "needs", ()) if getattr(g, f, None) is None]
+            entry = _gate(
+                f"irradiance.{stage.name}",
+                True,
+                f"no {missing[0]} in the G-buffer" if missing else None,
+                covered,
+            )
+            skip = getattr(stage, "skip", None)
+            reason = skip(g) if entry.runs and self.auto and callable(skip) else None
+            entries.append(PlanEntry(entry.stage, False, f"auto: {reason}") if reason else entry)
 
         no_normals = None if g.normal is not None else "no normals in the G-buffer"
         entries += [
@@ -340,6 +366,15 @@ class Pipeline(nn.Module):
             image = g.diffuse
             if "translucency" in runs:
                 image = self.translucency(g, add_to=image)
+            for stage in self.irradiance:
+                if f"irradiance.{stage.name}" in runs:
+                    active = active_pixels(g.mask, g.depth.numel())
+                    with timed_pass(
+                        f"irradiance.{stage.name}",
+                        1,
+                        b * h * w if active is None else active.numel(),
+                    ):
+                        image = stage(g, image)
             if "texturing" in runs:
                 image = self.texturing.before(image, g)
             extras: dict[str, object] = {}

@@ -47,7 +47,7 @@ class MethodEntry:
     """How a method name maps to its operator.
 
     Attributes:
-        cls: class name in :mod:`sssbench.ops`.
+        cls: class name in :mod:`sssbench.ops`, or ``"package.module:Class"``.
         samples_arg: the constructor argument that receives the run's ``samples`` (taps per
             pass), or ``None`` if the method has no tap count (the exact reference, the
             identity).
@@ -246,10 +246,12 @@ def _texturing(profile: Any, mode: str = "post") -> dict[str, Any]:
     return {"texturing": mode}
 
 
-#: stage name -> ``f(profile, **params) -> Pipeline keyword arguments``. ``applies_to_reference``
-#: stages change the light the reference integrates (translucency adds transmitted light to
-#: the irradiance; texturing applies albedo): the reference pipeline gets them too, so the
-#: comparison stays like with like. The others (curvature modulation, halo reduction) are
+#: stage name -> (``f(profile, **params) -> Pipeline keyword arguments``, applies to the
+#: reference). A new stage on the irradiance returns ``{"irradiance": [module]}``
+#: (:class:`~sssbench.pipeline.Pipeline`'s ``irradiance``; docs/extending.md). Stages that
+#: apply to the reference change the light it integrates (translucency adds transmitted
+#: light to the irradiance; texturing applies albedo): the reference pipeline gets them too,
+#: so the comparison stays like with like. The others (curvature modulation, halo reduction) are
 #: screen-space approximations of what the exact reference does by itself.
 STAGES: dict[str, tuple[Callable[..., dict[str, Any]], bool]] = {
     "translucency": (_translucency, True),
@@ -286,5 +288,9 @@ def build_pipeline(
         build, applies_to_reference = STAGES[name]
         if for_reference and not applies_to_reference:
             continue
-        kwargs.update(build(profile, **dict(params)))
+        for key, value in build(profile, **dict(params)).items():
+            if key == "irradiance":  # several stages may each add irradiance modules
+                kwargs[key] = [*kwargs.get(key, []), *value]
+            else:
+                kwargs[key] = value
     return Pipeline(method, **kwargs)
