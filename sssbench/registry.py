@@ -99,15 +99,17 @@ def _dtype(name: str) -> torch.dtype:
 
 # ----------------------------------------------------------------------------- methods
 def method_class(name: str) -> type:
-    """The operator class of method ``name`` (a clear error for an unknown name)."""
+    """The operator class of method ``name`` (a clear error for an unknown name).
+
+    :attr:`MethodEntry.cls` is a class name in :mod:`sssbench.ops` or ``"package.module:Class"``
+    (a method defined outside sssbench)."""
     if name not in METHODS:
         raise ValueError(f"method must be one of {sorted(METHODS)}, got {name!r}")
-    ops = importlib.import_module("sssbench.ops")
-    cls = getattr(ops, METHODS[name].cls, None)
+    target = METHODS[name].cls
+    module, attr = target.split(":", 1) if ":" in target else ("sssbench.ops", target)
+    cls = getattr(importlib.import_module(module), attr, None)
     if cls is None:
-        raise ValueError(
-            f"method {name!r} is not available: sssbench.ops has no {METHODS[name].cls}"
-        )
+        raise ValueError(f"method {name!r} is not available: {module} has no {attr}")
     return cls
 
 
