@@ -90,6 +90,7 @@ class Report:
     pass_times: Path | None
     table: pd.DataFrame
     error_budget: Path | None = None
+    html: Path | None = None
 
     def paths(self) -> list[Path]:
         return [
@@ -100,6 +101,7 @@ class Report:
                 self.error_vs_time,
                 self.pass_times,
                 self.error_budget,
+                self.html,
             )
             if p is not None
         ]
@@ -280,11 +282,19 @@ def recommendations(table: pd.DataFrame) -> pd.DataFrame:
         front = ranked[group.loc[ranked.index, "pareto"].astype(bool)]
         worse = screen[screen["skill"].astype(float) <= 0]
         base_err = float(base[PLOT_METRIC].iloc[0]) if len(base) else float("nan")
-        sentence = (
-            f"{label(cheap)} is the cheapest within {WITHIN:.0%} of the best skill "
-            f"({float(cheap['skill']):+.2f} vs {float(best['skill']):+.2f} for {label(best)}, "
-            f"{float(cheap['time_ms']):.3g} ms vs {float(best['time_ms']):.3g} ms)"
-        )
+        if cheap.name == best.name:
+            sentence = (
+                f"{label(best)} has the best skill ({float(best['skill']):+.2f}) and is the "
+                f"cheapest configuration within {WITHIN:.0%} of it "
+                f"({float(best['time_ms']):.3g} ms)"
+            )
+        else:
+            sentence = (
+                f"{label(cheap)} is the cheapest within {WITHIN:.0%} of the best skill "
+                f"({float(cheap['skill']):+.2f} vs {float(best['skill']):+.2f} for "
+                f"{label(best)}, {float(cheap['time_ms']):.3g} ms vs "
+                f"{float(best['time_ms']):.3g} ms)"
+            )
         if not math.isnan(base_err):
             sentence += f"; doing nothing scores rel RMS {base_err:.3g}"
         if len(worse):
@@ -383,14 +393,14 @@ MD_COLUMNS = [
 ]
 
 
-def _flags(row: Any) -> str:
+def _flags(row: Any, markdown: bool = True) -> str:
     out = []
     if row["best"]:
         out.append("best")
     if row["pareto"]:
         out.append("Pareto")
     if row["worse_than_nothing"]:
-        out.append("**worse than doing nothing**")
+        out.append("**worse than doing nothing**" if markdown else "worse than doing nothing")
     if row["method"] == BASELINE:
         out.append("baseline")
     if row["note"]:
@@ -593,15 +603,13 @@ def _plot_error_vs_time(table: pd.DataFrame, path: Path) -> Path | None:
             label="worse than doing nothing (black edge)",
         ),
     ]
+    ncol = 3 * min(3, len(axes))
+    legend_rows = math.ceil(len(handles) / ncol)
     fig.legend(
-        handles=handles,
-        loc="lower center",
-        ncol=min(6, len(handles)),
-        fontsize=7,
-        bbox_to_anchor=(0.5, 0.0),
+        handles=handles, loc="lower center", ncol=ncol, fontsize=7, bbox_to_anchor=(0.5, 0.0)
     )
-    fig.tight_layout(rect=(0, 0.07, 1, 1))
-    fig.savefig(path, dpi=110)
+    fig.tight_layout(rect=(0, min(0.4, 0.25 * legend_rows / fig.get_figheight()), 1, 1))
+    fig.savefig(path, dpi=110, bbox_inches="tight")
     plt.close(fig)
     return path
 
@@ -707,7 +715,11 @@ def _plot_budget(table: pd.DataFrame, path: Path) -> Path | None:
 
 
 def write_report(
-    source: str | Path, out_dir: str | Path | None = None, *, store: str | Path | None = None
+    source: str | Path,
+    out_dir: str | Path | None = None,
+    *,
+    store: str | Path | None = None,
+    html: bool = False,
 ) -> Report:
     """Write the report files for a store or a sweep directory.
 
@@ -716,6 +728,7 @@ def write_report(
         out_dir: where to write; default ``<sweep dir>/report`` or ``<store dir>/report``.
         store: the store to read when ``source`` is a directory (default: the one its jobs
             name in their ``point.json``).
+        html: also write ``report.html`` (:mod:`sssbench.html_report`).
 
     Returns:
         A :class:`Report` with the written paths and the summary table.
@@ -748,7 +761,14 @@ def write_report(
     plot = _plot_error_vs_time(table, out / "error_vs_time.png")
     bars = _plot_pass_times(table, passes, out / "pass_times.png")
     budget = _plot_budget(table, out / "error_budget.png")
-    return Report(out, csv_path, md_path, plot, bars, table, budget)
+    page = None
+    if html:
+        from sssbench.html_report import write_html
+
+        page = write_html(
+            table, out, str(source), [p for p in (plot, budget, bars) if p is not None]
+        )
+    return Report(out, csv_path, md_path, plot, bars, table, budget, page)
 
 
 def format_console(table: pd.DataFrame) -> str:
@@ -823,7 +843,7 @@ class ReportCallback(_HydraCallback):
     def on_multirun_end(self, config: Any, **kwargs: Any) -> None:
         sweep_dir = Path(str(config.hydra.sweep.dir)).resolve()
         try:
-            report = write_report(sweep_dir)
+            report = write_report(sweep_dir, html=True)
         except Exception as exc:  # the report must never hide the sweep's own outcome
             print(
                 f"sssbench-report: could not write the report of {sweep_dir}: {exc}",
@@ -849,9 +869,12 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--out", default=None, help="output directory (default: beside source)")
     parser.add_argument("--store", default=None, help="store to read for a sweep directory")
+    parser.add_argument(
+        "--html", action="store_true", help="also write report.html (self-contained page)"
+    )
     args = parser.parse_args(argv)
     try:
-        report = write_report(args.source, args.out, store=args.store)
+        report = write_report(args.source, args.out, store=args.store, html=args.html)
     except (FileNotFoundError, ValueError) as exc:
         print(f"sssbench-report: {exc}", file=sys.stderr)
         return 2

@@ -1,0 +1,245 @@
+"""A browsable, self-contained HTML comparison report (``sssbench-report DIR --html``).
+
+One static page (every image embedded as a data URI: no server, opens from disk) per sweep or
+store. Per ranking group (scene · scale · resolution · stages):
+
+- the exact reference and each configuration's result and error map side by side at native
+  resolution, with a zoom (1×–8×, nearest neighbour) and a flip (click a result, or hold
+  the *flip* button) between the result and the reference;
+- error maps ``|result − reference| / reference peak`` on **one colour scale per group**
+  (the largest error of the group's configurations, written under the colour bar), so two
+  methods' maps compare;
+- each run's configuration one click away (``<details>``);
+
+then the summary table (baseline, skill, flags), the recommendations and the report's plots.
+Images are made from each run's ``result.exr`` / ``reference.exr`` (written by the runner);
+runs without them (previews off) are listed without images.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+import torch
+
+__all__ = ["write_html"]
+
+_CSS = """
+body{font-family:system-ui,sans-serif;margin:1.5em;color:#222}
+h1{font-size:1.4em} h2{font-size:1.15em;margin-top:2em;border-bottom:1px solid #ccc}
+table{border-collapse:collapse;font-size:.8em;margin:.5em 0}
+td,th{border:1px solid #ddd;padding:2px 6px;text-align:right} th{background:#f4f4f4}
+td:first-child,th:first-child{text-align:left}
+.worse{background:#fde2e2} .best{background:#e2f5e2} .hidden{color:#999}
+.strip{display:flex;flex-wrap:wrap;gap:12px;align-items:flex-start}
+figure{margin:0;border:1px solid #ddd;padding:4px;background:#fafafa}
+figcaption{font-size:.75em;max-width:320px}
+img.px{image-rendering:pixelated;display:block}
+.controls{position:sticky;top:0;background:#fff;padding:.4em 0;z-index:2}
+"""
+
+_JS = """
+function setZoom(z){document.querySelectorAll('img.px').forEach(function(im){
+  im.style.width=(im.naturalWidth*z)+'px';});}
+function flip(im){var a=im.getAttribute('data-ref');if(!a)return;
+  var b=im.getAttribute('src');im.setAttribute('src',a);im.setAttribute('data-ref',b);
+  var c=im.parentNode.querySelector('.which');
+  if(c){c.textContent=c.textContent=='result'?'reference':'result';}}
+function flipAll(){document.querySelectorAll('img[data-ref]').forEach(flip);}
+window.addEventListener('load',function(){
+  var imgs=document.querySelectorAll('img'),ok=0;
+  imgs.forEach(function(im){if(im.complete&&im.naturalWidth>0)ok++;});
+  document.body.setAttribute('data-images-loaded',ok+'/'+imgs.length);
+  setZoom(parseInt(document.getElementById('zoom').value));});
+"""
+
+
+def _png(array: Any, **imsave: Any) -> str:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.image
+
+    buf = io.BytesIO()
+    matplotlib.image.imsave(buf, array, format="png", **imsave)
+    return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode()
+
+
+def _file_png(path: Path) -> str:
+    return "data:image/png;base64," + base64.b64encode(path.read_bytes()).decode()
+
+
+def _rgb(image: torch.Tensor) -> Any:
+    from sssbench.metrics import tonemap
+
+    return tonemap(image[:1].double().clamp(min=0)).squeeze(0).permute(1, 2, 0).clamp(0, 1).numpy()
+
+
+def _colorbar(vmax: float) -> str:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(3.2, 0.55), dpi=100)
+    fig.colorbar(
+        plt.cm.ScalarMappable(plt.Normalize(0, vmax), "magma"), cax=ax, orientation="horizontal"
+    )
+    ax.set_xlabel("|error| / reference peak", fontsize=7)
+    ax.tick_params(labelsize=7)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", bbox_inches="tight")
+    plt.close(fig)
+    return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode()
+
+
+def _load(run_dir: Any) -> tuple[torch.Tensor, torch.Tensor] | None:
+    from sssbench.io import read_image_exr
+
+    if not isinstance(run_dir, str):
+        return None
+    d = Path(run_dir)
+    if not ((d / "result.exr").is_file() and (d / "reference.exr").is_file()):
+        return None
+    return read_image_exr(d / "result.exr"), read_image_exr(d / "reference.exr")
+
+
+def _config(run_dir: Any) -> str:
+    if not isinstance(run_dir, str):
+        return "{}"
+    p = Path(run_dir) / "point.json"
+    try:
+        return json.dumps(json.loads(p.read_text()).get("config", {}), indent=2)
+    except (OSError, json.JSONDecodeError):
+        return "{}"
+
+
+def _table(df: pd.DataFrame, columns: list[str]) -> str:
+    from sssbench.report import _fmt
+
+    head = "".join(f"<th>{html.escape(c)}</th>" for c in columns)
+    rows = []
+    for _, r in df.iterrows():
+        cls = "worse" if r.get("worse_than_nothing") else "best" if r.get("best") else ""
+        cls = "hidden" if r.get("note") else cls
+        cells = "".join(f"<td>{html.escape(_fmt(r.get(c)))}</td>" for c in columns)
+        rows.append(f'<tr class="{cls}">{cells}</tr>')
+    return f"<table><tr>{head}</tr>{''.join(rows)}</table>"
+
+
+def write_html(table: pd.DataFrame, out_dir: Path, source: str, plots: list[Path]) -> Path:
+    """Write ``report.html`` into ``out_dir`` and return its path (see the module docstring).
+
+    Args:
+        table: the report's summary table (:func:`sssbench.report.summary_table`).
+        out_dir: output directory.
+        source: the store or sweep the report covers (shown in the title).
+        plots: PNG plots to embed.
+    """
+    from sssbench.previews import relative_error
+    from sssbench.report import (
+        BASELINE,
+        MISSING,
+        REFERENCE,
+        _flags,
+        group_keys,
+        label,
+        recommendations,
+    )
+
+    parts = [
+        "<!doctype html><html><head><meta charset='utf-8'>",
+        f"<title>sssbench report — {html.escape(source)}</title><style>{_CSS}</style>",
+        f"<script>{_JS}</script></head><body>",
+        f"<h1>sssbench report</h1><p>Source: <code>{html.escape(source)}</code> — "
+        f"{len(table)} points. Skill = 1 − rel_rms / rel_rms of doing nothing (the "
+        "<code>identity</code> baseline); red rows are worse than doing nothing, green the best "
+        "skill, grey where SSS is not visible at the scale (not ranked).</p>",
+        "<div class='controls'>zoom <select id='zoom' onchange='setZoom(parseInt(this.value))'>"
+        + "".join(f"<option value='{z}'>{z}×</option>" for z in (1, 2, 4, 8))
+        + "</select> <button onmousedown='flipAll()' onmouseup='flipAll()'>hold to flip all "
+        "results with the reference</button> (or click an image to flip it)</div>",
+    ]
+    recs = recommendations(table)
+    if len(recs):
+        parts.append("<h2>Recommendations</h2>")
+        parts.append(
+            _table(recs, [*group_keys(table), "recommended", "best", "verdict"]).replace(
+                'class="hidden"', ""
+            )
+        )
+    shown = table.assign(flags=[_flags(r, markdown=False) for _, r in table.iterrows()])
+    cols = ["scene", "scale", "resolution", "stages", "method", "sampling", "samples",
+            "time_ms", "rel_rms", "skill", "flip", "err_model", "err_taps", "err_screen",
+            "status", "flags"]  # fmt: skip
+    parts += ["<h2>Summary</h2>", _table(shown, cols)]
+    for path in plots:
+        parts.append(f"<h2>{html.escape(path.stem.replace('_', ' '))}</h2>")
+        parts.append(f"<img src='{_file_png(path)}' style='max-width:100%'>")
+
+    ok = table[table["status"] == "ok"]
+    for key, group in ok.groupby(group_keys(ok), dropna=False, sort=True):
+        info = dict(zip(group_keys(ok), key, strict=True))
+        title = " · ".join(str(info[k]) for k in group_keys(ok) if info[k] != MISSING)
+        parts.append(f"<h2>{html.escape(title)}</h2>")
+        loaded = {i: _load(r["run_dir"]) for i, r in group.iterrows()}
+        errors = {
+            i: relative_error(*pair)
+            for i, pair in loaded.items()
+            if pair is not None and group.loc[i, "method"] != REFERENCE
+        }
+        vmax = max((float(e.max()) for e in errors.values()), default=0.0) or 1e-12
+        ref_uri = None
+        figures = []
+        for i, r in group.sort_values(["method", "samples"]).iterrows():
+            pair = loaded.get(i)
+            if pair is None:
+                continue
+            result, reference = pair
+            if ref_uri is None:
+                ref_uri = _png(_rgb(reference))
+                figures.insert(
+                    0,
+                    f"<figure><img class='px' src='{ref_uri}'><figcaption><b>exact "
+                    "reference</b></figcaption></figure>",
+                )
+            if r["method"] == REFERENCE:
+                continue
+            res_uri = _png(_rgb(result))
+            err_uri = _png(errors[i].numpy(), cmap="magma", vmin=0.0, vmax=vmax)
+            skill = r["skill"]
+            tag = " (baseline)" if r["method"] == BASELINE else ""
+            caption = (
+                f"<b>{html.escape(label(r))}</b>{tag} — <span class='which'>result</span><br>"
+                f"rel_rms {r['rel_rms']:.3g}, skill "
+                f"{'–' if pd.isna(skill) else f'{float(skill):+.2f}'}, "
+                f"{float(r['time_ms']):.3g} ms {html.escape(_flags(r, markdown=False))}"
+                f"<details><summary>config</summary><pre>{html.escape(_config(r['run_dir']))}"
+                "</pre></details>"
+            )
+            figures.append(
+                f"<figure><img class='px' src='{res_uri}' data-ref='{ref_uri}' "
+                f"onclick='flip(this)' title='click: flip with the reference'>"
+                f"<img class='px' src='{err_uri}' title='error, shared scale'>"
+                f"<figcaption>{caption}</figcaption></figure>"
+            )
+        if figures:
+            scale = f"{vmax:.3g}" if math.isfinite(vmax) else MISSING
+            parts.append(
+                f"<p>Error maps share one scale: 0 to {scale} of the reference peak. "
+                f"<img src='{_colorbar(vmax)}'></p>"
+            )
+            parts.append("<div class='strip'>" + "".join(figures) + "</div>")
+        else:
+            parts.append("<p>No images stored for these runs (previews=false).</p>")
+    parts.append("</body></html>")
+    path = Path(out_dir) / "report.html"
+    path.write_text("\n".join(parts))
+    return path
