@@ -195,10 +195,14 @@ def execute(name: str, run: Callable[[Context], Section], ctx: Context) -> Path:
     import matplotlib
 
     matplotlib.use("Agg")
+    threads = torch.get_num_threads()
     torch.set_num_threads(ctx.threads)
     ctx.sections.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    section = run(ctx)
+    try:
+        section = run(ctx)
+    finally:
+        torch.set_num_threads(threads)  # restored: the caller's process is not changed
     seconds = time.perf_counter() - t0
     command = f"python -m experiments.run {name}" + (" --quick" if ctx.quick else "")
     command += f" --threads {ctx.threads}" if ctx.threads != 1 else ""

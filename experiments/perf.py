@@ -83,20 +83,35 @@ class PeakMemory:
     before each call, so the resident set size is the live memory; the peak during the call
     minus the size just before it is what the call needed. The native loop's workspace (its
     line buffers, a few MB, kept between calls) is already resident and not counted.
+
+    A context manager: the glibc settings hold inside the ``with`` block only and are set
+    back to glibc's documented defaults (128 KiB for both thresholds) on exit.
     """
 
-    def __init__(self) -> None:
-        import ctypes
+    #: mallopt parameters and glibc's defaults
+    M_MMAP_THRESHOLD, M_TRIM_THRESHOLD, DEFAULT = -3, -1, 128 * 1024
 
+    def __init__(self) -> None:
         self.page = os.sysconf("SC_PAGE_SIZE")
         self.libc = None
+
+    def __enter__(self) -> PeakMemory:
+        import ctypes
+
         try:
             libc = ctypes.CDLL("libc.so.6")
-            libc.mallopt(-3, 131072)  # M_MMAP_THRESHOLD
-            libc.mallopt(-1, 0)  # M_TRIM_THRESHOLD
+            libc.mallopt(self.M_MMAP_THRESHOLD, 131072)
+            libc.mallopt(self.M_TRIM_THRESHOLD, 0)
             self.libc = libc
         except (OSError, AttributeError):  # not glibc: the peak is then a lower bound
-            pass
+            self.libc = None
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.libc is not None:
+            self.libc.mallopt(self.M_MMAP_THRESHOLD, self.DEFAULT)
+            self.libc.mallopt(self.M_TRIM_THRESHOLD, self.DEFAULT)
+            self.libc = None
 
     def rss(self) -> int:
         with open("/proc/self/statm") as f:
@@ -236,11 +251,11 @@ def run(ctx: Context) -> Section:
 
     # peak memory after every timing: PeakMemory makes glibc map and unmap every large block
     # for the rest of the process, which would add page faults to any timing after it
-    memory = PeakMemory()
-    for row, backend, op, g, size in measured:
-        gather.set_backend(backend)
-        row["peak_mb"] = memory(lambda op=op, g=g: op(g))
-        row["vs_gbuffer"] = row["peak_mb"] / size
+    with PeakMemory() as memory:
+        for row, backend, op, g, size in measured:
+            gather.set_backend(backend)
+            row["peak_mb"] = memory(lambda op=op, g=g: op(g))
+            row["vs_gbuffer"] = row["peak_mb"] / size
     measured.clear()
     gather.set_backend("native")
 
