@@ -20,6 +20,7 @@ from sssbench.ops.gather import (
     set_backend,
 )
 from sssbench.ops.halo import HALO_KINDS, halo_guide, halo_weight, lab_guide, range_weight
+from sssbench.ops.identity import IdentitySSS
 from sssbench.ops.jimenez2012 import Jimenez2012SSS, jimenez2012_sss
 from sssbench.ops.low_rank import LowRankSSS, low_rank_sss
 from sssbench.ops.method import SeparableMethod
@@ -64,6 +65,7 @@ __all__ = [
     "LowRankSSS",
     "low_rank_sss",
     "ReferenceSSS",
+    "IdentitySSS",
     "reference_sss",
     "random_rotation",
     "SumOfGaussiansSSS",
