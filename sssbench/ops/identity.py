@@ -12,7 +12,6 @@ import torch
 from torch import nn
 
 from sssbench.gbuffer import GBuffer
-from sssbench.ops.gather import SampleWeight
 from sssbench.profiles.base import Profile
 
 __all__ = ["IdentitySSS"]
@@ -53,16 +52,9 @@ class IdentitySSS(nn.Module):
             )
         self.profile = profile
 
-    def forward(
-        self,
-        gbuffer: GBuffer,
-        *,
-        width: torch.Tensor | None = None,
-        guide: torch.Tensor | None = None,
-        sample_weight: SampleWeight | None = None,
-        inplace: bool = False,
-    ) -> torch.Tensor:
-        """``gbuffer.diffuse`` unchanged (the keyword arguments are accepted and ignored)."""
+    def forward(self, gbuffer: GBuffer, **options: object) -> torch.Tensor:
+        """``gbuffer.diffuse`` unchanged; ``options`` (a method's ``width``, ``guide``,
+        ``sample_weight``, ``inplace``) are accepted and ignored."""
         if not isinstance(gbuffer, GBuffer):
             raise TypeError(f"gbuffer must be a GBuffer, got {type(gbuffer).__name__}")
         return gbuffer.diffuse

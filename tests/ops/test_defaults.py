@@ -17,16 +17,8 @@ import torch
 import yaml
 
 from data_synth import make_scene
+from sssbench import ops
 from sssbench.metrics import rel_rms
-from sssbench.ops import (
-    ArtistSSS,
-    IdentitySSS,
-    Jimenez2012SSS,
-    LowRankSSS,
-    PreintegratedSSS,
-    ReferenceSSS,
-    SumOfGaussiansSSS,
-)
 from sssbench.profiles import SumOfGaussians
 from sssbench.verdict import VISIBLE_FLIP, skill, sss_visibility
 
@@ -37,19 +29,19 @@ BAR = 0.3
 
 #: the app's defaults: constructor defaults plus the parameters a yaml must give
 DEFAULTS = {
-    "preintegrated": lambda: PreintegratedSSS(SKIN),
-    "sum_of_gaussians": lambda: SumOfGaussiansSSS(SKIN),
-    "low_rank": lambda: LowRankSSS(SKIN),
-    "jimenez2012": lambda: Jimenez2012SSS.preset("shader_default", width=3.0),
-    "artist": lambda: ArtistSSS.preset("multi_layer_close_fit"),
+    "preintegrated": lambda: ops.PreintegratedSSS(SKIN),
+    "sum_of_gaussians": lambda: ops.SumOfGaussiansSSS(SKIN),
+    "low_rank": lambda: ops.LowRankSSS(SKIN),
+    "jimenez2012": lambda: ops.Jimenez2012SSS.preset("shader_default", width=3.0),
+    "artist": lambda: ops.ArtistSSS.preset("multi_layer_close_fit"),
 }
 CLASSES = {
-    "preintegrated": PreintegratedSSS,
-    "sum_of_gaussians": SumOfGaussiansSSS,
-    "low_rank": LowRankSSS,
-    "jimenez2012": Jimenez2012SSS,
-    "artist": ArtistSSS,
-    "identity": IdentitySSS,
+    "preintegrated": ops.PreintegratedSSS,
+    "sum_of_gaussians": ops.SumOfGaussiansSSS,
+    "low_rank": ops.LowRankSSS,
+    "jimenez2012": ops.Jimenez2012SSS,
+    "artist": ops.ArtistSSS,
+    "identity": ops.IdentitySSS,
 }
 SLOW = os.environ.get("SSSBENCH_SLOW") == "1"
 
@@ -62,8 +54,8 @@ def scored():
     def get(scene, res):
         if (scene, res) not in cache:
             g = make_scene(scene, (res, res), fields=["mask"])
-            ref = ReferenceSSS(SKIN)(g)
-            cache[scene, res] = (g, ref, rel_rms(IdentitySSS()(g), ref, g.mask))
+            ref = ops.ReferenceSSS(SKIN)(g)
+            cache[scene, res] = (g, ref, rel_rms(ops.IdentitySSS()(g), ref, g.mask))
         return cache[scene, res]
 
     return get
@@ -100,14 +92,14 @@ def test_default_beats_doing_nothing_256_head(scored, name):
 
 @pytest.mark.parametrize("scene", ["step_edge", "light_dot"])
 def test_artist_table2_default_is_worse_than_doing_nothing(scored, scene):
-    """Known failure (000 Table 2 as printed, see ArtistSSS): measured skill −0.97 on
+    """Known failure (000 Table 2 as printed, see ops.ArtistSSS): measured skill −0.97 on
     step_edge and −0.41 on light_dot at 128². Fails once the default reaches the bar."""
     assert _skill(scored, "artist", scene, 128) < 0.0
 
 
 def test_identity_has_skill_zero(scored):
     g, ref, err_id = scored("step_edge", 128)
-    assert skill(rel_rms(IdentitySSS()(g), ref, g.mask), err_id) == 0.0
+    assert skill(rel_rms(ops.IdentitySSS()(g), ref, g.mask), err_id) == 0.0
 
 
 @pytest.mark.parametrize("name", sorted(CLASSES))
@@ -128,7 +120,7 @@ def test_conf_params_equal_the_constructor_defaults(name):
     if conf.get("samples") is not None and "samples" in sig:
         default = sig["samples"].default
         if name == "jimenez2012":
-            default = inspect.signature(Jimenez2012SSS.preset).parameters["samples"].default
+            default = inspect.signature(ops.Jimenez2012SSS.preset).parameters["samples"].default
         elif name == "artist":
-            default = inspect.signature(ArtistSSS.preset).parameters["samples"].default
+            default = inspect.signature(ops.ArtistSSS.preset).parameters["samples"].default
         assert conf["samples"] == default
