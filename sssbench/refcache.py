@@ -1,7 +1,8 @@
 """The exact-reference cache shared by the app and the experiments.
 
 A reference image is stored as ``reference_<hash>.pt`` where the hash covers everything the
-image depends on (:func:`reference_key`): the reference's own source code, the scene and its
+image depends on (:func:`reference_key`): the package's source code (:func:`code_digest`),
+the scene and its
 parameters, resolution, seed, dtype, the profile's *content* (not its name: a changed table
 never hits an old entry), the reference's options and the stages that change the light it
 integrates. Writes are atomic (a temporary file then ``os.replace``), so concurrent writers of
@@ -11,6 +12,7 @@ recomputed. Hits and misses are counted in :data:`STATS` (logged once per sweep,
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import logging
@@ -31,6 +33,24 @@ __all__ = ["default_cache_dir", "profile_digest", "reference_key", "cached_refer
 
 #: hits / misses of this process
 STATS = {"hit": 0, "miss": 0}
+
+
+@functools.cache
+def code_digest() -> str:
+    """A digest of every Python source file of :mod:`sssbench` and :mod:`data_synth` (read
+    once per process). Cached images depend on the scene builders, the profiles, the
+    reference, the methods and the pipeline; keying on all of the code is conservative (any
+    change recomputes) and can never serve an image made by other code."""
+    import data_synth
+    import sssbench
+
+    h = hashlib.sha256()
+    for package in (sssbench, data_synth):
+        root = Path(package.__file__).parent
+        for path in sorted(root.rglob("*.py")):
+            h.update(str(path.relative_to(root.parent)).encode())
+            h.update(path.read_bytes())
+    return h.hexdigest()[:16]
 
 
 def default_cache_dir() -> Path:
@@ -71,10 +91,8 @@ def reference_key(
     stages: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """What a reference image depends on (see the module docstring)."""
-    from sssbench.ops.reference import reference_code_digest
-
     return {
-        "code": reference_code_digest(),
+        "code": code_digest(),
         "scene": scene,
         "scene_params": dict(scene_params),
         "profile": profile_digest(profile),

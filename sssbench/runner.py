@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import inspect
 import json
 import logging
 import os
@@ -77,6 +78,8 @@ METRIC_KEYS = (
     "err_taps",
     "err_screen",
     "err_recon",
+    "taps_residual",
+    "converged_samples",
     "samples_per_pixel",
     "reference_ms",
     "pixel_mm",
@@ -261,7 +264,7 @@ def _mask(gbuffer: Any, dtype: torch.dtype) -> torch.Tensor | None:
 
 def measure(spec: RunSpec, run_dir: Path) -> tuple[dict[str, Any], list[PassStats]]:
     """Build, time, compare; return the ``metrics.json`` payload and the pass statistics."""
-    from sssbench import _verdict_tmp as verdict
+    from sssbench import verdict
     from sssbench.metrics import compute_all, flip, rel_rms
 
     with torch_settings(spec.threads, spec.backend):
@@ -347,7 +350,7 @@ def measure(spec: RunSpec, run_dir: Path) -> tuple[dict[str, Any], list[PassStat
         "skill": verdict.skill(values["rel_rms"], base_rel),
         "skill_flip": verdict.skill(values["flip"], base_flip),
         "visibility": base_flip,
-        "visible": verdict.is_visible(base_flip),
+        "visible": bool(base_flip >= verdict.VISIBLE_FLIP),
         **budget,
         "pixel_mm": _pixel_mm(gbuffer),
         "samples_per_pixel": int(sum(p.samples for p in stats)),
@@ -396,6 +399,11 @@ def _pixel_mm(gbuffer: Any) -> float:
     return float(pixel_size_mm(torch.tensor(z), gbuffer.fov_y, gbuffer.shape[1]))
 
 
+#: the tap ladder of the converged method in a run's budget: 17, 33, 65, 129, 257 taps
+#: (independent of the run's own count, so one cached limit serves a whole samples sweep)
+BUDGET_START, BUDGET_MAX = 17, 257
+
+
 def _budget(
     spec: RunSpec,
     method: Any,
@@ -404,29 +412,86 @@ def _budget(
     reference: torch.Tensor,
     mask: torch.Tensor | None,
 ) -> dict[str, float]:
-    """The error budget of the run (see :mod:`sssbench.budget`); NaNs where it does not apply."""
-    try:
-        from sssbench import budget
-    except ImportError:  # pragma: no cover - the budget module is part of the package
+    """The run's error budget (:func:`sssbench.budget.error_budget`, docs/error_budget.md).
+
+    Left out (empty) for the reference and the baseline, for methods without a tap count and
+    when a stage changes the light (the budget's flat-plane model has no stages). The method
+    converged in taps and the bilinear-reconstruction reference are cached
+    (:mod:`sssbench.refcache`): they do not depend on the run's tap count."""
+    from sssbench import budget
+    from sssbench.ops import ReferenceSSS
+
+    if (
+        spec.method in ("reference", "identity")
+        or not registry.method_takes(spec.method, "samples")
+        or _reference_stages(spec)
+        or spec.samples is None
+    ):
         return {}
-    if spec.method in ("reference", "identity"):
-        return {}
-    return budget.error_budget(
-        spec.method,
-        method,
-        profile,
-        gbuffer,
-        reference,
-        mask,
-        rebuild=lambda samples: registry.build_method(
+
+    def build(samples: int) -> Any:
+        return registry.build_method(
             spec.method,
             profile,
             samples=samples,
             sampling=spec.sampling,
             seed=spec.seed,
             params=spec.method_params,
-        ),
+        )
+
+    key = reference_key(
+        scene=spec.scene,
+        scene_params=spec.scene_params,
+        profile=profile,
+        resolution=spec.resolution,
+        seed=spec.seed,
+        dtype=spec.dtype,
     )
+    g64 = gbuffer.to(torch.float64)
+    scale = float(reference.double().pow(2).mean().sqrt()) or 1.0
+    limit_key = {
+        **key,
+        "budget_limit": [spec.method, spec.method_params, spec.sampling, BUDGET_START, BUDGET_MAX],
+    }
+    cached: dict[str, Any] = {}
+
+    def compute_limit() -> torch.Tensor:
+        image, n, change = budget.converged(
+            build, BUDGET_START, g64, max_samples=BUDGET_MAX, scale=scale
+        )
+        cached["n"], cached["change"] = n, change
+        return torch.cat([image.reshape(-1), torch.tensor([float(n), change], dtype=image.dtype)])
+
+    packed, _, _ = cached_reference(limit_key, compute_limit, spec.reference_cache)
+    packed = packed.double()
+    limit = (packed[:-2].reshape(g64.diffuse.shape), int(packed[-2]), float(packed[-1]))
+    bil = None
+    if "reconstruction" in inspect.signature(ReferenceSSS.__init__).parameters:
+        bil_key = {
+            **key,
+            "reference_params": {**spec.reference_params, "reconstruction": "bilinear"},
+        }
+        bil, _, _ = cached_reference(
+            bil_key,
+            lambda: ReferenceSSS(
+                profile, **{**spec.reference_params, "reconstruction": "bilinear"}
+            )(gbuffer),
+            spec.reference_cache,
+            shape=tuple(gbuffer.diffuse.shape),
+        )
+    result = budget.error_budget(
+        build,
+        spec.samples,
+        g64,
+        profile,
+        reference=reference,
+        reference_bilinear=bil,
+        limit=limit,
+    ).as_dict()
+    return {
+        k: float(result[k])
+        for k in ("err_model", "err_taps", "err_screen", "err_recon", "taps_residual")
+    } | {"converged_samples": int(result["converged_samples"])}
 
 
 def _write_json(path: Path, payload: dict[str, Any]) -> None:

@@ -46,7 +46,6 @@ from sssbench.ops.translucency import (
 )
 
 __all__ = [
-    "IdentitySSS",
     "SeparableMethod",
     "separable_pass",
     "set_backend",
@@ -66,6 +65,7 @@ __all__ = [
     "LowRankSSS",
     "low_rank_sss",
     "ReferenceSSS",
+    "IdentitySSS",
     "reference_sss",
     "random_rotation",
     "SumOfGaussiansSSS",

@@ -28,6 +28,16 @@ class ArtistSSS(SeparableMethod):
     (000 eq. 7 multiplies them), so a sample across a depth step loses its energy rather
     than passing it to the others.
 
+    The app's default is the ``multi_layer_close_fit`` row of 000 Table 2 (its fit to the
+    six-Gaussian skin of d'Eon, ``skin_deon6``) with the eq. 7 depth factor. Measured, that
+    row does not match the profile it was fitted to at the stated ``s`` in mm: its red
+    σ_f = 9.27 mm against the widest σ of skin_deon6, 2.72 mm, and on ``step_edge`` (128²)
+    it scores rel RMS ~2× the unblurred input's (skill −0.93 against skin_deon6, −0.97
+    against skin_jg10); the same σ' with ``s`` = 1–2 mm scores skill 0.62–0.72. The table's
+    ``s`` is therefore probably not a σ scale in mm as printed (000 §5 does not say how the
+    fit was made); we keep the table as printed and report the mismatch
+    (``sssbench.budget``'s ``err_model`` shows it) rather than invent a scale.
+
     Args:
         near: σ'_n, scalar or ``(3,)`` in [0, 1].
         far: σ'_f, scalar or ``(3,)`` in [0, 1].

@@ -89,6 +89,8 @@ class Jimenez2012SSS(SeparableMethod):
             strength, falloff, samples, profile=profile, quadrature=quadrature
         )
         self.samples = samples
+        #: the kernel's parameters, kept for its continuous form (sssbench.budget)
+        self.strength, self.falloff, self.base_profile = strength, falloff, profile
 
     @classmethod
     def preset(

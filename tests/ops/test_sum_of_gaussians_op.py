@@ -88,8 +88,9 @@ def test_default_taps_are_listing_7_1():
 
 
 def test_skin_first_gaussian_is_the_unblurred_image_marble_is_not():
-    skin = SumOfGaussiansSSS(SumOfGaussians.from_table("skin_jg10"))
-    marble = SumOfGaussiansSSS(SumOfGaussians.from_table("marble_jg10"))
+    # unblurred_first=None: 003 §7.3.3's automatic rule (the default leaves it to the LOD)
+    skin = SumOfGaussiansSSS(SumOfGaussians.from_table("skin_jg10"), unblurred_first=None)
+    marble = SumOfGaussiansSSS(SumOfGaussians.from_table("marble_jg10"), unblurred_first=None)
     assert skin.unblurred_first and skin.steps[0].kernel is None
     assert not marble.unblurred_first and marble.steps[0].kernel is not None
     g = flat(torch.rand(1, 3, 16, 16, generator=torch.Generator().manual_seed(0)).double(), 20.0)
@@ -139,9 +140,9 @@ def test_lod_skips_every_gaussian_in_head_far():
     p = SumOfGaussians.from_table("skin_deon6")
     n_mask = int((g.mask > 0).sum())
     with record_passes() as rec:
-        out = SumOfGaussiansSSS(p, lod=True)(g)
+        out = SumOfGaussiansSSS(p, lod=True, unblurred_first=None)(g)
     with record_passes() as full:
-        SumOfGaussiansSSS(p, lod=False)(g)
+        SumOfGaussiansSSS(p, lod=False, unblurred_first=None)(g)
     assert len(rec) == len(full) == 10  # the first skin Gaussian is the unblurred image
     assert all(r.pixels == 0 for r in rec)
     assert all(r.pixels == n_mask for r in full)
@@ -156,7 +157,7 @@ def test_lod_is_per_pixel_on_a_depth_ramp():
     img = torch.rand(1, 3, h, w, generator=torch.Generator().manual_seed(3), dtype=torch.float64)
     g = GBuffer(img, depth, FOV)
     with record_passes() as rec:
-        SumOfGaussiansSSS(SumOfGaussians.from_table("skin_jg10"))(g)
+        SumOfGaussiansSSS(SumOfGaussians.from_table("skin_jg10"), unblurred_first=None)(g)
     pixels = [r.pixels for r in rec if r.name.endswith(".x")]
     assert 0 < pixels[0] < pixels[1] < pixels[2] == h * w
 

@@ -1,0 +1,126 @@
+"""Every method's default configuration beats doing nothing where SSS is visible.
+
+The benchmark scenes (step_edge, light_dot, head_close; skin_jg10) are scored like the app:
+rel RMS against the exact reference over the mask; skill = 1 − err / err(identity)
+(:mod:`sssbench.verdict`). The bar is skill > 0.3. The artist model's default (000 Table 2,
+multi-layer close fit) misses it on every scene: its far Gaussian is 3.4× wider than the
+profile it was fitted to (see :class:`~sssbench.ops.ArtistSSS`); that is asserted as a
+known failure, with the numbers, so a fix shows up.
+"""
+
+import inspect
+import os
+from pathlib import Path
+
+import pytest
+import torch
+import yaml
+
+from data_synth import make_scene
+from sssbench import ops
+from sssbench.metrics import rel_rms
+from sssbench.profiles import SumOfGaussians
+from sssbench.verdict import VISIBLE_FLIP, skill, sss_visibility
+
+SKIN = SumOfGaussians.from_table("skin_jg10")
+CONF = Path(__file__).resolve().parents[2] / "conf" / "method"
+SCENES = ("step_edge", "light_dot", "head_close")
+BAR = 0.3
+
+#: the app's defaults: constructor defaults plus the parameters a yaml must give
+DEFAULTS = {
+    "preintegrated": lambda: ops.PreintegratedSSS(SKIN),
+    "sum_of_gaussians": lambda: ops.SumOfGaussiansSSS(SKIN),
+    "low_rank": lambda: ops.LowRankSSS(SKIN),
+    "jimenez2012": lambda: ops.Jimenez2012SSS.preset("shader_default", width=3.0),
+    "artist": lambda: ops.ArtistSSS.preset("multi_layer_close_fit"),
+}
+CLASSES = {
+    "preintegrated": ops.PreintegratedSSS,
+    "sum_of_gaussians": ops.SumOfGaussiansSSS,
+    "low_rank": ops.LowRankSSS,
+    "jimenez2012": ops.Jimenez2012SSS,
+    "artist": ops.ArtistSSS,
+    "identity": ops.IdentitySSS,
+}
+SLOW = os.environ.get("SSSBENCH_SLOW") == "1"
+
+
+@pytest.fixture(scope="module")
+def scored():
+    """(scene, resolution) -> (G-buffer, reference, identity's rel RMS), computed once."""
+    cache = {}
+
+    def get(scene, res):
+        if (scene, res) not in cache:
+            g = make_scene(scene, (res, res), fields=["mask"])
+            ref = ops.ReferenceSSS(SKIN)(g)
+            cache[scene, res] = (g, ref, rel_rms(ops.IdentitySSS()(g), ref, g.mask))
+        return cache[scene, res]
+
+    return get
+
+
+def _skill(scored, name, scene, res):
+    g, ref, err_id = scored(scene, res)
+    assert sss_visibility(ref, g.diffuse, g.mask) >= VISIBLE_FLIP  # the bar applies
+    with torch.no_grad():
+        err = rel_rms(DEFAULTS[name]()(g), ref, g.mask)
+    return skill(err, err_id)
+
+
+_GOOD = ["preintegrated", "sum_of_gaussians", "low_rank", "jimenez2012"]
+
+
+@pytest.mark.parametrize("scene", SCENES)
+@pytest.mark.parametrize("name", _GOOD)
+def test_default_beats_doing_nothing_128(scored, name, scene):
+    assert _skill(scored, name, scene, 128) > BAR
+
+
+@pytest.mark.parametrize("scene", ["step_edge", "light_dot"])
+@pytest.mark.parametrize("name", _GOOD)
+def test_default_beats_doing_nothing_256_planes(scored, name, scene):
+    assert _skill(scored, name, scene, 256) > BAR
+
+
+@pytest.mark.skipif(not SLOW, reason="head_close reference at 256² takes ~40-80 s; SSSBENCH_SLOW=1")
+@pytest.mark.parametrize("name", _GOOD)
+def test_default_beats_doing_nothing_256_head(scored, name):
+    assert _skill(scored, name, "head_close", 256) > BAR
+
+
+@pytest.mark.parametrize("scene", ["step_edge", "light_dot"])
+def test_artist_table2_default_is_worse_than_doing_nothing(scored, scene):
+    """Known failure (000 Table 2 as printed, see ops.ArtistSSS): measured skill −0.97 on
+    step_edge and −0.41 on light_dot at 128². Fails once the default reaches the bar."""
+    assert _skill(scored, "artist", scene, 128) < 0.0
+
+
+def test_identity_has_skill_zero(scored):
+    g, ref, err_id = scored("step_edge", 128)
+    assert skill(rel_rms(ops.IdentitySSS()(g), ref, g.mask), err_id) == 0.0
+
+
+@pytest.mark.parametrize("name", sorted(CLASSES))
+def test_conf_params_equal_the_constructor_defaults(name):
+    """conf/method/<name>.yaml gives every constructor argument it names its default value
+    (besides the arguments without a default, e.g. a preset's width), so the app's default
+    run is the library's default configuration."""
+    conf = yaml.safe_load((CONF / f"{name}.yaml").read_text())
+    assert conf["name"] == name
+    sig = inspect.signature(CLASSES[name].__init__).parameters
+    for key, value in (conf.get("params") or {}).items():
+        if key in ("preset", "width"):
+            continue
+        assert key in sig, f"{name}.yaml: {key} is not an argument of {CLASSES[name].__name__}"
+        assert sig[key].default == value, (
+            f"{name}.yaml: {key}={value!r}, default {sig[key].default!r}"
+        )
+    if conf.get("samples") is not None and "samples" in sig:
+        default = sig["samples"].default
+        if name == "jimenez2012":
+            default = inspect.signature(ops.Jimenez2012SSS.preset).parameters["samples"].default
+        elif name == "artist":
+            default = inspect.signature(ops.ArtistSSS.preset).parameters["samples"].default
+        assert conf["samples"] == default

@@ -1,0 +1,108 @@
+"""Decision helpers: skill, visibility, Pareto set, recommendation, sentences (closed forms)."""
+
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+
+from sssbench.verdict import (
+    BASELINE,
+    VISIBLE_FLIP,
+    pareto_set,
+    recommend,
+    recommendation_sentence,
+    skill,
+    sss_visibility,
+    verdict_sentence,
+    visible,
+)
+
+
+def test_skill_closed_forms():
+    assert skill(0.01, 0.04) == pytest.approx(0.75)
+    assert skill(0.04, 0.04) == 0.0  # as good as doing nothing
+    assert skill(0.047, 0.037) == pytest.approx(-10 / 37)  # worse than doing nothing
+    assert skill(0.0, 0.5) == 1.0
+    assert math.isnan(skill(0.1, 0.0))  # SSS changes nothing: undefined
+    got = skill(np.array([0.0, 0.02, 0.1]), np.array([0.04, 0.04, 0.0]))
+    np.testing.assert_allclose(got[:2], [1.0, 0.5])
+    assert math.isnan(got[2])
+    s = skill(pd.Series([0.01, 0.03]), pd.Series([0.02, 0.02]))
+    np.testing.assert_allclose(s, [0.5, -0.5])
+    with pytest.raises(ValueError, match="err"):
+        skill(-0.1, 0.2)
+
+
+def test_visibility_is_flip_of_reference_against_input():
+    a = torch.full((1, 3, 64, 64), 0.4)
+    assert sss_visibility(a, a.clone()) == 0.0  # identical images: FLIP 0, not visible
+    assert not visible(a, a.clone())
+    b = a.clone()
+    b[..., :, 32:] *= 0.3  # a strong difference on half the image
+    v = sss_visibility(b, a)
+    assert v > VISIBLE_FLIP and visible(b, a)
+    mask = torch.zeros(1, 1, 64, 64)
+    mask[..., :, :8] = 1.0  # the mask covers only unchanged pixels, far from the change
+    assert sss_visibility(b, a, mask) < 1e-3 < v
+
+
+def test_pareto_set_hand_example():
+    # (time, error): 0 (1, .5), 1 (2, .6) dominated by 0, 2 (3, .1), 3 (3, .2) dominated by
+    # 2, 4 (0.5, .9), 5 = copy of 2 (kept: identical points do not dominate each other)
+    times = [1.0, 2.0, 3.0, 3.0, 0.5, 3.0]
+    errors = [0.5, 0.6, 0.1, 0.2, 0.9, 0.1]
+    assert pareto_set(times, errors) == [4, 0, 2, 5]
+    with pytest.raises(ValueError, match="same length"):
+        pareto_set([1.0], [1.0, 2.0])
+
+
+def _rows():
+    return pd.DataFrame(
+        [
+            # step_edge: best 0.90 (c), bar 0.81: a (0.82, 2 ms) is cheapest qualifying
+            ("step_edge", 128, "a", 2.0, 0.82),
+            ("step_edge", 128, "b", 1.0, 0.80),
+            ("step_edge", 128, "c", 9.0, 0.90),
+            ("step_edge", 128, "identity", 0.0, 0.0),
+            # head_close: nothing beats doing nothing
+            ("head_close", 128, "a", 2.0, -0.27),
+            ("head_close", 128, "b", 1.0, -0.01),
+            # invisible: identity error 0
+            ("head_far", 128, "a", 2.0, math.nan),
+        ],
+        columns=["scene", "resolution", "config", "time_ms", "skill"],
+    )
+
+
+def test_recommend_cheapest_within_ten_percent():
+    rec = recommend(_rows()).set_index("scene")
+    assert rec.loc["step_edge", "config"] == "a"
+    assert rec.loc["step_edge", "best_config"] == "c"
+    assert rec.loc["step_edge", "best_skill"] == pytest.approx(0.9)
+    assert rec.loc["step_edge", "candidates"] == 2  # a and c
+    assert rec.loc["head_close", "config"] == BASELINE
+    assert rec.loc["head_close", "skill"] == 0.0
+    assert rec.loc["head_far", "config"] == BASELINE
+    assert rec.loc["head_far", "reason"] == "no visible SSS"
+    # a wider tolerance lets the 1 ms configuration in (0.80 >= 0.9 - 0.2 * 0.9 = 0.72)
+    assert recommend(_rows(), tolerance=0.2).set_index("scene").loc["step_edge", "config"] == "b"
+    with pytest.raises(ValueError, match="columns"):
+        recommend(_rows().drop(columns="time_ms"))
+
+
+def test_sentences_follow_the_numbers():
+    assert verdict_sentence("X", skill(0.047, 0.037)) == (
+        "X is worse than doing nothing (skill \u22120.27)."
+    )
+    assert "barely beats" in verdict_sentence("X", 0.1)
+    assert verdict_sentence("X", 0.575).startswith("X removes 57% of the error")
+    assert "not visible" in verdict_sentence("X", math.nan)
+    assert "0.047 vs 0.037" in verdict_sentence("X", -0.27, 0.047, 0.037)
+    rec = recommend(_rows()).set_index("scene", drop=False)
+    assert recommendation_sentence(rec.loc["step_edge"]) == (
+        "step_edge, 128: use a (skill 0.82, 2 ms); the best, c, reaches 0.90."
+    )
+    assert recommendation_sentence(rec.loc["head_close"]).startswith("head_close, 128: do nothing")
+    assert "not visible" in recommendation_sentence(rec.loc["head_far"])
