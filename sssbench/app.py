@@ -131,8 +131,10 @@ def spec_from_cfg(cfg: Any, overridden: tuple[str, ...] = ()) -> RunSpec:
             raise ValueError(f"method {method!r} has no tap count: drop samples= for it")
         samples = None
     sampling = c["sampling"]["name"]
+    if sampling == "default":  # the method's own default placement, recorded as such
+        sampling = registry.default_option(method, "sampling")
     if not registry.method_takes(method, "sampling"):
-        if "sampling" in overridden:
+        if "sampling" in overridden and c["sampling"]["name"] != "default":
             raise ValueError(f"method {method!r} has no sampling option: drop sampling= for it")
         sampling = None
     res = c["resolution"]

@@ -34,6 +34,7 @@ __all__ = [
     "FILE_SCENE",
     "method_class",
     "method_takes",
+    "default_option",
     "build_method",
     "build_profile",
     "build_scene",
@@ -122,6 +123,16 @@ def method_takes(name: str, arg: str) -> bool:
         return entry.samples_arg is not None
     params = inspect.signature(method_class(name).__init__).parameters
     return arg in params
+
+
+def default_option(name: str, option: str) -> Any:
+    """The default of constructor option ``option`` of method ``name`` (``None`` if it has
+    none): what the method uses when a run does not set it."""
+    cls = method_class(name)
+    params = inspect.signature(cls.__init__).parameters
+    if option in params and params[option].default is not inspect.Parameter.empty:
+        return params[option].default
+    return None
 
 
 def build_method(

@@ -23,7 +23,7 @@ from sssbench.profiles import SumOfGaussians
 from sssbench.verdict import VISIBLE_FLIP, skill, sss_visibility
 
 SKIN = SumOfGaussians.from_table("skin_jg10")
-CONF = Path(__file__).resolve().parents[2] / "conf" / "method"
+CONF = Path(__file__).resolve().parents[2] / "sssbench" / "conf" / "method"
 SCENES = ("step_edge", "light_dot", "head_close")
 BAR = 0.3
 

@@ -13,7 +13,7 @@ from sssbench.pipeline import Pipeline
 from sssbench.profiles import SumOfGaussians
 
 PROFILE = SumOfGaussians.from_table("skin_jg10")
-CONF = Path(__file__).resolve().parents[2] / "conf" / "method"
+CONF = Path(__file__).resolve().parents[2] / "sssbench" / "conf" / "method"
 
 
 def test_pipeline_runs_identity_with_zero_passes():
