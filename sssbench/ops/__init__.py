@@ -20,6 +20,7 @@ from sssbench.ops.gather import (
     set_backend,
 )
 from sssbench.ops.halo import HALO_KINDS, halo_guide, halo_weight, lab_guide, range_weight
+from sssbench.ops.disk import DiskSSS, disk_sss
 from sssbench.ops.identity import IdentitySSS
 from sssbench.ops.jimenez2012 import Jimenez2012SSS, jimenez2012_sss
 from sssbench.ops.low_rank import LowRankSSS, low_rank_sss
@@ -47,6 +48,8 @@ from sssbench.ops.translucency import (
 
 __all__ = [
     "IdentitySSS",
+    "DiskSSS",
+    "disk_sss",
     "SeparableMethod",
     "separable_pass",
     "set_backend",

@@ -1,0 +1,220 @@
+"""The importance-sampled disk method (engines' SSS) against closed forms, the exact reference
+and statistics across seeds."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import scipy.optimize
+import torch
+
+from sssbench.gbuffer import GBuffer
+from sssbench.ops import DiskSSS, ReferenceSSS, record_passes
+from sssbench.ops._disk_radial import BurleyRadial, TabulatedRadial, burley_radius
+from sssbench.profiles import BurleyNormalized, SumOfGaussians
+
+DT = torch.float64
+FOV = 0.4
+
+
+def plane(h, w, z=300.0, image=None, mask=None, seed=0):
+    gen = torch.Generator().manual_seed(seed)
+    e = torch.rand(1, 3, h, w, generator=gen, dtype=DT) if image is None else image
+    return GBuffer(e, torch.full((1, 1, h, w), z, dtype=DT), FOV, mask=mask)
+
+
+def pixel_mm(h, z=300.0):
+    return 2 * z * math.tan(FOV / 2) / h
+
+
+# ----------------------------------------------------------------------------- radial samplers
+def test_burley_inverse_cdf_against_root_finding():
+    d = 1.7
+    u = torch.tensor([1e-9, 0.01, 0.3, 0.5, 0.9, 0.999, 1 - 1e-12], dtype=DT)
+    r = burley_radius(u, d)
+    for ui, ri in zip(u.tolist(), r.tolist(), strict=True):
+        # the tail 1 − F(x) = (1 − u) in logs (no cancellation near u = 1)
+        def f(x, ui=ui):
+            return math.log(math.exp(-x / d) / 4 + 3 * math.exp(-x / (3 * d)) / 4) - math.log1p(-ui)
+
+        expect = scipy.optimize.brentq(f, 0.0, 200 * d, xtol=1e-14, rtol=1e-14)
+        assert ri == pytest.approx(expect, rel=1e-9, abs=1e-12)
+
+
+def test_burley_inverse_pdf_is_the_cdf_derivative():
+    d = 0.8
+    s = BurleyRadial(d)
+    u = torch.tensor([0.05, 0.4, 0.8], dtype=DT)
+    r, inv_pdf = s.sample(u)
+    h = 1e-6
+    cdf = lambda x: 1 - math.exp(-x / d) / 4 - 3 * math.exp(-x / (3 * d)) / 4  # noqa: E731
+    for ri, ip in zip(r.tolist(), inv_pdf.tolist(), strict=True):
+        dens = (cdf(ri + h) - cdf(ri - h)) / (2 * h)  # radial density; area pdf = dens / 2πr
+        assert ip == pytest.approx(2 * math.pi * ri / dens, rel=1e-7)
+
+
+@pytest.mark.parametrize("channel", [0, 2])
+def test_tabulated_sampler_integrates_the_profile(channel):
+    # E_u[R_c(r) / pdf(r)] = ∫ R_c dA = total_c (closed form of the Gaussian sum) for the
+    # sampled channel and the narrower ones (the widest, red, is sampled in DiskSSS; a wider
+    # channel's tail is where a narrow channel's pdf vanishes), and E_u[r²] = Σ w_g 2 v_g / Σ w_g
+    # for the sampled channel (2D Gaussian: E r² = 2v)
+    p = SumOfGaussians.from_table("skin_deon6")
+    s = TabulatedRadial(p, channel)
+    u = (torch.arange(200_000, dtype=DT) + 0.5) / 200_000
+    r, inv_pdf = s.sample(u)
+    est = (p.evaluate(r) * inv_pdf[:, None]).mean(0)
+    assert torch.allclose(est[channel:], p.total()[channel:], rtol=2e-3)
+    assert p.dominant_channel() == 0
+    w = p.weights[:, channel]
+    second = float((w * 2 * p.variances).sum() / w.sum())
+    assert float((r**2).mean()) == pytest.approx(second, rel=2e-3)
+
+
+# ----------------------------------------------------------------------------- estimator
+def test_constant_irradiance_stays_constant_normalised():
+    # a weighted mean of equal values is that value, whatever the weights (any pattern)
+    g = plane(12, 12, image=torch.full((1, 3, 12, 12), 0.37, dtype=DT))
+    for pattern in ("fibonacci", "r2"):
+        out = DiskSSS(SumOfGaussians.from_table("skin_deon6"), 8, pattern=pattern)(g)
+        assert torch.allclose(out, g.diffuse, rtol=1e-12)
+
+
+def test_burley_sampled_channel_weight_is_exactly_its_albedo():
+    # radii drawn from the sampled channel's own CDF: R(r)/pdf(r) = A on a flat plane, so the
+    # unnormalised estimate of a constant image is the constant in that channel (1 − ε: the
+    # per-sample weight in the unit-mass kernel is exactly 1)
+    p = BurleyNormalized([2.0, 1.0, 0.5], [0.8, 0.6, 0.4])
+    g = plane(10, 10, image=torch.full((1, 3, 10, 10), 2.0, dtype=DT))
+    out = DiskSSS(p, 16, normalise=False)(g)
+    assert torch.allclose(out[:, 0], torch.full_like(out[:, 0], 2.0), rtol=1e-9)
+
+
+def _seeds(method_kwargs, g, profile, seeds):
+    return torch.stack([DiskSSS(profile, seed=s, **method_kwargs)(g) for s in range(seeds)])
+
+
+def test_flat_plane_oracle_equals_reference_within_standard_error():
+    # textured irradiance on a fronto-parallel plane, full stencil, clamp-to-edge borders;
+    # the mean of 8 seeds' estimates (64 samples × 4 frames each) vs the exact reference: the
+    # standardised error z = (mean − ref) / (std / √8) is Student-t with 7 dof per pixel,
+    # E z² = 7/5; a bias of one standard error would double it
+    p = SumOfGaussians.from_table("skin_deon6")
+    h = 16
+    g = plane(h, h, z=40.0)  # 0.5 mm pixels: the red kernel spans several pixels
+    ref = ReferenceSSS(p)(g)
+    outs = _seeds(dict(samples=64, frames=4, normalise=False), g, p, 8)
+    mean, se = outs.mean(0), outs.std(0) / math.sqrt(8)
+    z2 = ((mean - ref) / se) ** 2
+    assert float(z2.mean()) < 2.0, float(z2.mean())
+    # and the estimate is far from the unscattered input (the test can fail)
+    assert float((g.diffuse - ref).abs().mean()) > 10 * float(se.mean())
+
+
+def test_frames_reduce_noise():
+    # K independent rotations: the noise (std across seeds) falls as 1/√K = 1/4 for K = 16
+    p = BurleyNormalized([3.0, 1.5, 0.8], [0.8, 0.6, 0.4])
+    g = plane(12, 12, seed=1)
+    one = _seeds(dict(samples=8), g, p, 6).std(0).mean()
+    many = _seeds(dict(samples=8, frames=16), g, p, 6).std(0).mean()
+    assert float(many) <= 0.3 * float(one)
+
+
+def test_stencil_rejects_masked_samples_and_copies_them_through():
+    h = 12
+    e = torch.full((1, 3, h, h), 0.5, dtype=DT)
+    e[..., h // 2 :] = 1e6  # masked-out light must not leak in
+    mask = torch.ones(1, 1, h, h, dtype=DT)
+    mask[..., h // 2 :] = 0.0
+    g = plane(h, h, image=e, mask=mask)
+    out = DiskSSS(BurleyNormalized(5.0, 0.8), 16)(g)
+    assert torch.allclose(out[..., : h // 2], e[..., : h // 2], rtol=1e-12)
+    assert torch.equal(out[..., h // 2 :], e[..., h // 2 :])
+
+
+def test_depth_step_uses_3d_distance():
+    # two planes 2 m apart in depth: a sample across the step is ~2000 mm away in 3D, where
+    # the profile is e^{-2000/(3d)} ≈ 0, so each side keeps its own light; with equal depths
+    # light crosses the seam
+    h = 12
+    e = torch.zeros(1, 3, h, h, dtype=DT)
+    e[..., h // 2 :] = 1.0
+    p = BurleyNormalized(10.0, 0.8)
+    z = torch.full((1, 1, h, h), 100.0, dtype=DT)
+    z[..., h // 2 :] = 2100.0
+    step = DiskSSS(p, 32)(GBuffer(e, z, FOV))
+    flat = DiskSSS(p, 32)(plane(h, h, z=100.0, image=e))
+    assert float(step[..., : h // 2].max()) < 1e-12
+    assert float(flat[..., h // 2 - 1].mean()) > 0.05
+
+
+def test_adaptive_counts_follow_the_variance():
+    # equal d in all channels: every sample weighs exactly 1 on a flat plane, so on a constant
+    # image f_i is constant (relative variance 0) and every pixel keeps the pilot's 8 samples;
+    # where a pilot sample hits a light dot the variance is high and the count rises (a pixel
+    # whose 8 pilot samples all miss the dot sees no variance and keeps 8: the rule's limit)
+    p = BurleyNormalized(3.0, 0.8)
+    h = 16
+    e = torch.full((1, 3, h, h), 0.1, dtype=DT)
+    flat = DiskSSS(p, adaptive=(8, 64))
+    with record_passes() as recs:
+        out = flat(plane(h, h, z=100.0, image=e))
+    assert torch.allclose(out, e, rtol=1e-12)
+    assert bool((flat.last_counts == 8).all())
+    assert [r.name for r in recs] == ["disk.pilot"]
+    e[..., h // 2, h // 2] = 100.0
+    dot = DiskSSS(p, adaptive=(8, 64))
+    dot(plane(h, h, z=100.0, image=e))
+    counts = dot.last_counts.reshape(h, h)
+    assert int(counts.max()) > 8
+    rows, cols = torch.meshgrid(torch.arange(h), torch.arange(h), indexing="ij")
+    far = (rows - h // 2) ** 2 + (cols - h // 2) ** 2 > 7**2
+    assert bool((counts[far] == 8).all())
+    assert int(counts.max()) <= 64
+    assert set(counts.unique().tolist()) <= {8, 16, 32, 64}
+
+
+def test_records_one_pass_with_samples_and_pixels():
+    h = 8
+    mask = torch.zeros(1, 1, h, h, dtype=DT)
+    mask[..., :3, :] = 1.0
+    with record_passes() as recs:
+        DiskSSS(BurleyNormalized(1.0, 0.5), 12, frames=2)(plane(h, h, mask=mask))
+    assert [(r.name, r.samples, r.pixels) for r in recs] == [("disk", 12, 24)] * 2
+
+
+def test_float32_matches_float64():
+    p = SumOfGaussians.from_table("skin_deon6")
+    g = plane(10, 10)
+    a = DiskSSS(p, 16)(g)
+    b = DiskSSS(p, 16)(g.to(torch.float32))
+    assert b.dtype == torch.float32
+    assert torch.allclose(b.double(), a, atol=1e-5)
+
+
+@pytest.mark.parametrize(
+    "kwargs, exc",
+    [
+        (dict(samples=0), ValueError),
+        (dict(pattern="halton"), ValueError),
+        (dict(rotation="random"), ValueError),
+        (dict(frames=0), ValueError),
+        (dict(fetch="cubic"), ValueError),
+        (dict(adaptive=(8,)), ValueError),
+        (dict(adaptive=(16, 8)), ValueError),
+        (dict(normalise="yes"), TypeError),
+    ],
+)
+def test_bad_options(kwargs, exc):
+    with pytest.raises(exc):
+        DiskSSS(BurleyNormalized(1.0, 0.5), **kwargs)
+
+
+def test_bad_profile_and_gbuffer():
+    with pytest.raises(TypeError):
+        DiskSSS("skin")
+    with pytest.raises(ValueError):
+        DiskSSS(BurleyNormalized(1.0, [0.5, 0.0, 0.5]))
+    with pytest.raises(TypeError):
+        DiskSSS(BurleyNormalized(1.0, 0.5))(torch.ones(1, 3, 4, 4))
