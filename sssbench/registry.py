@@ -69,6 +69,7 @@ METHODS: dict[str, MethodEntry] = {
     "low_rank": MethodEntry("LowRankSSS", samples_arg="n"),
     "artist": MethodEntry("ArtistSSS", uses_profile=False),
     "jimenez2012": MethodEntry("Jimenez2012SSS", uses_profile=False),
+    "disk": MethodEntry("DiskSSS"),
 }
 
 
