@@ -10,6 +10,7 @@ from sssbench.ops.curvature import (
     curvature_width,
     screen_space_curvature,
 )
+from sssbench.ops.disk import DiskSSS, disk_sss
 from sssbench.ops.gather import (
     BACKENDS,
     FOLLOW_SURFACE,
@@ -20,7 +21,6 @@ from sssbench.ops.gather import (
     set_backend,
 )
 from sssbench.ops.halo import HALO_KINDS, halo_guide, halo_weight, lab_guide, range_weight
-from sssbench.ops.disk import DiskSSS, disk_sss
 from sssbench.ops.identity import IdentitySSS
 from sssbench.ops.jimenez2012 import Jimenez2012SSS, jimenez2012_sss
 from sssbench.ops.low_rank import LowRankSSS, low_rank_sss

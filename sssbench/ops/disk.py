@@ -62,29 +62,46 @@ Rules (our choices, documented because the sources leave them to the engine):
   (``ε_max`` over channels); its count is the smallest ``n_min · 2^k ≥ n``, at most
   ``n_max``, and it draws ``count − n_min`` more samples (a pattern of that size with its own
   hash stream), pooled with the pilot's.
+- **Per-pixel profiles**: with a list of profiles, pixel ``p`` scatters with
+  ``profiles[profile_id[p]]`` (its own radial sampler and weights; ``gbuffer.profile_id``).
+  A sample landing on a pixel of another profile is rejected like a stencil miss
+  (``cross_profile="reject"``, default: each material integrates only its own surface, as if
+  the seam were a silhouette — the choice that keeps each side of a seam equal to its own
+  profile's result away from the seam, and the one the engines' per-profile stencils make)
+  or weighted with the centre's profile (``"accept"``: light crosses the seam with the
+  receiving material's kernel).
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import torch
 from torch import nn
 
 from sssbench._checks import check_choice, check_int, check_scalar
 from sssbench.gbuffer import GBuffer, pixel_size_mm, view_positions
-from sssbench.ops._disk_radial import radial_sampler
+from sssbench.ops._disk_radial import RadialSampler, radial_sampler
 from sssbench.ops._stencil import active_pixels
 from sssbench.ops.gather import _bilinear_corners
 from sssbench.ops.timing import timed_pass
 from sssbench.profiles.base import Profile
 
-__all__ = ["DiskSSS", "disk_sss", "DISK_PATTERNS", "DISK_ROTATIONS", "DISK_FETCHES"]
+__all__ = [
+    "DiskSSS",
+    "disk_sss",
+    "DISK_PATTERNS",
+    "DISK_ROTATIONS",
+    "DISK_FETCHES",
+    "DISK_CROSS_PROFILE",
+]
 
 DISK_PATTERNS = ("fibonacci", "r2")
 DISK_ROTATIONS = ("hash", "ign", "none")
 DISK_FETCHES = ("point", "bilinear")
+DISK_CROSS_PROFILE = ("reject", "accept")
 
 #: golden angle π (3 − √5) (Vogel's spiral; HDRP ``SampleDiskGolden``)
 GOLDEN_ANGLE = math.pi * (3.0 - math.sqrt(5.0))
@@ -134,7 +151,9 @@ class DiskSSS(nn.Module):
     """Importance-sampled disk SSS (module doc: estimator, rules and choices).
 
     Args:
-        profile: radial diffusion profile (mm); every channel's total must be > 0.
+        profile: radial diffusion profile (mm), or a list of them indexed per pixel by
+            ``gbuffer.profile_id`` (then ``needs`` includes ``profile_id``); every channel's
+            total must be > 0.
         samples: samples per pixel per frame (N).
         pattern: ``"fibonacci"`` (HDRP) or ``"r2"``.
         rotation: per-pixel rotation: ``"hash"``, ``"ign"`` or ``"none"``.
@@ -144,6 +163,8 @@ class DiskSSS(nn.Module):
         fetch: ``"point"`` (HDRP) or ``"bilinear"``.
         adaptive: ``None`` or ``(n_min, n_max)`` (replaces ``samples``; see module doc).
         adaptive_target: target relative standard error of the adaptive rule.
+        cross_profile: with a list of profiles: ``"reject"`` or ``"accept"`` samples on
+            another profile's pixels (module doc).
         seed: seed of the rotation hash (frame f of seed s differs from frame f of s + 1).
 
     Shape:
@@ -161,7 +182,7 @@ class DiskSSS(nn.Module):
 
     def __init__(
         self,
-        profile: Profile,
+        profile: Profile | Sequence[Profile],
         samples: int = 32,
         pattern: str = "fibonacci",
         rotation: str = "hash",
@@ -171,16 +192,22 @@ class DiskSSS(nn.Module):
         fetch: str = "point",
         adaptive: Sequence[int] | None = None,
         adaptive_target: float = 0.05,
+        cross_profile: str = "reject",
         seed: int = 0,
     ) -> None:
         super().__init__()
-        if not isinstance(profile, Profile):
-            raise TypeError(f"profile must be a sssbench Profile, got {type(profile).__name__}")
-        total = profile.total()
-        if bool((total <= 0).any()):
-            raise ValueError(f"profile total must be > 0 in every channel, got {total.tolist()}")
+        profiles = [profile] if isinstance(profile, Profile) else profile
+        if not isinstance(profiles, Sequence) or not profiles:
+            raise TypeError(
+                f"profile must be a sssbench Profile or a non-empty list of them, got "
+                f"{type(profile).__name__}"
+            )
+        self.kernels = [_Kernel.of(f"profile[{k}]", p) for k, p in enumerate(profiles)]
         self.profile = profile
-        self.total = total
+        self.per_pixel = not isinstance(profile, Profile)
+        if self.per_pixel:
+            self.needs = ("mask", "profile_id")
+        self.cross_profile = check_choice("cross_profile", cross_profile, DISK_CROSS_PROFILE)
         self.samples = check_int("samples", samples, 1)
         self.pattern = check_choice("pattern", pattern, DISK_PATTERNS)
         self.rotation = check_choice("rotation", rotation, DISK_ROTATIONS)
@@ -203,7 +230,9 @@ class DiskSSS(nn.Module):
             "adaptive_target", adaptive_target, 0.0, low_inclusive=False
         )
         self.seed = check_int("seed", seed, 0)
-        self.sampler = radial_sampler(profile)
+        #: per active pixel, the sample count of the last call's last frame (adaptive only;
+        #: a diagnostic, overwritten by every call)
+        self.last_counts: torch.Tensor | None = None
 
     def __repr__(self) -> str:
         return (
@@ -214,13 +243,19 @@ class DiskSSS(nn.Module):
 
     # ------------------------------------------------------------------ one batch of samples
     def _gather(
-        self, ctx: _Pixels, sel: torch.Tensor | None, n: int, frame: int, stream: int
+        self,
+        ctx: _Pixels,
+        kernel: _Kernel,
+        accept: torch.Tensor,
+        sel: torch.Tensor,
+        n: int,
+        frame: int,
+        stream: int,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """``Σ w E``, ``Σ w`` and ``Σ (w E)²`` per channel ``(M, 3)`` over ``n`` samples of
-        the pattern for the active pixels ``sel`` (indices into ``ctx``; ``None``: all)."""
-        pix = ctx.index if sel is None else ctx.index[sel]
-        row = ctx.row if sel is None else ctx.row[sel]
-        col = ctx.col if sel is None else ctx.col[sel]
+        the pattern with ``kernel`` for the active pixels ``sel`` (indices into ``ctx``);
+        ``accept`` (flat, 1 / 0) says which pixels a sample may land on."""
+        pix, row, col = ctx.index[sel], ctx.row[sel], ctx.col[sel]
         pos_c = ctx.pos[pix]  # (M, 3)
         z_c = pos_c[:, 2]
         step = 1.0 / pixel_size_mm(z_c, ctx.fov_y, ctx.h)  # pixels per mm at the centre
@@ -240,11 +275,11 @@ class DiskSSS(nn.Module):
         base = pix - pix % ctx.hw  # the image's first flat index
         for i in range(n):
             u = torch.frac(u0[i] + shift) if self.jitter_radius else u0[i].expand(m)
-            r, inv_pdf = self.sampler.sample(u)
+            r, inv_pdf = kernel.sampler.sample(u)
             theta = theta0[i] + 2 * math.pi * phase
             dcol = (r * torch.cos(theta)).to(dt) * step
             drow = -(r * torch.sin(theta)).to(dt) * step  # screen y is up, rows go down
-            rgb, z_s, ok = ctx.fetch(base, row + drow, col + dcol, self.fetch)
+            rgb, z_s, ok = ctx.fetch(base, row + drow, col + dcol, self.fetch, accept)
             lateral = pixel_size_mm(z_s, ctx.fov_y, ctx.h)
             p_s = torch.stack(
                 [
@@ -255,7 +290,7 @@ class DiskSSS(nn.Module):
                 1,
             )
             dist = (p_s - pos_c).norm(dim=1)
-            w = self.profile.evaluate(dist.double()) * inv_pdf[:, None] / self.total
+            w = kernel.profile.evaluate(dist.double()) * inv_pdf[:, None] / kernel.total
             w = w.to(dt) * ok[:, None]
             f = w * rgb
             num += f
@@ -269,16 +304,18 @@ class DiskSSS(nn.Module):
             return torch.where(safe, num / torch.where(safe, den, 1.0), centre)
         return num / n
 
-    def _frame(self, ctx: _Pixels, frame: int) -> torch.Tensor:
-        """One frame's scattered irradiance ``(M, 3)`` at the active pixels."""
-        centre = ctx.rgb[ctx.index]
+    def _frame(
+        self, ctx: _Pixels, kernel: _Kernel, accept: torch.Tensor, sel: torch.Tensor, frame: int
+    ) -> torch.Tensor:
+        """One frame's scattered irradiance ``(M, 3)`` at the active pixels ``sel``."""
+        centre = ctx.rgb[ctx.index[sel]]
         if self.adaptive is None:
-            with timed_pass("disk", self.samples, ctx.index.numel()):
-                num, den, _ = self._gather(ctx, None, self.samples, frame, 0)
+            with timed_pass("disk", self.samples, sel.numel()):
+                num, den, _ = self._gather(ctx, kernel, accept, sel, self.samples, frame, 0)
             return self._estimate(num, den, self.samples, centre)
         lo, hi = self.adaptive
-        with timed_pass("disk.pilot", lo, ctx.index.numel()):
-            num, den, sq = self._gather(ctx, None, lo, frame, 0)
+        with timed_pass("disk.pilot", lo, sel.numel()):
+            num, den, sq = self._gather(ctx, kernel, accept, sel, lo, frame, 0)
         mean = num / lo
         var = (sq / lo - mean * mean).clamp_min(0)
         rel2 = torch.where(mean > 0, var / (lo * mean * mean).clamp_min(1e-300), 0.0)
@@ -291,22 +328,46 @@ class DiskSSS(nn.Module):
             k += 1
         count_i = count.long()
         for level in sorted(set(count_i.tolist()) - {lo}):
-            sel = torch.nonzero(count_i == level).squeeze(1)
-            with timed_pass(f"disk.adaptive{level}", level - lo, sel.numel()):
-                n2, d2, _ = self._gather(ctx, sel, level - lo, frame, level)
-            num[sel] += n2
-            den[sel] += d2
-        self.last_counts = count_i
+            part = torch.nonzero(count_i == level).squeeze(1)
+            with timed_pass(f"disk.adaptive{level}", level - lo, part.numel()):
+                n2, d2, _ = self._gather(ctx, kernel, accept, sel[part], level - lo, frame, level)
+            num[part] += n2
+            den[part] += d2
+        self.last_counts[sel] = count_i
         return self._estimate(num, den, count.to(num.dtype)[:, None], centre)
+
+    def _groups(self, g: GBuffer, ctx: _Pixels):
+        """``(kernel, accept, sel)`` per profile: its kernel, the pixels its samples may land
+        on (flat 1 / 0) and its active pixels (indices into ``ctx``)."""
+        if not self.per_pixel:
+            return [(self.kernels[0], ctx.on, torch.arange(ctx.index.numel()))]
+        if g.profile_id is None:
+            raise ValueError("DiskSSS with a list of profiles needs gbuffer.profile_id")
+        ids = g.profile_id.reshape(-1)
+        if int(ids.max()) >= len(self.kernels):
+            raise ValueError(
+                f"profile_id must index the {len(self.kernels)} profiles, got max {int(ids.max())}"
+            )
+        centre_ids = ids[ctx.index]
+        groups = []
+        for k, kernel in enumerate(self.kernels):
+            sel = torch.nonzero(centre_ids == k).squeeze(1)
+            if sel.numel():
+                same = ctx.on * (ids == k).to(ctx.on.dtype)
+                groups.append((kernel, same if self.cross_profile == "reject" else ctx.on, sel))
+        return groups
 
     def forward(self, gbuffer: GBuffer, *, inplace: bool = False) -> torch.Tensor:
         """Scattered diffuse ``(B, 3, H, W)`` (``inplace``: written into ``gbuffer.diffuse``)."""
         if not isinstance(gbuffer, GBuffer):
             raise TypeError(f"gbuffer must be a GBuffer, got {type(gbuffer).__name__}")
         ctx = _Pixels(gbuffer)
-        acc = torch.zeros(ctx.index.numel(), 3, dtype=gbuffer.dtype)
-        for frame in range(self.frames):
-            acc += self._frame(ctx, frame)
+        m = ctx.index.numel()
+        acc = torch.zeros(m, 3, dtype=gbuffer.dtype)
+        self.last_counts = None if self.adaptive is None else torch.zeros(m, dtype=torch.long)
+        for kernel, accept, sel in self._groups(gbuffer, ctx):
+            for frame in range(self.frames):
+                acc[sel] += self._frame(ctx, kernel, accept, sel, frame)
         scattered = acc / self.frames
         centre = ctx.rgb[ctx.index]
         strength = ctx.mask[ctx.index][:, None]
@@ -317,6 +378,24 @@ class DiskSSS(nn.Module):
         if inplace:
             return gbuffer.diffuse.copy_(out)
         return out
+
+
+@dataclass(frozen=True)
+class _Kernel:
+    """One profile as the estimator uses it: the profile, its radial sampler and totals."""
+
+    profile: Profile
+    sampler: RadialSampler
+    total: torch.Tensor
+
+    @classmethod
+    def of(cls, name: str, profile: Profile) -> _Kernel:
+        if not isinstance(profile, Profile):
+            raise TypeError(f"{name} must be a sssbench Profile, got {type(profile).__name__}")
+        total = profile.total()
+        if bool((total <= 0).any()):
+            raise ValueError(f"{name} total must be > 0 in every channel, got {total.tolist()}")
+        return cls(profile, radial_sampler(profile), total)
 
 
 class _Pixels:
@@ -338,22 +417,28 @@ class _Pixels:
         self.col = (rem % w).to(g.dtype)
 
     def fetch(
-        self, base: torch.Tensor, row: torch.Tensor, col: torch.Tensor, mode: str
+        self,
+        base: torch.Tensor,
+        row: torch.Tensor,
+        col: torch.Tensor,
+        mode: str,
+        accept: torch.Tensor,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Irradiance ``(M, 3)``, depth ``(M,)`` and acceptance (1 / 0) at fractional
-        ``(row, col)`` in the images starting at flat index ``base``, clamped to the edge."""
+        """Irradiance ``(M, 3)``, depth ``(M,)`` and acceptance (1 / 0, from the flat
+        ``accept``) at fractional ``(row, col)`` in the images starting at flat index
+        ``base``, clamped to the edge."""
         if mode == "point":
             ri = torch.floor(row + 0.5).clamp(0, self.h - 1).long()
             ci = torch.floor(col + 0.5).clamp(0, self.w - 1).long()
             j = base + ri * self.w + ci
-            return self.rgb[j], self.depth[j], self.on[j]
+            return self.rgb[j], self.depth[j], accept[j]
         idx, wts = _bilinear_corners(row, col, self.h, self.w)  # the gather's rotated taps
         rgb = torch.zeros(row.shape[0], 3, dtype=self.dtype)
         z = torch.zeros_like(row)
         total = torch.zeros_like(row)
         for i, wt in zip(idx, wts, strict=True):
             j = base + i
-            wt = wt * self.on[j]
+            wt = wt * accept[j]
             rgb += wt[:, None] * self.rgb[j]
             z += wt * self.depth[j]
             total += wt

@@ -218,3 +218,68 @@ def test_bad_profile_and_gbuffer():
         DiskSSS(BurleyNormalized(1.0, [0.5, 0.0, 0.5]))
     with pytest.raises(TypeError):
         DiskSSS(BurleyNormalized(1.0, 0.5))(torch.ones(1, 3, 4, 4))
+
+
+# ----------------------------------------------------------------------------- per-pixel profiles
+def _two_materials(h=12, w=16):
+    gen = torch.Generator().manual_seed(3)
+    e = torch.rand(1, 3, h, w, generator=gen, dtype=DT)
+    ids = torch.zeros(1, 1, h, w, dtype=torch.int64)
+    ids[..., w // 2 :] = 1
+    return e, ids
+
+
+@pytest.mark.parametrize("fetch", ["point", "bilinear"])
+def test_two_materials_each_half_is_its_own_profile(fetch):
+    # rejecting samples on the other material is the same rule as the stencil: each half must
+    # equal its own profile's single-profile result with the other half masked out, exactly
+    h, w = 12, 16
+    e, ids = _two_materials(h, w)
+    p0, p1 = BurleyNormalized(0.3, 0.8), SumOfGaussians.from_table("skin_deon6")
+    z = torch.full((1, 1, h, w), 60.0, dtype=DT)  # 2 mm pixels
+    both = DiskSSS([p0, p1], 16, fetch=fetch)(GBuffer(e, z, FOV, profile_id=ids))
+    for k, p in enumerate((p0, p1)):
+        mine = (ids == k).to(DT)
+        alone = DiskSSS(p, 16, fetch=fetch)(GBuffer(e, z, FOV, mask=mine))
+        sel = (ids == k).expand(1, 3, h, w)
+        assert torch.allclose(both[sel], alone[sel], rtol=1e-12, atol=1e-15)
+    # far from the seam (>= 5 px = 10 mm, where Burley's energy beyond is 3/4 e^{-10/(3d)}
+    # ≈ 1e-5 for d = 0.3 mm) the seam does not matter: the single-profile result on the plane
+    whole = DiskSSS(p0, 16, fetch=fetch)(GBuffer(e, z, FOV))
+    far = both[..., : w // 2 - 5] - whole[..., : w // 2 - 5]
+    assert float(far.abs().max()) < 0.02 * float(whole.abs().max())
+
+
+def test_two_materials_accept_uses_the_centre_profile_everywhere():
+    # cross_profile="accept": every sample counts with the centre's profile, so the left half
+    # is exactly the left profile's result on the whole plane
+    h, w = 10, 12
+    e, ids = _two_materials(h, w)
+    p0, p1 = BurleyNormalized(2.0, 0.8), BurleyNormalized(0.5, 0.5)
+    z = torch.full((1, 1, h, w), 60.0, dtype=DT)
+    both = DiskSSS([p0, p1], 8, cross_profile="accept")(GBuffer(e, z, FOV, profile_id=ids))
+    whole = DiskSSS(p0, 8)(GBuffer(e, z, FOV))
+    assert torch.allclose(both[..., : w // 2], whole[..., : w // 2], rtol=1e-12)
+
+
+def test_profile_id_validation():
+    e, ids = _two_materials(6, 8)
+    z = torch.full((1, 1, 6, 8), 60.0, dtype=DT)
+    with pytest.raises(TypeError, match="profile_id"):
+        GBuffer(e, z, FOV, profile_id=ids.double())
+    with pytest.raises(ValueError, match="profile_id"):
+        GBuffer(e, z, FOV, profile_id=ids - 1)
+    with pytest.raises(ValueError, match="profile_id"):
+        GBuffer(e, z, FOV, profile_id=ids[..., :4])
+    g = GBuffer(e, z, FOV, profile_id=ids)
+    assert g.to(torch.float32).profile_id.dtype == torch.int64
+    two = DiskSSS([BurleyNormalized(1.0, 0.5)] * 2, 4)
+    assert "profile_id" in two.needs
+    with pytest.raises(ValueError, match="profile_id"):
+        two(GBuffer(e, z, FOV))
+    with pytest.raises(ValueError, match="profile_id"):
+        DiskSSS([BurleyNormalized(1.0, 0.5)], 4)(g)
+    with pytest.raises(TypeError):
+        DiskSSS([BurleyNormalized(1.0, 0.5), "skin"])
+    with pytest.raises(ValueError):
+        DiskSSS([BurleyNormalized(1.0, 0.5)], cross_profile="blend")
