@@ -16,7 +16,9 @@ frame ``f``, sample ``i`` of ``N``:
   ``(u_i, v_i) = frac(½ + i (1/g, 1/g²))``, g the plastic number, ``θ_i = 2π v_i``);
 - ``θ_i += 2π φ(p, f)`` with ``φ`` from ``rotation`` (``"hash"``: a seeded integer hash of
   pixel, seed and frame, white noise; ``"ign"``: interleaved gradient noise, Jimenez 2014,
-  the per-pixel rotation of UE's and Call of Duty's screen-space samplers; ``"none"``);
+  the per-pixel rotation of UE's and Call of Duty's screen-space samplers; ``"blue_noise"``:
+  a tiled 64² void-and-cluster mask, Ulichney 1993, animated over frames by the golden
+  ratio, :func:`blue_noise_phase`; ``"none"``);
 - with ``jitter_radius=True`` (default) also ``u_i ← frac(u_i + ψ(p, f))`` (a
   Cranley–Patterson shift, ψ another hash): each ``u_i`` is then uniform and the
   ``normalise=False`` estimator is exactly unbiased; HDRP keeps ``u_i`` fixed (its frames
@@ -83,6 +85,7 @@ from torch import nn
 
 from sssbench._checks import check_choice, check_int, check_scalar
 from sssbench.gbuffer import GBuffer, pixel_size_mm, view_positions
+from sssbench.ops._disk_noise import blue_noise_mask
 from sssbench.ops._disk_radial import RadialSampler, radial_sampler
 from sssbench.ops._stencil import active_pixels
 from sssbench.ops.gather import _bilinear_corners
@@ -99,7 +102,7 @@ __all__ = [
 ]
 
 DISK_PATTERNS = ("fibonacci", "r2")
-DISK_ROTATIONS = ("hash", "ign", "none")
+DISK_ROTATIONS = ("hash", "ign", "blue_noise", "none")
 DISK_FETCHES = ("point", "bilinear")
 DISK_CROSS_PROFILE = ("reject", "accept")
 
@@ -137,6 +140,25 @@ def interleaved_gradient_noise(row: torch.Tensor, col: torch.Tensor, frame: int)
     return torch.frac(52.9829189 * torch.frac(0.06711056 * x + 0.00583715 * y))
 
 
+#: side of the tiled blue-noise mask (pixels)
+BLUE_NOISE_TILE = 64
+
+
+def blue_noise_phase(
+    row: torch.Tensor, col: torch.Tensor, seed: int, frame: int, stream: int
+) -> torch.Tensor:
+    """``frac((rank + ½)/T² + f (√5 − 1)/2)`` of the tiled void-and-cluster mask
+    (:mod:`._disk_noise`) at a per-``(seed, stream)`` toroidal offset: blue noise in space in
+    every frame, and the golden-ratio sequence per pixel over frames (the usual way engines
+    animate a blue-noise texture)."""
+    t = BLUE_NOISE_TILE
+    mask = torch.from_numpy(blue_noise_mask(t))
+    off = hash_uniform(torch.tensor([0, 1]), seed, 0, 1000 + stream)
+    oy, ox = int(off[0] * t), int(off[1] * t)
+    rank = mask[(row.long() + oy) % t, (col.long() + ox) % t].double()
+    return torch.frac((rank + 0.5) / t**2 + frame * (math.sqrt(5.0) - 1.0) / 2.0)
+
+
 def pattern_points(pattern: str, n: int) -> tuple[torch.Tensor, torch.Tensor]:
     """Unrotated radial quantiles ``u`` and angles ``θ`` (radians) of ``n`` samples, float64."""
     i = torch.arange(n, dtype=torch.float64)
@@ -156,7 +178,7 @@ class DiskSSS(nn.Module):
             total must be > 0.
         samples: samples per pixel per frame (N).
         pattern: ``"fibonacci"`` (HDRP) or ``"r2"``.
-        rotation: per-pixel rotation: ``"hash"``, ``"ign"`` or ``"none"``.
+        rotation: per-pixel rotation: ``"hash"``, ``"ign"``, ``"blue_noise"`` or ``"none"``.
         frames: number of frames averaged (K >= 1).
         normalise: divide by the sum of weights per channel (HDRP); ``False``: plain MC.
         jitter_radius: per-pixel Cranley–Patterson shift of the radial quantiles.
@@ -263,6 +285,8 @@ class DiskSSS(nn.Module):
             phase = hash_uniform(pix, self.seed, frame, 2 * stream)
         elif self.rotation == "ign":
             phase = interleaved_gradient_noise(row, col, frame + 7919 * self.seed + 31 * stream)
+        elif self.rotation == "blue_noise":
+            phase = blue_noise_phase(row, col, self.seed, frame, stream)
         else:
             phase = torch.zeros(pix.shape, dtype=torch.float64)
         shift = hash_uniform(pix, self.seed, frame, 2 * stream + 1) if self.jitter_radius else 0.0

@@ -73,12 +73,45 @@ def test_tabulated_sampler_integrates_the_profile(channel):
 
 
 # ----------------------------------------------------------------------------- estimator
-def test_constant_irradiance_stays_constant_normalised():
+@pytest.mark.parametrize("rotation", ["hash", "ign", "blue_noise", "none"])
+def test_constant_irradiance_stays_constant_normalised(rotation):
     # a weighted mean of equal values is that value, whatever the weights (any pattern)
     g = plane(12, 12, image=torch.full((1, 3, 12, 12), 0.37, dtype=DT))
     for pattern in ("fibonacci", "r2"):
-        out = DiskSSS(SumOfGaussians.from_table("skin_deon6"), 8, pattern=pattern)(g)
-        assert torch.allclose(out, g.diffuse, rtol=1e-12)
+        op = DiskSSS(SumOfGaussians.from_table("skin_deon6"), 8, pattern=pattern, rotation=rotation)
+        assert torch.allclose(op(g), g.diffuse, rtol=1e-12)
+
+
+def test_blue_noise_mask_is_a_permutation_without_low_frequencies():
+    # every rank once; the power of the lowest frequencies (0 < |k| <= 4 cycles per tile) is a
+    # small fraction of the mean power, where white noise has about the mean (flat spectrum)
+    import numpy as np
+
+    from sssbench.ops._disk_noise import blue_noise_mask
+
+    t = 32
+    m = blue_noise_mask(t, seed=1)
+    assert sorted(m.ravel().tolist()) == list(range(t * t))
+
+    def low_share(x):
+        f = np.abs(np.fft.fft2(x - x.mean())) ** 2
+        k = np.fft.fftfreq(t) * t
+        kk = np.hypot(k[:, None], k[None, :])
+        return f[(kk > 0) & (kk <= 4)].mean() / f[kk > 0].mean()
+
+    white = np.mean([low_share(np.random.default_rng(s).random((t, t))) for s in range(8)])
+    assert white > 0.5
+    assert low_share(m / t**2) < 0.1 * white
+
+
+def test_app_configuration_builds_the_disk():
+    # the method as `sssbench method=disk` builds it (conf/method/disk.yaml through the registry)
+    from experiments.methods import build
+
+    op = build("disk", SumOfGaussians.from_table("skin_deon6"), 8)
+    assert isinstance(op, DiskSSS) and op.samples == 8 and op.normalise
+    g = plane(8, 8, image=torch.full((1, 3, 8, 8), 0.2, dtype=DT))
+    assert torch.allclose(op(g), g.diffuse, rtol=1e-12)
 
 
 def test_burley_sampled_channel_weight_is_exactly_its_albedo():
