@@ -131,6 +131,8 @@ def run(ctx: Context) -> Section:
         ax.axhline(d["identity"], color="k", lw=0.8, ls=":", label="identity")
         ax.set_title(sc, fontsize=9)
         ax.set_xlabel("fetches per pixel (per frame)")
+        ax.set_xticks(budgets, [str(n) for n in budgets])
+        ax.minorticks_off()
     axes[0].set_ylabel("rel. RMS error vs reference")
     axes[0].legend(fontsize=5)
     link = ctx.figure(fig)
