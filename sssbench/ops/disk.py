@@ -58,8 +58,11 @@ Rules (our choices, documented because the sources leave them to the engine):
   ideal temporal resolve of a static scene.
 - ``adaptive=(n_min, n_max)`` (UE5's Burley pass varies the count per pixel from a variance
   estimate; our rule, within one frame): a pilot of ``n_min`` samples gives per channel the
-  relative standard error of the mean of ``f_i = w_ic E_ic``,
-  ``ε² = (mean f² − (mean f)²) / (n_min · (mean f)²)`` (samples treated as independent);
+  squared relative standard error ε² of its estimate ``m`` (samples treated as
+  independent): for ``normalise=True`` the delta-method variance of the ratio,
+  ``Σ w_i² (E_i − m)² / (Σ w_i)²`` over ``m²`` (zero on a constant irradiance whatever the
+  weights: the self-normalised estimator is exact there); for ``normalise=False`` that of
+  the mean of ``f_i = w_i E_i``, ``(mean f² − (mean f)²) / (n_min (mean f)²)``;
   a pixel needs ``n = n_min ε² / target²`` samples for a relative error ``target``
   (``ε_max`` over channels); its count is the smallest ``n_min · 2^k ≥ n``, at most
   ``n_max``, and it draws ``count − n_min`` more samples (a pattern of that size with its own
@@ -274,9 +277,10 @@ class DiskSSS(nn.Module):
         frame: int,
         stream: int,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """``Σ w E``, ``Σ w`` and ``Σ (w E)²`` per channel ``(M, 3)`` over ``n`` samples of
-        the pattern with ``kernel`` for the active pixels ``sel`` (indices into ``ctx``);
-        ``accept`` (flat, 1 / 0) says which pixels a sample may land on."""
+        """``Σ w E``, ``Σ w`` per channel ``(M, 3)`` and the second moments ``(M, 3, 3)``
+        ``[Σ (w E)², Σ w² E, Σ w²]`` over ``n`` samples of the pattern with ``kernel`` for the
+        active pixels ``sel`` (indices into ``ctx``); ``accept`` (flat, 1 / 0) says which
+        pixels a sample may land on."""
         pix, row, col = ctx.index[sel], ctx.row[sel], ctx.col[sel]
         pos_c = ctx.pos[pix]  # (M, 3)
         z_c = pos_c[:, 2]
@@ -295,7 +299,7 @@ class DiskSSS(nn.Module):
         m = pix.numel()
         num = torch.zeros(m, 3, dtype=dt)
         den = torch.zeros(m, 3, dtype=dt)
-        sq = torch.zeros(m, 3, dtype=dt)
+        mom = torch.zeros(m, 3, 3, dtype=dt)
         base = pix - pix % ctx.hw  # the image's first flat index
         for i in range(n):
             u = torch.frac(u0[i] + shift) if self.jitter_radius else u0[i].expand(m)
@@ -319,14 +323,28 @@ class DiskSSS(nn.Module):
             f = w * rgb
             num += f
             den += w
-            sq += f * f
-        return num, den, sq
+            mom += torch.stack([f * f, w * f, w * w], 2)
+        return num, den, mom
 
     def _estimate(self, num: torch.Tensor, den: torch.Tensor, n: torch.Tensor | int, centre):
         if self.normalise:
             safe = den > 0
             return torch.where(safe, num / torch.where(safe, den, 1.0), centre)
         return num / n
+
+    def _relative_error2(
+        self, num: torch.Tensor, den: torch.Tensor, mom: torch.Tensor, n: int
+    ) -> torch.Tensor:
+        """Squared relative standard error of the ``n``-sample estimate per channel (module
+        doc, adaptive rule), ``(M, 3)``."""
+        ff, wf, ww = mom.unbind(2)
+        if self.normalise:  # delta method for the ratio Σ w E / Σ w
+            m = num / torch.where(den > 0, den, 1.0)
+            var = (ff - 2 * m * wf + m * m * ww).clamp_min(0) / torch.where(den > 0, den, 1.0) ** 2
+        else:  # the mean of f = w E
+            m = num / n
+            var = (ff / n - m * m).clamp_min(0) / n
+        return torch.where(m > 0, var / (m * m).clamp_min(1e-300), 0.0)
 
     def _frame(
         self, ctx: _Pixels, kernel: _Kernel, accept: torch.Tensor, sel: torch.Tensor, frame: int
@@ -339,11 +357,8 @@ class DiskSSS(nn.Module):
             return self._estimate(num, den, self.samples, centre)
         lo, hi = self.adaptive
         with timed_pass("disk.pilot", lo, sel.numel()):
-            num, den, sq = self._gather(ctx, kernel, accept, sel, lo, frame, 0)
-        mean = num / lo
-        var = (sq / lo - mean * mean).clamp_min(0)
-        rel2 = torch.where(mean > 0, var / (lo * mean * mean).clamp_min(1e-300), 0.0)
-        need = lo * rel2.amax(1) / self.adaptive_target**2
+            num, den, mom = self._gather(ctx, kernel, accept, sel, lo, frame, 0)
+        need = lo * self._relative_error2(num, den, mom, lo).amax(1) / self.adaptive_target**2
         count = torch.full_like(need, float(lo))
         level, k = lo, 1
         while level < hi:
