@@ -29,6 +29,7 @@ ORDER = [
     "extensions",
     "benchmark",
     "stability",
+    "disk",
 ]
 
 HEADER = """# sssbench — reproduction report

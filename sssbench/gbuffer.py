@@ -46,6 +46,9 @@ class GBuffer:
             ``(B, 1, H, W)``, optional.
         light_dir: unit view-space direction *toward* the light, ``(B, 3)``, optional; used by
             translucency (back light) and by scenes.
+        profile_id: per-pixel index of the material's diffusion profile, ``(B, 1, H, W)``
+            integer (any torch integer dtype, >= 0; not cast by :meth:`to`), optional; used by
+            methods that take a list of profiles (:class:`~sssbench.ops.DiskSSS`).
 
     Fields a scene does not provide stay ``None``; operators declare which ones they need.
 
@@ -64,6 +67,7 @@ class GBuffer:
     mask: torch.Tensor | None = None
     thickness: torch.Tensor | None = None
     light_dir: torch.Tensor | None = None
+    profile_id: torch.Tensor | None = None
 
     def __post_init__(self) -> None:
         fov = check_scalar(
@@ -81,6 +85,7 @@ class GBuffer:
             if name != "diffuse":
                 self._validate_field(name)
         self._validate_field("light_dir")
+        self._validate_field("profile_id")
 
     def _validate_field(self, name: str) -> None:
         """Check one field other than ``diffuse`` / ``fov_y`` against ``diffuse`` (valid)."""
@@ -88,6 +93,19 @@ class GBuffer:
         if value is None:
             return
         b, _, h, w = self.diffuse.shape
+        if name == "profile_id":
+            if not isinstance(value, torch.Tensor):
+                raise TypeError(f"profile_id must be a torch.Tensor, got {type(value).__name__}")
+            if value.dtype.is_floating_point or value.dtype.is_complex or value.dtype == torch.bool:
+                raise TypeError(f"profile_id must have an integer dtype, got {value.dtype}")
+            if value.shape != (b, 1, *self.diffuse.shape[2:]):
+                raise ValueError(
+                    f"profile_id must have shape ({b}, 1, {h}, {w}) to match diffuse, "
+                    f"got {tuple(value.shape)}"
+                )
+            if value.numel() and int(value.min()) < 0:
+                raise ValueError(f"profile_id must be >= 0, got min {int(value.min())}")
+            return
         if name == "light_dir":
             check_tensor("light_dir", value, ndim=2)
             if value.shape != (b, 3):
@@ -144,11 +162,12 @@ class GBuffer:
         return torch.ones_like(self.depth)
 
     def to(self, dtype: torch.dtype) -> GBuffer:
-        """A copy with every tensor field cast to ``dtype``."""
+        """A copy with every floating-point tensor field cast to ``dtype`` (``profile_id``
+        keeps its integer dtype)."""
         changes = {}
         for f in fields(self):
             value = getattr(self, f.name)
-            if isinstance(value, torch.Tensor):
+            if isinstance(value, torch.Tensor) and f.name != "profile_id":
                 changes[f.name] = value.to(dtype)
         return replace(self, **changes)
 

@@ -54,11 +54,15 @@ class MethodEntry:
             identity).
         uses_profile: whether the constructor's first argument is the run's diffusion profile
             (parametric kernels — the artist model, the 2012 kernel — carry their own).
+        deterministic: the result is a deterministic function of the taps, so the error budget
+            (docs/error_budget.md) applies; stochastic estimators (the disk) split their error
+            into bias and noise instead (experiments/disk.py).
     """
 
     cls: str
     samples_arg: str | None = "samples"
     uses_profile: bool = True
+    deterministic: bool = True
 
 
 #: method name (``conf/method/<name>.yaml`` ``name:``) -> :class:`MethodEntry`
@@ -70,6 +74,7 @@ METHODS: dict[str, MethodEntry] = {
     "low_rank": MethodEntry("LowRankSSS", samples_arg="n"),
     "artist": MethodEntry("ArtistSSS", uses_profile=False),
     "jimenez2012": MethodEntry("Jimenez2012SSS", uses_profile=False),
+    "disk": MethodEntry("DiskSSS", deterministic=False),
 }
 
 

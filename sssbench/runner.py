@@ -414,7 +414,8 @@ def _budget(
 ) -> dict[str, float]:
     """The run's error budget (:func:`sssbench.budget.error_budget`, docs/error_budget.md).
 
-    Left out (empty) for the reference and the baseline, for methods without a tap count and
+    Left out (empty) for the reference and the baseline, for stochastic estimators (their
+    error is bias plus noise, not taps), for methods without a tap count and
     when a stage changes the light (the budget's flat-plane model has no stages). The method
     converged in taps and the bilinear-reconstruction reference are cached
     (:mod:`sssbench.refcache`): they do not depend on the run's tap count."""
@@ -423,6 +424,7 @@ def _budget(
 
     if (
         spec.method in ("reference", "identity")
+        or not registry.METHODS[spec.method].deterministic
         or not registry.method_takes(spec.method, "samples")
         or _reference_stages(spec)
         or spec.samples is None

@@ -10,6 +10,7 @@ from sssbench.ops.curvature import (
     curvature_width,
     screen_space_curvature,
 )
+from sssbench.ops.disk import DiskSSS, disk_sss
 from sssbench.ops.gather import (
     BACKENDS,
     FOLLOW_SURFACE,
@@ -46,6 +47,8 @@ from sssbench.ops.translucency import (
 )
 
 __all__ = [
+    "DiskSSS",
+    "disk_sss",
     "SeparableMethod",
     "separable_pass",
     "set_backend",

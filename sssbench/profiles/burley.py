@@ -19,11 +19,32 @@ import scipy.optimize
 import scipy.special
 import torch
 
-from sssbench._checks import check_range, check_scalar
+from sssbench._checks import check_choice, check_range, check_scalar
 from sssbench.profiles.base import Profile, as_r
 from sssbench.profiles.dipole import _rgb
 
-__all__ = ["BurleyNormalized"]
+__all__ = ["BurleyNormalized", "BURLEY_FITS", "burley_scaling"]
+
+#: the shape-scaling fits of Christensen & Burley 2015 (``s(A)``, ``d = ℓ / s``):
+#: ``mfp``: searchlight configuration with the volume mean free path ℓ,
+#: ``s = 1.85 − A + 7|A − 0.8|³``; ``mfp_transmission``: diffuse surface transmission with ℓ,
+#: ``s = 1.9 − A + 3.5 (A − 0.8)²``; ``dmfp``: searchlight configuration with the diffuse mean
+#: free path ℓ_d, ``s = 3.5 + 100 (A − 0.33)⁴`` (the "scattering distance" of the engines'
+#: Burley profiles, Golubev 2018)
+BURLEY_FITS = ("dmfp", "mfp", "mfp_transmission")
+
+
+def burley_scaling(albedo: torch.Tensor, kind: str = "dmfp") -> torch.Tensor:
+    """The scaling factor ``s(A)`` of fit ``kind`` (:data:`BURLEY_FITS`), same shape as
+    ``albedo`` (Christensen & Burley 2015)."""
+    check_choice("kind", kind, BURLEY_FITS)
+    a = albedo
+    if kind == "mfp":
+        return 1.85 - a + 7 * (a - 0.8).abs() ** 3
+    if kind == "mfp_transmission":
+        return 1.9 - a + 3.5 * (a - 0.8) ** 2
+    return 3.5 + 100 * (a - 0.33) ** 4
+
 
 #: r (and |x|) are clamped to ``_EPS · d`` so that R(0) and a_p(0) are finite (see class doc).
 _EPS = 1e-6
@@ -80,6 +101,30 @@ class BurleyNormalized(Profile):
         check_range("albedo", at, 0.0, 1.0)
         self.d = dt
         self.albedo = at
+
+    @classmethod
+    def from_albedo_mfp(
+        cls,
+        albedo: torch.Tensor | float | list[float],
+        mfp_mm: torch.Tensor | float | list[float],
+        kind: str = "dmfp",
+    ) -> BurleyNormalized:
+        """The profile of surface albedo ``A`` and mean free path ``ℓ`` (mm) per channel:
+        ``d = ℓ / s(A)`` with the fit ``kind`` of :func:`burley_scaling` (``"dmfp"``: ℓ is the
+        diffuse mean free path, as the engines' "scattering distance"; ``"mfp"`` /
+        ``"mfp_transmission"``: ℓ is the volume mean free path, searchlight / diffuse surface
+        transmission fit).
+
+        Example:
+            >>> p = BurleyNormalized.from_albedo_mfp(0.8, 1.05, kind="mfp")
+            >>> round(float(p.d[0]), 12)
+            1.0
+        """
+        at = _rgb("albedo", albedo)
+        lt = _rgb("mfp_mm", mfp_mm)
+        check_range("albedo", at, 0.0, 1.0)
+        check_range("mfp_mm", lt, 0.0, None, low_inclusive=False)
+        return cls(lt / burley_scaling(at, kind), at)
 
     def __repr__(self) -> str:
         return f"BurleyNormalized(d={self.d.tolist()}, albedo={self.albedo.tolist()})"

@@ -111,3 +111,48 @@ def test_second_moment_radius(p):
 def test_bad_inputs(d, albedo, arg):
     with pytest.raises((ValueError, TypeError), match=arg):
         BurleyNormalized(d, albedo)
+
+
+# --------------------------------------------------------------- albedo / mean free path
+# Christensen & Burley 2015's fits evaluated by hand at a few albedos:
+#   searchlight (mfp):       s = 1.85 − A + 7|A − 0.8|³   A=0.8: 1.05; A=0.3: 1.55 + 7·0.125
+#   transmission (mfp):      s = 1.9 − A + 3.5(A − 0.8)²  A=0.8: 1.1;  A=0.3: 1.6 + 3.5·0.25
+#   diffuse mfp (dmfp):      s = 3.5 + 100(A − 0.33)⁴     A=0.33: 3.5; A=0.83: 3.5 + 100/16
+FIT_CASES = [
+    ("mfp", 0.8, 1.05),
+    ("mfp", 0.3, 1.55 + 0.875),
+    ("mfp_transmission", 0.8, 1.1),
+    ("mfp_transmission", 0.3, 1.6 + 0.875),
+    ("dmfp", 0.33, 3.5),
+    ("dmfp", 0.83, 3.5 + 6.25),
+]
+
+
+@pytest.mark.parametrize("kind, albedo, s", FIT_CASES)
+def test_from_albedo_mfp_fits(kind, albedo, s):
+    p = BurleyNormalized.from_albedo_mfp(albedo, 2.0, kind=kind)
+    assert torch.allclose(p.d, torch.full((3,), 2.0 / s, dtype=torch.float64), rtol=1e-12)
+    assert torch.allclose(p.total(), torch.full((3,), albedo, dtype=torch.float64))
+
+
+def test_from_albedo_mfp_per_channel_and_default_dmfp():
+    # the engines' default: dmfp; each channel its own fit value
+    albedo, mfp = [0.33, 0.83, 0.33], [1.0, 2.0, 3.0]
+    p = BurleyNormalized.from_albedo_mfp(albedo, mfp)
+    expect = torch.tensor([1.0 / 3.5, 2.0 / 9.75, 3.0 / 3.5], dtype=torch.float64)
+    assert torch.allclose(p.d, expect, rtol=1e-12)
+
+
+@pytest.mark.parametrize(
+    "albedo, mfp, kind, exc",
+    [
+        (1.5, 1.0, "dmfp", ValueError),
+        (0.5, 0.0, "dmfp", ValueError),
+        (0.5, -1.0, "mfp", ValueError),
+        (0.5, 1.0, "searchlight", ValueError),
+        ("x", 1.0, "dmfp", TypeError),
+    ],
+)
+def test_from_albedo_mfp_bad_inputs(albedo, mfp, kind, exc):
+    with pytest.raises(exc):
+        BurleyNormalized.from_albedo_mfp(albedo, mfp, kind=kind)

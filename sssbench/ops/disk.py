@@ -1,0 +1,493 @@
+"""Importance-sampled 2D disk SSS: the engines' method (Unity HDRP, Unreal Engine 5's
+screen-space Burley pass, Blender EEVEE).
+
+Golubev 2018 ("Efficient screen-space subsurface scattering using Burley's normalized
+diffusion in real-time", SIGGRAPH Advances in Real-Time Rendering) replaces the papers'
+separable passes by one gather over N samples on a disk in the screen plane: radii drawn from
+the profile's radial CDF, angles on a golden-angle spiral rotated per pixel, each sample
+weighted by ``R(d) / pdf`` with ``d`` the 3D distance between the two surface points, and the
+sum divided by the sum of the weights. :class:`DiskSSS` is that estimator on a G-buffer.
+
+Per pixel ``p`` (centre view position ``x_p``, :func:`~sssbench.gbuffer.view_positions`) and
+frame ``f``, sample ``i`` of ``N``:
+
+- ``u_i`` (radial quantile) and ``θ_i`` (angle): ``pattern="fibonacci"`` (HDRP:
+  ``u_i = (i + ½)/N``, ``θ_i = i · golden angle``) or ``"r2"`` (Roberts' R2 sequence,
+  ``(u_i, v_i) = frac(½ + i (1/g, 1/g²))``, g the plastic number, ``θ_i = 2π v_i``);
+- ``θ_i += 2π φ(p, f)`` with ``φ`` from ``rotation`` (``"hash"``: a seeded integer hash of
+  pixel, seed and frame, white noise; ``"ign"``: interleaved gradient noise, Jimenez 2014,
+  the per-pixel rotation of UE's and Call of Duty's screen-space samplers; ``"blue_noise"``:
+  a tiled 64² void-and-cluster mask, Ulichney 1993, animated over frames by the golden
+  ratio, :func:`blue_noise_phase`; ``"none"``);
+- with ``jitter_radius=True`` (default) also ``u_i ← frac(u_i + ψ(p, f))`` (a
+  Cranley–Patterson shift, ψ another hash): each ``u_i`` is then uniform and the
+  ``normalise=False`` estimator is exactly unbiased; HDRP keeps ``u_i`` fixed (its frames
+  then converge to the midpoint rule in ``u``, not to the integral). Our choice, stated here.
+- ``r_i, 1/pdf_i``: the radial sampler of the widest channel (:mod:`._disk_radial`: closed
+  form for Burley, tabulated inverse CDF otherwise); the offset ``r_i (cos θ_i, sin θ_i)``
+  mm is turned into pixels at the centre's depth (:func:`~sssbench.gbuffer.pixel_size_mm`)
+  — the disk lies in the screen-parallel plane through the centre, as in HDRP without its
+  tangent-plane option (no area element on tilted surfaces);
+- fetch (``fetch="point"``, HDRP: a load at the rounded position) of irradiance ``E_i`` and
+  depth ``z_i`` from the pixel containing the sample, or ``fetch="bilinear"`` (the four
+  corners, weighted by bilinear weight × stencil, renormalised);
+- the sample's surface point: ``x_i = x_p z_i / z_p + Δ pixel_size(z_i)`` (the view ray
+  through the sample's continuous, unclamped screen position at the fetched depth), so
+  ``d_i = |x_i − x_p|`` equals ``r_i`` on a fronto-parallel plane;
+- weight per channel ``w_ic = R_c(d_i) / pdf_i / ‖R_c‖₁``.
+
+Rules (our choices, documented because the sources leave them to the engine):
+
+- **Image border**: the fetch clamps to the edge (a sampler's clamp mode; the same as the
+  separable passes and the exact reference, whose border neighbours keep the border's
+  colour and depth at their own, extended, grid position — ``d_i`` uses the unclamped
+  position).
+- **Stencil**: a sample whose pixel has ``mask == 0`` (bilinear: all four corners) is
+  rejected: weight 0 (HDRP tests each sample's SSS marker the same way).
+- **Normalisation** (``normalise=True``, HDRP): ``Σ_i w_ic E_ic / Σ_i w_ic`` per channel
+  over the accepted samples — rejected samples are renormalised away, and a bright pixel
+  cannot push energy above the kernel's mass. If no sample is accepted the pixel keeps its
+  irradiance. ``normalise=False``: the plain Monte Carlo estimate ``(1/N) Σ_i w_ic E_ic``
+  (rejected samples contribute 0), an unbiased estimate of ``∫ R(|y|) E(p + y) dA / ‖R‖₁``
+  over the stencil — on a flat plane exactly what :class:`~sssbench.ops.ReferenceSSS`
+  computes (with point fetch the sample reads its pixel's irradiance and is weighted at its
+  true position, so its expectation is the reference's per-cell integral).
+- **Strength**: as the reference, ``out = lerp(E_p, scattered, mask)`` on ``mask > 0``;
+  pixels with ``mask == 0`` are copied through.
+- ``frames=K`` averages K frames' estimates (frame f: its own rotation and radial shift), an
+  ideal temporal resolve of a static scene.
+- ``adaptive=(n_min, n_max)`` (UE5's Burley pass varies the count per pixel from a variance
+  estimate; our rule, within one frame): a pilot of ``n_min`` samples gives per channel the
+  squared relative standard error ε² of its estimate ``m`` (samples treated as
+  independent): for ``normalise=True`` the delta-method variance of the ratio,
+  ``Σ w_i² (E_i − m)² / (Σ w_i)²`` over ``m²`` (zero on a constant irradiance whatever the
+  weights: the self-normalised estimator is exact there); for ``normalise=False`` that of
+  the mean of ``f_i = w_i E_i``, ``(mean f² − (mean f)²) / (n_min (mean f)²)``;
+  a pixel needs ``n = n_min ε² / target²`` samples for a relative error ``target``
+  (``ε_max`` over channels); its count is the smallest ``n_min · 2^k ≥ n``, at most
+  ``n_max``, and it draws ``count − n_min`` more samples (a pattern of that size with its own
+  hash stream), pooled with the pilot's.
+- **Per-pixel profiles**: with a list of profiles, pixel ``p`` scatters with
+  ``profiles[profile_id[p]]`` (its own radial sampler and weights; ``gbuffer.profile_id``).
+  A sample landing on a pixel of another profile is rejected like a stencil miss
+  (``cross_profile="reject"``, default: each material integrates only its own surface, as if
+  the seam were a silhouette — the choice that keeps each side of a seam equal to its own
+  profile's result away from the seam, and the one the engines' per-profile stencils make)
+  or weighted with the centre's profile (``"accept"``: light crosses the seam with the
+  receiving material's kernel).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from sssbench._checks import check_choice, check_int, check_scalar
+from sssbench.gbuffer import GBuffer, pixel_size_mm, view_positions
+from sssbench.ops._disk_noise import blue_noise_mask
+from sssbench.ops._disk_radial import RadialSampler, radial_sampler
+from sssbench.ops._stencil import active_pixels
+from sssbench.ops.gather import _bilinear_corners
+from sssbench.ops.timing import timed_pass
+from sssbench.profiles.base import Profile
+
+__all__ = [
+    "DiskSSS",
+    "disk_sss",
+    "DISK_PATTERNS",
+    "DISK_ROTATIONS",
+    "DISK_FETCHES",
+    "DISK_CROSS_PROFILE",
+]
+
+DISK_PATTERNS = ("fibonacci", "r2")
+DISK_ROTATIONS = ("hash", "ign", "blue_noise", "none")
+DISK_FETCHES = ("point", "bilinear")
+DISK_CROSS_PROFILE = ("reject", "accept")
+
+#: golden angle π (3 − √5) (Vogel's spiral; HDRP ``SampleDiskGolden``)
+GOLDEN_ANGLE = math.pi * (3.0 - math.sqrt(5.0))
+#: the plastic number g, g³ = g + 1 (Roberts' R2 sequence)
+_PLASTIC = 1.324717957244746
+_MASK32 = 0xFFFFFFFF
+
+
+def _hash32(x: torch.Tensor) -> torch.Tensor:
+    """Wellons' ``lowbias32`` integer hash on int64 tensors holding 32-bit values."""
+    x = x & _MASK32
+    x = x ^ (x >> 16)
+    x = (x * 0x7FEB352D) & _MASK32
+    x = x ^ (x >> 15)
+    x = (x * 0x846CA68B) & _MASK32
+    return x ^ (x >> 16)
+
+
+def hash_uniform(pixel: torch.Tensor, seed: int, frame: int, stream: int) -> torch.Tensor:
+    """Uniform ``[0, 1)`` float64 per pixel index (int64), reproducible from ``(seed, frame,
+    stream)``: a chain of :func:`_hash32` (distinct streams are independent draws)."""
+    key = _hash32(torch.tensor([seed * 0x9E3779B1 + 0x632BE5AB]))
+    key = _hash32(key ^ (frame * 0x85EBCA77 + stream * 0xC2B2AE3D))
+    return _hash32(pixel ^ key).double() / 2.0**32
+
+
+def interleaved_gradient_noise(row: torch.Tensor, col: torch.Tensor, frame: int) -> torch.Tensor:
+    """Jimenez 2014 (SIGGRAPH Advances, "Next generation post processing in Call of Duty:
+    Advanced Warfare"): ``frac(52.9829189 frac(0.06711056 x + 0.00583715 y))`` at pixel
+    ``(x, y)``, shifted by ``5.588238 f`` pixels per frame (as in UE's temporal samplers)."""
+    x = col.double() + 5.588238 * frame
+    y = row.double() + 5.588238 * frame
+    return torch.frac(52.9829189 * torch.frac(0.06711056 * x + 0.00583715 * y))
+
+
+#: side of the tiled blue-noise mask (pixels)
+BLUE_NOISE_TILE = 64
+
+
+def blue_noise_phase(
+    row: torch.Tensor, col: torch.Tensor, seed: int, frame: int, stream: int
+) -> torch.Tensor:
+    """``frac((rank + ½)/T² + f (√5 − 1)/2)`` of the tiled void-and-cluster mask
+    (:mod:`._disk_noise`) at a per-``(seed, stream)`` toroidal offset: blue noise in space in
+    every frame, and the golden-ratio sequence per pixel over frames (the usual way engines
+    animate a blue-noise texture)."""
+    t = BLUE_NOISE_TILE
+    mask = torch.from_numpy(blue_noise_mask(t))
+    off = hash_uniform(torch.tensor([0, 1]), seed, 0, 1000 + stream)
+    oy, ox = int(off[0] * t), int(off[1] * t)
+    rank = mask[(row.long() + oy) % t, (col.long() + ox) % t].double()
+    return torch.frac((rank + 0.5) / t**2 + frame * (math.sqrt(5.0) - 1.0) / 2.0)
+
+
+def pattern_points(pattern: str, n: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Unrotated radial quantiles ``u`` and angles ``θ`` (radians) of ``n`` samples, float64."""
+    i = torch.arange(n, dtype=torch.float64)
+    if pattern == "fibonacci":
+        return (i + 0.5) / n, i * GOLDEN_ANGLE
+    a = torch.frac(0.5 + i / _PLASTIC)
+    b = torch.frac(0.5 + i / _PLASTIC**2)
+    return a, 2 * math.pi * b
+
+
+class DiskSSS(nn.Module):
+    """Importance-sampled disk SSS (module doc: estimator, rules and choices).
+
+    Args:
+        profile: radial diffusion profile (mm), or a list of them indexed per pixel by
+            ``gbuffer.profile_id`` (then ``needs`` includes ``profile_id``); every channel's
+            total must be > 0.
+        samples: samples per pixel per frame (N).
+        pattern: ``"fibonacci"`` (HDRP) or ``"r2"``.
+        rotation: per-pixel rotation: ``"hash"``, ``"ign"``, ``"blue_noise"`` or ``"none"``.
+        frames: number of frames averaged (K >= 1).
+        normalise: divide by the sum of weights per channel (HDRP); ``False``: plain MC.
+        jitter_radius: per-pixel Cranley–Patterson shift of the radial quantiles.
+        fetch: ``"point"`` (HDRP) or ``"bilinear"``.
+        adaptive: ``None`` or ``(n_min, n_max)`` (replaces ``samples``; see module doc).
+        adaptive_target: target relative standard error of the adaptive rule.
+        cross_profile: with a list of profiles: ``"reject"`` or ``"accept"`` samples on
+            another profile's pixels (module doc).
+        seed: seed of the rotation hash (frame f of seed s differs from frame f of s + 1).
+
+    Shape:
+        - forward(gbuffer): ``(B, 3, H, W)`` in the G-buffer's dtype.
+
+    Example:
+        >>> from sssbench.profiles import BurleyNormalized
+        >>> g = GBuffer(torch.ones(1, 3, 8, 8), torch.full((1, 1, 8, 8), 300.0), 0.4)
+        >>> out = DiskSSS(BurleyNormalized(1.0, 0.8), samples=8)(g)
+        >>> bool(torch.allclose(out, g.diffuse))
+        True
+    """
+
+    needs: tuple[str, ...] = ("mask",)
+
+    def __init__(
+        self,
+        profile: Profile | Sequence[Profile],
+        samples: int = 32,
+        pattern: str = "fibonacci",
+        rotation: str = "hash",
+        frames: int = 1,
+        normalise: bool = True,
+        jitter_radius: bool = True,
+        fetch: str = "point",
+        adaptive: Sequence[int] | None = None,
+        adaptive_target: float = 0.05,
+        cross_profile: str = "reject",
+        seed: int = 0,
+    ) -> None:
+        super().__init__()
+        profiles = [profile] if isinstance(profile, Profile) else profile
+        if not isinstance(profiles, Sequence) or not profiles:
+            raise TypeError(
+                f"profile must be a sssbench Profile or a non-empty list of them, got "
+                f"{type(profile).__name__}"
+            )
+        self.kernels = [_Kernel.of(f"profile[{k}]", p) for k, p in enumerate(profiles)]
+        self.profile = profile
+        self.per_pixel = not isinstance(profile, Profile)
+        if self.per_pixel:
+            self.needs = ("mask", "profile_id")
+        self.cross_profile = check_choice("cross_profile", cross_profile, DISK_CROSS_PROFILE)
+        self.samples = check_int("samples", samples, 1)
+        self.pattern = check_choice("pattern", pattern, DISK_PATTERNS)
+        self.rotation = check_choice("rotation", rotation, DISK_ROTATIONS)
+        self.frames = check_int("frames", frames, 1)
+        if not isinstance(normalise, bool):
+            raise TypeError(f"normalise must be a bool, got {type(normalise).__name__}")
+        if not isinstance(jitter_radius, bool):
+            raise TypeError(f"jitter_radius must be a bool, got {type(jitter_radius).__name__}")
+        self.normalise = normalise
+        self.jitter_radius = jitter_radius
+        self.fetch = check_choice("fetch", fetch, DISK_FETCHES)
+        if adaptive is not None:
+            if not isinstance(adaptive, Sequence) or len(adaptive) != 2:
+                raise ValueError(f"adaptive must be None or (n_min, n_max), got {adaptive!r}")
+            lo = check_int("adaptive[0]", adaptive[0], 1)
+            hi = check_int("adaptive[1]", adaptive[1], lo)
+            adaptive = (lo, hi)
+        self.adaptive = adaptive
+        self.adaptive_target = check_scalar(
+            "adaptive_target", adaptive_target, 0.0, low_inclusive=False
+        )
+        self.seed = check_int("seed", seed, 0)
+        #: per active pixel, the sample count of the last call's last frame (adaptive only;
+        #: a diagnostic, overwritten by every call)
+        self.last_counts: torch.Tensor | None = None
+
+    def __repr__(self) -> str:
+        return (
+            f"DiskSSS({self.profile!r}, samples={self.samples}, pattern={self.pattern!r}, "
+            f"rotation={self.rotation!r}, frames={self.frames}, normalise={self.normalise}, "
+            f"adaptive={self.adaptive})"
+        )
+
+    # ------------------------------------------------------------------ one batch of samples
+    def _gather(
+        self,
+        ctx: _Pixels,
+        kernel: _Kernel,
+        accept: torch.Tensor,
+        sel: torch.Tensor,
+        n: int,
+        frame: int,
+        stream: int,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """``Σ w E``, ``Σ w`` per channel ``(M, 3)`` and the second moments ``(M, 3, 3)``
+        ``[Σ (w E)², Σ w² E, Σ w²]`` over ``n`` samples of the pattern with ``kernel`` for the
+        active pixels ``sel`` (indices into ``ctx``); ``accept`` (flat, 1 / 0) says which
+        pixels a sample may land on."""
+        pix, row, col = ctx.index[sel], ctx.row[sel], ctx.col[sel]
+        pos_c = ctx.pos[pix]  # (M, 3)
+        z_c = pos_c[:, 2]
+        step = 1.0 / pixel_size_mm(z_c, ctx.fov_y, ctx.h)  # pixels per mm at the centre
+        if self.rotation == "hash":
+            phase = hash_uniform(pix, self.seed, frame, 2 * stream)
+        elif self.rotation == "ign":
+            phase = interleaved_gradient_noise(row, col, frame + 7919 * self.seed + 31 * stream)
+        elif self.rotation == "blue_noise":
+            phase = blue_noise_phase(row, col, self.seed, frame, stream)
+        else:
+            phase = torch.zeros(pix.shape, dtype=torch.float64)
+        shift = hash_uniform(pix, self.seed, frame, 2 * stream + 1) if self.jitter_radius else 0.0
+        u0, theta0 = pattern_points(self.pattern, n)
+        dt = ctx.dtype
+        m = pix.numel()
+        num = torch.zeros(m, 3, dtype=dt)
+        den = torch.zeros(m, 3, dtype=dt)
+        mom = torch.zeros(m, 3, 3, dtype=dt)
+        base = pix - pix % ctx.hw  # the image's first flat index
+        for i in range(n):
+            u = torch.frac(u0[i] + shift) if self.jitter_radius else u0[i].expand(m)
+            r, inv_pdf = kernel.sampler.sample(u)
+            theta = theta0[i] + 2 * math.pi * phase
+            dcol = (r * torch.cos(theta)).to(dt) * step
+            drow = -(r * torch.sin(theta)).to(dt) * step  # screen y is up, rows go down
+            rgb, z_s, ok = ctx.fetch(base, row + drow, col + dcol, self.fetch, accept)
+            lateral = pixel_size_mm(z_s, ctx.fov_y, ctx.h)
+            p_s = torch.stack(
+                [
+                    pos_c[:, 0] * z_s / z_c + dcol * lateral,
+                    pos_c[:, 1] * z_s / z_c - drow * lateral,
+                    z_s,
+                ],
+                1,
+            )
+            dist = (p_s - pos_c).norm(dim=1)
+            w = kernel.profile.evaluate(dist.double()) * inv_pdf[:, None] / kernel.total
+            w = w.to(dt) * ok[:, None]
+            f = w * rgb
+            num += f
+            den += w
+            mom += torch.stack([f * f, w * f, w * w], 2)
+        return num, den, mom
+
+    def _estimate(self, num: torch.Tensor, den: torch.Tensor, n: torch.Tensor | int, centre):
+        if self.normalise:
+            safe = den > 0
+            return torch.where(safe, num / torch.where(safe, den, 1.0), centre)
+        return num / n
+
+    def _relative_error2(
+        self, num: torch.Tensor, den: torch.Tensor, mom: torch.Tensor, n: int
+    ) -> torch.Tensor:
+        """Squared relative standard error of the ``n``-sample estimate per channel (module
+        doc, adaptive rule), ``(M, 3)``."""
+        ff, wf, ww = mom.unbind(2)
+        if self.normalise:  # delta method for the ratio Σ w E / Σ w
+            m = num / torch.where(den > 0, den, 1.0)
+            var = (ff - 2 * m * wf + m * m * ww).clamp_min(0) / torch.where(den > 0, den, 1.0) ** 2
+        else:  # the mean of f = w E
+            m = num / n
+            var = (ff / n - m * m).clamp_min(0) / n
+        return torch.where(m > 0, var / (m * m).clamp_min(1e-300), 0.0)
+
+    def _frame(
+        self, ctx: _Pixels, kernel: _Kernel, accept: torch.Tensor, sel: torch.Tensor, frame: int
+    ) -> torch.Tensor:
+        """One frame's scattered irradiance ``(M, 3)`` at the active pixels ``sel``."""
+        centre = ctx.rgb[ctx.index[sel]]
+        if self.adaptive is None:
+            with timed_pass("disk", self.samples, sel.numel()):
+                num, den, _ = self._gather(ctx, kernel, accept, sel, self.samples, frame, 0)
+            return self._estimate(num, den, self.samples, centre)
+        lo, hi = self.adaptive
+        with timed_pass("disk.pilot", lo, sel.numel()):
+            num, den, mom = self._gather(ctx, kernel, accept, sel, lo, frame, 0)
+        need = lo * self._relative_error2(num, den, mom, lo).amax(1) / self.adaptive_target**2
+        count = torch.full_like(need, float(lo))
+        level, k = lo, 1
+        while level < hi:
+            level = min(lo * 2**k, hi)
+            count = torch.where(need > count, float(level), count)
+            k += 1
+        count_i = count.long()
+        for level in sorted(set(count_i.tolist()) - {lo}):
+            part = torch.nonzero(count_i == level).squeeze(1)
+            with timed_pass(f"disk.adaptive{level}", level - lo, part.numel()):
+                n2, d2, _ = self._gather(ctx, kernel, accept, sel[part], level - lo, frame, level)
+            num[part] += n2
+            den[part] += d2
+        self.last_counts[sel] = count_i
+        return self._estimate(num, den, count.to(num.dtype)[:, None], centre)
+
+    def _groups(self, g: GBuffer, ctx: _Pixels):
+        """``(kernel, accept, sel)`` per profile: its kernel, the pixels its samples may land
+        on (flat 1 / 0) and its active pixels (indices into ``ctx``)."""
+        if not self.per_pixel:
+            return [(self.kernels[0], ctx.on, torch.arange(ctx.index.numel()))]
+        if g.profile_id is None:
+            raise ValueError("DiskSSS with a list of profiles needs gbuffer.profile_id")
+        ids = g.profile_id.reshape(-1)
+        if int(ids.max()) >= len(self.kernels):
+            raise ValueError(
+                f"profile_id must index the {len(self.kernels)} profiles, got max {int(ids.max())}"
+            )
+        centre_ids = ids[ctx.index]
+        groups = []
+        for k, kernel in enumerate(self.kernels):
+            sel = torch.nonzero(centre_ids == k).squeeze(1)
+            if sel.numel():
+                same = ctx.on * (ids == k).to(ctx.on.dtype)
+                groups.append((kernel, same if self.cross_profile == "reject" else ctx.on, sel))
+        return groups
+
+    def forward(self, gbuffer: GBuffer, *, inplace: bool = False) -> torch.Tensor:
+        """Scattered diffuse ``(B, 3, H, W)`` (``inplace``: written into ``gbuffer.diffuse``)."""
+        if not isinstance(gbuffer, GBuffer):
+            raise TypeError(f"gbuffer must be a GBuffer, got {type(gbuffer).__name__}")
+        ctx = _Pixels(gbuffer)
+        m = ctx.index.numel()
+        acc = torch.zeros(m, 3, dtype=gbuffer.dtype)
+        self.last_counts = None if self.adaptive is None else torch.zeros(m, dtype=torch.long)
+        for kernel, accept, sel in self._groups(gbuffer, ctx):
+            for frame in range(self.frames):
+                acc[sel] += self._frame(ctx, kernel, accept, sel, frame)
+        scattered = acc / self.frames
+        centre = ctx.rgb[ctx.index]
+        strength = ctx.mask[ctx.index][:, None]
+        value = centre + strength * (scattered - centre)
+        b, h, w = gbuffer.shape
+        flat = ctx.rgb.index_copy(0, ctx.index, value.to(ctx.rgb.dtype))
+        out = flat.reshape(b, h, w, 3).permute(0, 3, 1, 2).contiguous()
+        if inplace:
+            return gbuffer.diffuse.copy_(out)
+        return out
+
+
+@dataclass(frozen=True)
+class _Kernel:
+    """One profile as the estimator uses it: the profile, its radial sampler and totals."""
+
+    profile: Profile
+    sampler: RadialSampler
+    total: torch.Tensor
+
+    @classmethod
+    def of(cls, name: str, profile: Profile) -> _Kernel:
+        if not isinstance(profile, Profile):
+            raise TypeError(f"{name} must be a sssbench Profile, got {type(profile).__name__}")
+        total = profile.total()
+        if bool((total <= 0).any()):
+            raise ValueError(f"{name} total must be > 0 in every channel, got {total.tolist()}")
+        return cls(profile, radial_sampler(profile), total)
+
+
+class _Pixels:
+    """Channels-last flat views of one G-buffer and its active pixels (for :class:`DiskSSS`)."""
+
+    def __init__(self, g: GBuffer) -> None:
+        b, h, w = g.shape
+        self.h, self.w, self.hw, self.fov_y, self.dtype = h, w, h * w, g.fov_y, g.dtype
+        mask = g.mask_or_ones()
+        self.rgb = g.diffuse.permute(0, 2, 3, 1).reshape(b * h * w, 3)
+        self.mask = mask.reshape(-1)
+        self.on = (self.mask > 0).to(g.dtype)
+        self.pos = view_positions(g.depth, g.fov_y).permute(0, 2, 3, 1).reshape(b * h * w, 3)
+        self.depth = self.pos[:, 2]
+        index = active_pixels(g.mask, b * h * w)
+        self.index = torch.arange(b * h * w) if index is None else index
+        rem = self.index % self.hw
+        self.row = (rem // w).to(g.dtype)
+        self.col = (rem % w).to(g.dtype)
+
+    def fetch(
+        self,
+        base: torch.Tensor,
+        row: torch.Tensor,
+        col: torch.Tensor,
+        mode: str,
+        accept: torch.Tensor,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Irradiance ``(M, 3)``, depth ``(M,)`` and acceptance (1 / 0, from the flat
+        ``accept``) at fractional ``(row, col)`` in the images starting at flat index
+        ``base``, clamped to the edge."""
+        if mode == "point":
+            ri = torch.floor(row + 0.5).clamp(0, self.h - 1).long()
+            ci = torch.floor(col + 0.5).clamp(0, self.w - 1).long()
+            j = base + ri * self.w + ci
+            return self.rgb[j], self.depth[j], accept[j]
+        idx, wts = _bilinear_corners(row, col, self.h, self.w)  # the gather's rotated taps
+        rgb = torch.zeros(row.shape[0], 3, dtype=self.dtype)
+        z = torch.zeros_like(row)
+        total = torch.zeros_like(row)
+        for i, wt in zip(idx, wts, strict=True):
+            j = base + i
+            wt = wt * accept[j]
+            rgb += wt[:, None] * self.rgb[j]
+            z += wt * self.depth[j]
+            total += wt
+        ok = (total > 0).to(self.dtype)
+        safe = torch.where(total > 0, total, 1.0)
+        # all corners off the stencil: the sample is rejected; its depth is the nearest corner's
+        z = torch.where(total > 0, z / safe, self.depth[base + idx[0]])
+        return rgb / safe[:, None], z, ok
+
+
+def disk_sss(gbuffer: GBuffer, profile: Profile, samples: int = 32, **options) -> torch.Tensor:
+    """Functional twin of :class:`DiskSSS`: ``DiskSSS(profile, samples, **options)(gbuffer)``."""
+    return DiskSSS(profile, samples, **options)(gbuffer)
