@@ -15,9 +15,9 @@ from sssbench.ops.gather import (
     FOLLOW_SURFACE,
     Rotation,
     Stretch,
+    backend,
     get_backend,
     separable_pass,
-    set_backend,
 )
 from sssbench.ops.halo import HALO_KINDS, halo_guide, halo_weight, lab_guide, range_weight
 from sssbench.ops.jimenez2012 import Jimenez2012SSS, jimenez2012_sss
@@ -47,7 +47,7 @@ from sssbench.ops.translucency import (
 __all__ = [
     "SeparableMethod",
     "separable_pass",
-    "set_backend",
+    "backend",
     "get_backend",
     "BACKENDS",
     "native",
