@@ -53,7 +53,7 @@ from sssbench._checks import check_choice, check_scalar, check_tensor
 from sssbench._memo import memo_scope
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.kernel1d import Kernel1D
-from sssbench.ops import _gather_native, native
+from sssbench.ops import native
 from sssbench.ops._gather_torch import SampleWeight, compiled_accumulate, gather_torch
 from sssbench.ops._stencil import image_spans, image_stencils
 from sssbench.ops.timing import PassRecord, add_record
@@ -170,9 +170,7 @@ def _byte_range(t: torch.Tensor) -> tuple[int, int] | None:
     return base + lo * item, base + (hi + 1) * item
 
 
-def check_writable(
-    name: str, target: torch.Tensor, others: dict[str, torch.Tensor | None]
-) -> None:
+def check_writable(name: str, target: torch.Tensor, others: dict[str, torch.Tensor | None]) -> None:
     """Raise ``ValueError`` unless ``target`` can be overwritten in place while ``others`` are
     read: it must be writable here (not an inference tensor outside ``torch.inference_mode``,
     which torch refuses to write), have no two elements at one address (an ``expand``ed,
@@ -290,21 +288,24 @@ def _check_pass_inputs(
 
 
 def _taps(kernel: Kernel1D, dtype: torch.dtype) -> tuple[torch.Tensor, torch.Tensor]:
-    """The kernel's offsets ``(K,)`` and weights ``(K, 3)`` in ``dtype``, finite there."""
-    offsets, weights = kernel.offsets.to(dtype), kernel.weights.to(dtype)
-    for label, t in (("kernel.offsets", offsets), ("kernel.weights", weights)):
-        if not bool(torch.isfinite(t).all()):
-            raise ValueError(
-                f"{label} overflow {dtype} (largest |value| "
-                f"{float(getattr(kernel, label.split('.')[1]).abs().max()):g}); "
-                "use float64 or a narrower kernel"
-            )
+    """The kernel's offsets ``(K,)`` (mm per width unit) and weights ``(K, 3)`` in ``dtype``.
+
+    Offsets beyond the dtype's range (a float64 kernel of variance 1e600 mm² in a float32
+    pass) are clamped to its largest finite value: such a tap lands beyond the border either
+    way, and an infinite offset would give ``inf · 0`` = NaN at a pixel of zero width. Weights
+    must be finite in ``dtype`` (``ValueError`` naming ``kernel.weights``)."""
+    big = torch.finfo(dtype).max
+    offsets = kernel.offsets.to(torch.float64).clamp(-big, big).to(dtype)
+    weights = kernel.weights.to(dtype)
+    if not bool(torch.isfinite(weights).all()):
+        raise ValueError(
+            f"kernel.weights overflow {dtype} (largest |weight| "
+            f"{float(kernel.weights.abs().max()):g}): use float64 or normalise the kernel"
+        )
     return offsets, weights
 
 
-def _inverse_scale(
-    surface_scale: float | torch.Tensor | None, dtype: torch.dtype
-) -> torch.Tensor:
+def _inverse_scale(surface_scale: float | torch.Tensor | None, dtype: torch.dtype) -> torch.Tensor:
     """``(3,)`` 1 / surface_scale in 1/mm (0: unused), computed in float64 and clamped to the
     dtype's largest finite value (a surface_scale of 1e-40 mm must not give ``0 · inf``)."""
     if surface_scale is None:

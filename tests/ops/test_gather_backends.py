@@ -110,8 +110,9 @@ def test_native_handles_non_contiguous_inputs():
     torch.testing.assert_close(got, ref, **tol(torch.float64))
 
 
-def test_native_is_bypassed_when_a_gradient_is_needed():
-    """The native loop has no backward: with autograd the torch loop runs (and is checked)."""
+def test_native_pass_is_differentiable():
+    """With autograd the native operator runs too; its backward (the torch loop's VJP) is
+    checked against finite differences of the native forward (more in test_gather_op.py)."""
     g = scene(h=6, w=7)
     image = g.diffuse.clone().requires_grad_(True)
     k = kernel(5)
