@@ -53,8 +53,10 @@ from sssbench._checks import check_choice, check_scalar, check_tensor
 from sssbench._memo import memo_scope
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.kernel1d import Kernel1D
-from sssbench.ops import _gather_native  # noqa: F401 - registers torch.ops.sssbench.*
-from sssbench.ops import native
+from sssbench.ops import (
+    _gather_native,  # noqa: F401 - registers torch.ops.sssbench.*
+    native,
+)
 from sssbench.ops._gather_torch import SampleWeight, compiled_accumulate, gather_torch
 from sssbench.ops._stencil import image_spans, image_stencils
 from sssbench.ops.timing import PassRecord, add_record
