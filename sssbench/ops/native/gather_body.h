@@ -1,9 +1,9 @@
 /* The tap loop of sssbench.ops.gather for one scalar type (included twice by gather.c).
  *
- * Mirrors sssbench.ops.gather._accumulate operation by operation (same order of float
- * operations, so results agree with the torch loop to rounding); see that function and
- * separable_pass for the formulas and their citations. Expects SCALAR, SUFFIX, EXPF, FABSF,
- * VMIN and VMAX.
+ * Mirrors sssbench.ops._gather_torch (pixel_scales, _accumulate) operation by operation
+ * (same float operations in the same order: bitwise equal results but for exp, see
+ * BACKEND_AGREEMENT in sssbench/ops/gather.py); see those functions for the formulas and
+ * their citations. Expects SCALAR, SCALAR_MAX, SUFFIX, EXPF, FABSF, VMIN and VMAX.
  *
  * Work is done per line: a row of the image for an x pass, a strip of columns for a y pass (a
  * y tap stays in its column). For each line the active pixels' scales are computed
