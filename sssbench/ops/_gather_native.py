@@ -21,7 +21,7 @@ Without the C library (no compiler, failed load) the operators run the torch loo
 everywhere; :mod:`sssbench.ops.gather` decides which backend a pass uses.
 """
 
-from typing import Optional  # noqa: UP035 - custom_op reads the annotations at runtime
+from __future__ import annotations
 
 import torch
 
@@ -34,31 +34,26 @@ __all__ = ["gather", "gather_", "blend_", "native_pass"]
 Tensor = torch.Tensor
 
 
-def native_pass(
-    lib: object,
-    image: Tensor,
-    out: Tensor,
-    depth: Tensor,
-    strength: Optional[Tensor],  # noqa: UP045
-    width: Optional[Tensor],  # noqa: UP045
-    ddepth: Optional[Tensor],  # noqa: UP045
-    offsets: Tensor,
-    weights: Tensor,
-    inv_scale: Tensor,
-    f_px: float,
-    width_scalar: float,
-    correction: float,
-    maxdd: float,
-    axis_y: bool,
-    follow: int,
-    copy: bool,
-) -> int:
+#: the schema's arguments after ``image``, in :func:`~sssbench.ops._gather_torch.gather_torch`'s
+#: order (see there for shapes and units)
+_PASS_ARGS = (
+    "Tensor depth, Tensor? strength, Tensor? width, Tensor? ddepth, Tensor offsets, "
+    "Tensor weights, Tensor inv_scale, float f_px, float width_scalar, float correction, "
+    "float maxdd, bool axis_y, int follow"
+)
+_N_TENSORS = 8  # image and the seven tensors above: what the backward differentiates
+
+
+def native_pass(lib: object, image: Tensor, out: Tensor, args: tuple, copy: bool) -> int:
     """One pass over a batch through the C loop (``native/gather_body.h``); the active pixel
-    count. Arguments as :func:`~sssbench.ops._gather_torch.gather_torch`; ``out`` ``(B, 3, H,
-    W)`` contiguous may be ``image`` (the loop reads every sample of a row (x) or column strip
-    (y) into its own buffer before it writes any result there); ``copy``: ``out`` is
-    uninitialised and gets ``image``'s pixels everywhere else (copied line by line as the loop
-    goes, no separate full-image pass). Threads: ``torch.get_num_threads()``."""
+    count. ``args``: the arguments after ``image`` of
+    :func:`~sssbench.ops._gather_torch.gather_torch`; ``out`` ``(B, 3, H, W)`` contiguous may
+    be ``image`` (the loop reads every sample of a row (x) or column strip (y) into its own
+    buffer before it writes any result there); ``copy``: ``out`` is uninitialised and gets
+    ``image``'s pixels everywhere else (copied line by line as the loop goes, no separate
+    full-image pass). Threads: ``torch.get_num_threads()``."""
+    depth, strength, width, ddepth, offsets, weights, inv_scale, *scalars = args
+    f_px, width_scalar, correction, maxdd, axis_y, follow = scalars
     b, _, h, w = image.shape
     dtype = image.dtype
     keep = []  # contiguous copies must outlive the call
@@ -72,6 +67,9 @@ def native_pass(
         keep.append(t)
         return t.data_ptr()
 
+    def at(t: Tensor | None, bi: int) -> int | None:
+        return ptr(None if t is None else t[bi])
+
     fn = lib.sss_gather_f32 if dtype == torch.float32 else lib.sss_gather_f64
     n_total = 0
     threads = torch.get_num_threads()
@@ -79,11 +77,8 @@ def native_pass(
         if not (copy or spans.shape[0]):
             continue
         status = fn(
-            ptr(image[bi]), ptr(depth[bi]), ptr(spans),
-            ptr(None if strength is None else strength[bi]),
-            ptr(None if width is None else width[bi]),
-            ptr(None if ddepth is None else ddepth[bi]),
-            ptr(offsets), ptr(weights), ptr(inv_scale), out[bi].data_ptr(),
+            at(image, bi), at(depth, bi), ptr(spans), at(strength, bi), at(width, bi),
+            at(ddepth, bi), ptr(offsets), ptr(weights), ptr(inv_scale), out[bi].data_ptr(),
             f_px, width_scalar, correction, maxdd, spans.shape[0], offsets.numel(), h, w,
             int(axis_y), follow, int(copy), threads,
         )  # fmt: skip
@@ -93,57 +88,63 @@ def native_pass(
     return n_total
 
 
-@torch.library.custom_op("sssbench::gather", mutates_args=(), device_types="cpu")
-def gather(
-    image: Tensor,
-    depth: Tensor,
-    strength: Optional[Tensor],  # noqa: UP045
-    width: Optional[Tensor],  # noqa: UP045
-    ddepth: Optional[Tensor],  # noqa: UP045
-    offsets: Tensor,
-    weights: Tensor,
-    inv_scale: Tensor,
-    f_px: float,
-    width_scalar: float,
-    correction: float,
-    maxdd: float,
-    axis_y: bool,
-    follow: int,
-) -> Tensor:
-    """One gather pass over a batch, a new ``(B, 3, H, W)`` contiguous tensor: the active
-    pixels blurred, the others ``image``'s. Arguments as
+def _gather(image: Tensor, *args) -> Tensor:
+    """``torch.ops.sssbench.gather``: one gather pass over a batch, a new ``(B, 3, H, W)``
+    contiguous tensor, the active pixels blurred and the others ``image``'s. Arguments as
     :func:`~sssbench.ops._gather_torch.gather_torch` (validated by
-    :func:`~sssbench.ops.gather.separable_pass`, which is the public entry)."""
-    args = (depth, strength, width, ddepth, offsets, weights, inv_scale, f_px, width_scalar,
-            correction, maxdd, axis_y, follow)  # fmt: skip
+    :func:`~sssbench.ops.gather.separable_pass`, the public entry)."""
     lib = native.library()
     if lib is None:
         with torch.no_grad():
             return gather_torch(image, *args)[0]
     out = torch.empty(image.shape, dtype=image.dtype, device=image.device)
-    native_pass(lib, image, out, *args, copy=True)
+    native_pass(lib, image, out, args, copy=True)
     return out
 
 
+def _gather_inplace(image: Tensor, *args) -> None:
+    """``torch.ops.sssbench.gather_``: :func:`_gather` written into ``image`` (contiguous,
+    overlapping no other argument: :func:`~sssbench.ops.gather.check_writable`); only the
+    active pixels are touched. Bumps ``image``'s version counter (``mutates_args``). No
+    autograd: not for a tensor autograd records."""
+    lib = native.library()
+    if lib is None:
+        with torch.no_grad():
+            gather_torch(image, *args, out=image)
+        return
+    native_pass(lib, image, image, args, copy=False)
+
+
+gather = torch.library.custom_op(
+    "sssbench::gather", _gather, mutates_args=(), device_types="cpu",
+    schema=f"(Tensor image, {_PASS_ARGS}) -> Tensor",
+)  # fmt: skip
+gather_ = torch.library.custom_op(
+    "sssbench::gather_", _gather_inplace, mutates_args=("image",), device_types="cpu",
+    schema=f"(Tensor(a!) image, {_PASS_ARGS}) -> ()",
+)  # fmt: skip
+
+
 @gather.register_fake
-def _(image, depth, strength, width, ddepth, offsets, weights, inv_scale, *scalars):
+def _(image, *args):
     return torch.empty(image.shape, dtype=image.dtype, device=image.device)
 
 
-_DIFFERENTIABLE = ("image", "depth", "strength", "width", "ddepth", "offsets", "weights",
-                   "inv_scale")  # fmt: skip
+@gather_.register_fake
+def _(image, *args) -> None:
+    return None
 
 
 def _setup_context(ctx, inputs, output) -> None:
-    ctx.save_for_backward(*inputs[:8])
-    ctx.scalars = inputs[8:]
+    ctx.save_for_backward(*inputs[:_N_TENSORS])
+    ctx.scalars = inputs[_N_TENSORS:]
 
 
 def _backward(ctx, grad_out: Tensor):
     """The vector-Jacobian product of the torch loop at the saved inputs (see the module
     docstring): gradients for the eight tensor inputs, ``None`` for the scalars."""
     saved = ctx.saved_tensors
-    needs = ctx.needs_input_grad[:8]
+    needs = ctx.needs_input_grad[:_N_TENSORS]
     with torch.enable_grad():
         leaves = [
             None if t is None else t.detach().requires_grad_(bool(n) and t.is_floating_point())
@@ -159,49 +160,14 @@ def _backward(ctx, grad_out: Tensor):
 gather.register_autograd(_backward, setup_context=_setup_context)
 
 
-@torch.library.custom_op("sssbench::gather_", mutates_args=("image",), device_types="cpu")
-def gather_(
-    image: Tensor,
-    depth: Tensor,
-    strength: Optional[Tensor],  # noqa: UP045
-    width: Optional[Tensor],  # noqa: UP045
-    ddepth: Optional[Tensor],  # noqa: UP045
-    offsets: Tensor,
-    weights: Tensor,
-    inv_scale: Tensor,
-    f_px: float,
-    width_scalar: float,
-    correction: float,
-    maxdd: float,
-    axis_y: bool,
-    follow: int,
-) -> None:
-    """:func:`gather` written into ``image`` (contiguous, overlapping no other argument: see
-    :func:`~sssbench.ops.gather.check_writable`); only the active pixels are touched. Bumps
-    ``image``'s version counter (``mutates_args``). No autograd: not for a tensor autograd
-    records."""
-    args = (depth, strength, width, ddepth, offsets, weights, inv_scale, f_px, width_scalar,
-            correction, maxdd, axis_y, follow)  # fmt: skip
-    lib = native.library()
-    if lib is None:
-        with torch.no_grad():
-            gather_torch(image, *args, out=image)
-        return
-    native_pass(lib, image, image, *args, copy=False)
+def _blend(out: Tensor, end: Tensor, weight: Tensor, mask: Tensor | None) -> None:
+    """``torch.ops.sssbench.blend_``: ``out ← lerp(out, end, weight)`` at the pixels with
+    ``mask > 0`` (all without a mask), in place (bumps ``out``'s version): the
+    sum-of-Gaussians blend (003 §7.3.3, Listing 7.2) in C, torch.lerp's formula with a
+    separate multiply and add (torch fuses them: the two agree to a rounding).
 
-
-@gather_.register_fake
-def _(image, *args) -> None:
-    return None
-
-
-@torch.library.custom_op("sssbench::blend_", mutates_args=("out",), device_types="cpu")
-def blend_(out: Tensor, end: Tensor, weight: Tensor, mask: Optional[Tensor]) -> None:  # noqa: UP045
-    """``out ← lerp(out, end, weight)`` at the pixels with ``mask > 0`` (all without a mask),
-    in place (bumps ``out``'s version): the sum-of-Gaussians blend (003 §7.3.3, Listing 7.2)
-    in C, torch.lerp's formula with a separate multiply and add (torch fuses them: the two
-    agree to a rounding). ``out``, ``end`` ``(B, 3, H, W)`` (``out`` contiguous), ``weight``
-    ``(3,)`` of their dtype, ``mask`` ``(B, 1, H, W)`` or ``None``. Needs the C library."""
+    ``out``, ``end``: ``(B, 3, H, W)`` (``out`` contiguous); ``weight``: ``(3,)`` of their
+    dtype; ``mask``: ``(B, 1, H, W)`` or ``None``. Needs the C library."""
     lib = native.library()
     b, _, h, w = out.shape
     fn = lib.sss_blend_f32 if out.dtype == torch.float32 else lib.sss_blend_f64
@@ -211,6 +177,12 @@ def blend_(out: Tensor, end: Tensor, weight: Tensor, mask: Optional[Tensor]) -> 
         if spans.shape[0]:
             fn(out[bi].data_ptr(), end[bi].data_ptr(), spans.data_ptr(), weight.data_ptr(),
                spans.shape[0], h, w, torch.get_num_threads())  # fmt: skip
+
+
+blend_ = torch.library.custom_op(
+    "sssbench::blend_", _blend, mutates_args=("out",), device_types="cpu",
+    schema="(Tensor(a!) out, Tensor end, Tensor weight, Tensor? mask) -> ()",
+)  # fmt: skip
 
 
 @blend_.register_fake
