@@ -16,6 +16,7 @@ refuses to alias with the G-buffer (:func:`sssbench.ops.gather.check_writable`).
 
 from __future__ import annotations
 
+import threading
 import weakref
 from collections import OrderedDict
 from collections.abc import Callable, Hashable, Iterator
@@ -35,6 +36,8 @@ _MEMO_SIZE = 64
 _MEMO_BYTES = 256 * 2**20
 #: the latest snapshot per tensor (by :func:`_meta`), shared by the entries keyed on it
 _SNAPS: weakref.WeakValueDictionary[tuple, torch.Tensor] = weakref.WeakValueDictionary()
+
+_LOCK = threading.Lock()  # guards _MEMO's order and size
 
 T = TypeVar("T")
 
@@ -156,14 +159,18 @@ def memoised(
     key = (tag, *(_meta(t) for t in tensors))
     hit = _MEMO.get(key)
     if hit is not None and all(_matches(s, t, scope) for s, t in zip(hit[0], tensors, strict=True)):
-        _MEMO.move_to_end(key)
+        with _LOCK:
+            if key in _MEMO:
+                _MEMO.move_to_end(key)
         value = hit[1]
     else:
         value = compute()
-        _MEMO[key] = (tuple(_snapshot(t, scope) for t in tensors), value)
-        _MEMO.move_to_end(key)
-        while len(_MEMO) > _MEMO_SIZE or (len(_MEMO) > 1 and _snapshot_bytes() > _MEMO_BYTES):
-            _MEMO.popitem(last=False)
+        snaps = tuple(_snapshot(t, scope) for t in tensors)
+        with _LOCK:  # other Python threads may look up and evict meanwhile
+            _MEMO[key] = (snaps, value)
+            _MEMO.move_to_end(key)
+            while len(_MEMO) > _MEMO_SIZE or (len(_MEMO) > 1 and _snapshot_bytes() > _MEMO_BYTES):
+                _MEMO.popitem(last=False)
     if scope is not None:
         scope[ident] = (tensors, value)  # keeps the tensors alive: their ids stay theirs
     return value  # type: ignore[return-value]
