@@ -9,7 +9,9 @@ any torch kernel:
   as a torch in-place op does, so autograd raises on a saved tensor the pass overwrote instead
   of computing a wrong gradient;
 - ``register_fake`` gives the output's shape, so ``torch.compile(fullgraph=True)`` traces a
-  module that calls the op without a graph break;
+  module that calls the op without a graph break (``separable_pass`` itself validates its
+  inputs with data-dependent checks, e.g. ``width >= 0``, which break a graph: a compiled
+  module calls the operator with validated inputs);
 - ``register_autograd`` gives ``gather`` a backward: the vector-Jacobian product of the torch
   loop (:func:`~sssbench.ops._gather_torch.gather_torch`), recomputed inside backward from the
   saved inputs and differentiated by autograd (the loop is a gather, its adjoint a scatter-add
