@@ -4,7 +4,8 @@ Layers (DESIGN §1): ``profiles -> kernels -> ops -> pipeline -> app -> tracking
 """
 
 from sssbench.gbuffer import GBuffer, pixel_size_mm, view_positions
+from sssbench.ops.gather import backend, get_backend
 
 __version__ = "0.1.0"
 
-__all__ = ["GBuffer", "pixel_size_mm", "view_positions", "__version__"]
+__all__ = ["GBuffer", "pixel_size_mm", "view_positions", "backend", "get_backend", "__version__"]

@@ -16,9 +16,9 @@ from sssbench.ops.gather import (
     FOLLOW_SURFACE,
     Rotation,
     Stretch,
+    backend,
     get_backend,
     separable_pass,
-    set_backend,
 )
 from sssbench.ops.halo import HALO_KINDS, halo_guide, halo_weight, lab_guide, range_weight
 from sssbench.ops.identity import IdentitySSS
@@ -51,7 +51,7 @@ __all__ = [
     "disk_sss",
     "SeparableMethod",
     "separable_pass",
-    "set_backend",
+    "backend",
     "get_backend",
     "BACKENDS",
     "native",

@@ -10,49 +10,109 @@ pixel's depth)``, fetch the neighbour with linear interpolation along the axis (
 stochastic rotation turns the axis), clamp at the image border, and accumulate
 ``weight × sample``.
 
-Implementation: per image, pixels with ``mask > 0`` are compacted into one flat list (stencil:
-masked-out pixels are never computed, 002 §4 / 003 §7.3.1; built once per mask and reused,
-:func:`~sssbench.ops._stencil.image_stencils`), their index arithmetic is shared by all
-channels, and samples are fetched straight from the ``(C, H·W)`` planes, so a pass touches
-the full image only to copy it once (time follows covered pixels). The tap loop has one
-specification, :func:`_accumulate` (torch, differentiable), and two faster backends chosen by
-:func:`set_backend`: the same operations in C (``native/``, the default when no gradient is
-needed) and the torch loop fused by ``torch.compile``.
+This module is the public entry: validation, the choice of backend and the dispatch. The loop
+itself has one specification, the differentiable torch loop
+(:mod:`sssbench.ops._gather_torch`), and a fast C counterpart registered as the torch
+operators ``torch.ops.sssbench.gather`` / ``gather_`` (:mod:`sssbench.ops._gather_native`,
+sources in ``native/``). Pixels with ``mask > 0`` are compacted into one list per image
+(stencil: masked-out pixels are never computed, 002 §4 / 003 §7.3.1), memoised per mask
+contents (:func:`~sssbench._memo.memoised`), so time follows covered pixels.
+
+Backends (:data:`BACKENDS`, chosen per block with :func:`backend`, default ``"native"``):
+
+- ``"native"``: the C loop, differentiable (its backward recomputes the torch loop), used
+  unless the pass has rotated taps or a ``sample_weight`` (torch loop then) or the library
+  cannot be built (one warning, torch loop). :data:`BACKEND_AGREEMENT` says how its results
+  relate to the torch loop's.
+- ``"torch"``: the eager torch loop.
+- ``"compile"``: the torch loop through ``torch.compile`` (inductor; the first call per dtype,
+  direction and follow-surface mode compiles for tens of seconds).
+
+Threads: the C loop splits its lines over ``torch.get_num_threads()`` threads, so
+``torch.set_num_threads`` governs both. A ctypes library cannot use torch's OpenMP pool, so
+its workers are kept in a small pool of their own (``native/pool.h``) that sleep on a condition
+variable between passes and never spin: they take no core from torch's threads, and a pass is
+synchronous, so the two pools never compute at once. Measured reason to keep the pool rather
+than start threads per pass (2 threads, this 2-core machine shared with other jobs, 2000 runs):
+handing a pass to a sleeping worker costs 10 µs (min; mean 35 µs), starting and joining a fresh
+thread 21 µs (mean 80 µs), against 30–100 µs for a whole pass over a small object.
 """
 
 from __future__ import annotations
 
-import functools
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Iterator
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass
 
 import torch
 
 from sssbench._checks import check_choice, check_scalar, check_tensor
-from sssbench._memo import memoised
+from sssbench._memo import memo_scope
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.kernel1d import Kernel1D
-from sssbench.ops import native
+from sssbench.ops import (
+    _gather_native,  # noqa: F401 - registers torch.ops.sssbench.*
+    native,
+)
+from sssbench.ops._gather_torch import SampleWeight, compiled_accumulate, gather_torch
 from sssbench.ops._stencil import image_spans, image_stencils
 from sssbench.ops.timing import PassRecord, add_record
 
 __all__ = [
     "separable_pass",
     "blend_on_stencil",
-    "set_backend",
+    "backend",
     "get_backend",
+    "check_writable",
     "BACKENDS",
+    "BACKEND_AGREEMENT",
     "Stretch",
     "Rotation",
     "FOLLOW_SURFACE",
+    "SampleWeight",
 ]
 
 FOLLOW_SURFACE = (None, "lerp", "gaussian")
+BACKENDS = ("native", "torch", "compile")
 
-#: ``sample_weight(centre_guide (N, G), sample_guide (N, G)) -> (N, 1) or (N, 3)``
-SampleWeight = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
+#: How the native loop's results relate to the torch loop's (tested in
+#: ``tests/reliability/test_gather_safety.py``; the fallback warning says it).
+BACKEND_AGREEMENT = (
+    "bitwise equal in float32 and float64 with follow_surface None or 'lerp' (the same IEEE "
+    "operations in the same order, the per-pixel scale in float64 in both); with 'gaussian' "
+    "the exp of the C library and torch's vectorised exp differ by a few ulp, so results agree "
+    "to within 1e-6 (float32) / 1e-14 (float64) relative to the image's range"
+)
+
+_BACKEND: ContextVar[str] = ContextVar("sssbench_gather_backend", default="native")
+
+
+@contextmanager
+def backend(name: str) -> Iterator[None]:
+    """Run the gather passes of this block on backend ``name`` (one of :data:`BACKENDS`).
+
+    A context variable, not a process-wide switch: it applies to the current thread / task and
+    is restored on exit, also when the block raises; new threads start with the default,
+    ``"native"``.
+
+    Example:
+        >>> with backend("torch"):
+        ...     get_backend()
+        'torch'
+    """
+    token = _BACKEND.set(check_choice("backend", name, BACKENDS))
+    try:
+        yield
+    finally:
+        _BACKEND.reset(token)
+
+
+def get_backend() -> str:
+    """The backend chosen by the innermost :func:`backend` block (default ``"native"``)."""
+    return _BACKEND.get()
 
 
 @dataclass(frozen=True)
@@ -65,7 +125,8 @@ class Stretch:
     physically sized kernel); ``correction`` keeps its unit, pixels (003: 800), and ``maxdd`` is
     in mm of depth per pixel: 003's 0.001 head units per pixel × a 230 mm head = 0.23 mm/px.
     The resulting factor multiplies the pinhole pixels-per-mm:
-    ``ssslevel · d / (d + correction · min(|∂d/∂axis|, maxdd))``.
+    ``ssslevel · d / (d + correction · min(|∂d/∂axis|, maxdd))``. Checked by
+    :func:`separable_pass`: all finite, ``ssslevel > 0``, ``correction >= 0``, ``maxdd >= 0``.
     """
 
     ssslevel: float = 1.0
@@ -78,20 +139,14 @@ class Rotation:
     """Stochastic kernel rotation (000 §6).
 
     Attributes:
-        angles: per-pixel rotation of the sampling axis in radians, ``(B, 1, H, W)``.
+        angles: per-pixel rotation of the sampling axis in radians, ``(B, 1, H, W)``, finite.
         radius: fraction of the kernel extent within which taps are rotated (000 §6: 0.1;
-            0.3 for extreme close-ups). Taps farther out stay on the axis (cache friendly in
-            the paper; here it keeps their 1D interpolation).
+            0.3 for extreme close-ups), in [0, 1]. Taps farther out stay on the axis (cache
+            friendly in the paper; here it keeps their 1D interpolation).
     """
 
     angles: torch.Tensor
     radius: float = 0.1
-
-
-@functools.lru_cache(maxsize=64)
-def _constant(value: float, n: int, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
-    """A ``(n,)`` tensor of ``value``, made once (the passes only read it)."""
-    return torch.full((n,), value, dtype=dtype, device=device)
 
 
 def _axis_derivative(depth: torch.Tensor, axis: int) -> torch.Tensor:
@@ -104,6 +159,57 @@ def _axis_derivative(depth: torch.Tensor, axis: int) -> torch.Tensor:
     return d.abs()
 
 
+def _byte_range(t: torch.Tensor) -> tuple[int, int] | None:
+    """``[first, end)`` addresses of the bytes ``t`` can touch (``None``: no element)."""
+    if t.numel() == 0:
+        return None
+    lo = hi = t.storage_offset()
+    for size, stride in zip(t.shape, t.stride(), strict=True):
+        if stride >= 0:
+            hi += (size - 1) * stride
+        else:
+            lo += (size - 1) * stride
+    base, item = t.untyped_storage().data_ptr(), t.element_size()
+    return base + lo * item, base + (hi + 1) * item
+
+
+def check_writable(name: str, target: torch.Tensor, others: dict[str, torch.Tensor | None]) -> None:
+    """Raise ``ValueError`` unless ``target`` can be overwritten in place while ``others`` are
+    read: it must be writable here (not an inference tensor outside ``torch.inference_mode``,
+    which torch refuses to write), have no two elements at one address (an ``expand``ed,
+    stride-0 view), and share no byte with any of ``others`` (a field that is a view of it, or
+    of the memory under it, would change during the pass: a silent wrong answer). Overlap is
+    judged on address ranges, so interleaved but disjoint views count as overlapping.
+
+    Args:
+        name: how the caller calls ``target`` (``"image"``, ``"gbuffer.diffuse"``).
+        target: the tensor to be written.
+        others: name -> tensor read during the write (``None`` entries are skipped).
+    """
+    if target.is_inference() and not torch.is_inference_mode_enabled():
+        raise ValueError(
+            f"{name} is an inference tensor (made under torch.inference_mode) and cannot be "
+            "written in place outside inference mode: call inside torch.inference_mode(), or "
+            "with inplace=False"
+        )
+    if torch._debug_has_internal_overlap(target) != 0:  # 1: yes, 2: cannot tell
+        raise ValueError(
+            f"{name} has elements sharing memory (an expanded or stride-0 view, strides "
+            f"{target.stride()}) and cannot be written in place: pass a tensor that owns its "
+            "memory (e.g. .contiguous()), or inplace=False"
+        )
+    span = _byte_range(target)
+    for other_name, other in others.items():
+        if other is None or span is None or (rng := _byte_range(other)) is None:
+            continue
+        if rng[0] < span[1] and span[0] < rng[1]:
+            raise ValueError(
+                f"{name} shares memory with {other_name}: writing {name} in place would change "
+                f"{other_name} while the pass reads it; give them separate memory (e.g. "
+                f"{other_name}.clone()), or use inplace=False"
+            )
+
+
 def _check_pass_inputs(
     image: torch.Tensor,
     kernel: Kernel1D,
@@ -112,8 +218,13 @@ def _check_pass_inputs(
     width: float | torch.Tensor,
     follow_surface: str | None,
     surface_scale: float | torch.Tensor | None,
-    check_finite: bool = True,
+    stretch: Stretch | None,
+    rotation: Rotation | None,
+    guide: torch.Tensor | None,
+    sample_weight: SampleWeight | None,
+    check_finite: bool,
 ) -> None:
+    """Every argument of :func:`separable_pass`, each error naming what it checks."""
     check_tensor("image", image, ndim=4, channels=3, finite=check_finite)
     if not isinstance(gbuffer, GBuffer):
         raise TypeError(f"gbuffer must be a GBuffer, got {type(gbuffer).__name__}")
@@ -152,6 +263,63 @@ def _check_pass_inputs(
             )
     elif surface_scale is not None:
         check_scalar("surface_scale", surface_scale, 0.0, low_inclusive=False)
+    if stretch is not None:
+        if not isinstance(stretch, Stretch):
+            raise TypeError(f"stretch must be a Stretch, got {type(stretch).__name__}")
+        check_scalar("stretch.ssslevel", stretch.ssslevel, 0.0, low_inclusive=False)
+        check_scalar("stretch.correction", stretch.correction, 0.0)
+        check_scalar("stretch.maxdd", stretch.maxdd, 0.0)
+    if rotation is not None:
+        if not isinstance(rotation, Rotation):
+            raise TypeError(f"rotation must be a Rotation, got {type(rotation).__name__}")
+        check_tensor("rotation.angles", rotation.angles, ndim=4, channels=1)
+        if rotation.angles.shape != gbuffer.depth.shape:
+            raise ValueError(
+                f"rotation.angles must have shape {tuple(gbuffer.depth.shape)}, "
+                f"got {tuple(rotation.angles.shape)}"
+            )
+        check_scalar("rotation.radius", rotation.radius, 0.0, 1.0)
+    if (guide is None) != (sample_weight is None):
+        raise ValueError("guide and sample_weight must be given together")
+    if guide is not None:
+        check_tensor("guide", guide, ndim=4)
+        if guide.shape[0] != image.shape[0] or guide.shape[2:] != image.shape[2:]:
+            raise ValueError(
+                f"guide must have shape (B, G, H, W) = ({image.shape[0]}, G, "
+                f"{image.shape[2]}, {image.shape[3]}), got {tuple(guide.shape)}"
+            )
+
+
+def _taps(kernel: Kernel1D, dtype: torch.dtype) -> tuple[torch.Tensor, torch.Tensor]:
+    """The kernel's offsets ``(K,)`` (mm per width unit) and weights ``(K, 3)`` in ``dtype``.
+
+    Offsets beyond the dtype's range (a float64 kernel of variance 1e600 mm² in a float32
+    pass) are clamped to its largest finite value: such a tap lands beyond the border either
+    way, and an infinite offset would give ``inf · 0`` = NaN at a pixel of zero width. Weights
+    must be finite in ``dtype`` (``ValueError`` naming ``kernel.weights``)."""
+    big = torch.finfo(dtype).max
+    offsets = kernel.offsets.to(torch.float64).clamp(-big, big).to(dtype)
+    weights = kernel.weights.to(dtype)
+    if not bool(torch.isfinite(weights).all()):
+        raise ValueError(
+            f"kernel.weights overflow {dtype} (largest |weight| "
+            f"{float(kernel.weights.abs().max()):g}): use float64 or normalise the kernel"
+        )
+    return offsets, weights
+
+
+def _inverse_scale(surface_scale: float | torch.Tensor | None, dtype: torch.dtype) -> torch.Tensor:
+    """``(3,)`` 1 / surface_scale in 1/mm (0: unused), computed in float64 and clamped to the
+    dtype's largest finite value (a surface_scale of 1e-40 mm must not give ``0 · inf``)."""
+    if surface_scale is None:
+        return torch.zeros(3, dtype=dtype)
+    if isinstance(surface_scale, torch.Tensor):  # per channel (differentiable)
+        inv = surface_scale.to(torch.float64).reciprocal()
+    else:
+        inv = torch.full((3,), 1.0 / float(surface_scale), dtype=torch.float64)
+    big = torch.finfo(dtype).max
+    inv = torch.where(inv <= big, inv, big).to(dtype)
+    return inv
 
 
 def separable_pass(
@@ -192,7 +360,8 @@ def separable_pass(
             pass their profile's widest length scale (the 2012 shader's constant
             ``300 · distToProjWindow · sssWidth`` likewise replaces a sample fully at a depth
             step of about the kernel's width).
-        stretch: JG10 stretch factors (003 §7.3.1), see :class:`Stretch`.
+        stretch: JG10 stretch factors (003 §7.3.1), see :class:`Stretch`; every field must be
+            finite (``ssslevel > 0``, ``correction, maxdd >= 0``).
         use_mask: use ``gbuffer.mask`` as stencil and strength: pixels with mask 0 are not
             computed (copied through), others have their step scaled by the mask (003 §7.3.1
             ``s' = s · alpha``; the 2012 shader's ``finalStep *= SSSS_STRENGTH_SOURCE``).
@@ -207,11 +376,22 @@ def separable_pass(
             far-away object the scan would otherwise cost more than the pass (measured).
         inplace: write the result into ``image`` and return it instead of a new tensor, for
             a caller that owns ``image`` (an intermediate of its own schedule): the pass then
-            costs no full-image copy, only work on the active pixels. Honoured when no
-            gradient is needed and ``image`` is contiguous; otherwise a new tensor is returned.
+            costs no full-image copy, only work on the active pixels, and bumps ``image``'s
+            version counter like any torch in-place op. Honoured when no gradient is needed
+            and ``image`` is contiguous; otherwise a new tensor is returned. Refused
+            (``ValueError``, :func:`check_writable`) when ``image`` shares memory with a
+            G-buffer field or another input, has elements sharing memory (an expanded view),
+            or is an inference tensor outside ``torch.inference_mode``.
 
     Returns:
-        ``(B, 3, H, W)``: blurred where active, ``image`` elsewhere.
+        ``(B, 3, H, W)``: blurred where active, ``image`` elsewhere. Differentiable with
+        respect to ``image``, ``gbuffer.depth``, ``gbuffer.mask``, a per-pixel ``width``, the
+        kernel's tensors and a per-channel ``surface_scale`` on every backend (the native
+        one's backward is the torch loop's, see :mod:`sssbench.ops._gather_native`).
+
+    Raises:
+        ValueError / TypeError: a bad argument, named (every scalar, tensor and
+            :class:`Stretch` / :class:`Rotation` field is checked on entry).
 
     Shape:
         - image: ``(B, 3, H, W)``
@@ -224,190 +404,80 @@ def separable_pass(
         torch.Size([1, 3, 8, 8])
     """
     _check_pass_inputs(
-        image, kernel, direction, gbuffer, width, follow_surface, surface_scale, check_finite
-    )
-    if (guide is None) != (sample_weight is None):
-        raise ValueError("guide and sample_weight must be given together")
-    if guide is not None:
-        check_tensor("guide", guide, ndim=4)
-        if guide.shape[0] != image.shape[0] or guide.shape[2:] != image.shape[2:]:
-            raise ValueError(
-                f"guide must have shape (B, G, H, W) = ({image.shape[0]}, G, "
-                f"{image.shape[2]}, {image.shape[3]}), got {tuple(guide.shape)}"
-            )
-    if rotation is not None:
-        check_tensor("rotation.angles", rotation.angles, ndim=4, channels=1)
-        if rotation.angles.shape != gbuffer.depth.shape:
-            raise ValueError(
-                f"rotation.angles must have shape {tuple(gbuffer.depth.shape)}, "
-                f"got {tuple(rotation.angles.shape)}"
-            )
-        check_scalar("rotation.radius", rotation.radius, 0.0, 1.0)
-
-    b_, c_, h_, w_ = image.shape
+        image, kernel, direction, gbuffer, width, follow_surface, surface_scale, stretch,
+        rotation, guide, sample_weight, check_finite,
+    )  # fmt: skip
+    b_, _, h_, w_ = image.shape
     dtype = image.dtype
-    strength = gbuffer.mask if (use_mask and gbuffer.mask is not None) else None
-    focal_px = h_ / (2.0 * math.tan(gbuffer.fov_y / 2.0))  # pixels per mm at 1 mm depth
     axis = 3 if direction == "x" else 2
+    strength = gbuffer.mask if (use_mask and gbuffer.mask is not None) else None
+    f_px = h_ / (2.0 * math.tan(gbuffer.fov_y / 2.0))  # pixels per mm at 1 mm depth
+    ddepth = None  # |∂depth/∂axis| (mm / px), 003 §7.3.1
+    correction = maxdd = 0.0
+    if stretch is not None:
+        f_px *= stretch.ssslevel
+        if not math.isfinite(f_px):
+            raise ValueError(
+                f"stretch.ssslevel={stretch.ssslevel:g} times the focal length "
+                f"{f_px / stretch.ssslevel:g} px overflows float64"
+            )
+        ddepth = _axis_derivative(gbuffer.depth, axis)
+        correction, maxdd = float(stretch.correction), float(stretch.maxdd)
+    per_pixel = width if isinstance(width, torch.Tensor) else None
+    width_scalar = 0.0 if per_pixel is not None else float(width)
+    offsets, weights = _taps(kernel, dtype)
+    inv_scale = _inverse_scale(surface_scale, dtype)
     follow = FOLLOW_SURFACE.index(follow_surface)
-    if isinstance(surface_scale, torch.Tensor):  # per channel
-        inv_scale = surface_scale.to(dtype=dtype, device=image.device).reciprocal()
-    else:  # |Δz| / surface_scale; 0: unused
-        inv = 0.0 if surface_scale is None else 1.0 / float(surface_scale)
-        inv_scale = _constant(inv, c_, dtype, image.device)
-    offsets, weights = memoised(
-        (kernel.offsets, kernel.weights),
-        ("taps", dtype),
-        lambda: (kernel.offsets.to(dtype), kernel.weights.to(dtype)),
+    if inplace:
+        check_writable("image", image, {
+            "gbuffer.depth": gbuffer.depth, "gbuffer.mask": strength, "width": per_pixel,
+            "guide": guide, "rotation.angles": None if rotation is None else rotation.angles,
+        })  # fmt: skip
+    grads = torch.is_grad_enabled() and any(
+        t is not None and t.requires_grad
+        for t in (image, gbuffer.depth, strength, per_pixel, offsets, weights, inv_scale, guide)
     )
-    grads = _needs_grad(image, gbuffer, width)
-    backend = _backend_for(image, grads, rotation, sample_weight)
     inplace = inplace and not grads and image.is_contiguous()
+    name_ = _backend_for(image, rotation, sample_weight)
+    args = (gbuffer.depth, strength, per_pixel, ddepth, offsets, weights, inv_scale, f_px,
+            width_scalar, correction, maxdd, axis == 2, follow)  # fmt: skip
 
     start = time.perf_counter()
-    if backend == "native":  # the stencil as runs of active pixels per row
-        spans, stencils = image_spans(strength, (b_, h_, w_)), None
-    else:  # as flat indices
-        spans, stencils = None, None if strength is None else image_stencils(strength)
-    f_px, ddepth = focal_px, None  # pixels per mm at 1 mm depth; |∂depth/∂axis| (mm / px)
-    if stretch is not None:  # 003 §7.3.1
-        f_px, ddepth = focal_px * stretch.ssslevel, _axis_derivative(gbuffer.depth, axis)
-    # a new image is a copy of ``image`` with the active pixels replaced; the native loop
-    # copies it line by line as it goes (no separate full-image pass, and no torch thread
-    # pool left spinning against its threads)
-    copy = not inplace and backend == "native"
-    if inplace:
-        out = image
-    elif copy:
-        out = torch.empty_like(image, memory_format=torch.contiguous_format)
-    else:
-        out = image.clone(memory_format=torch.contiguous_format)
-    n_total = 0
-    for bi in range(b_):  # per image: every tensor below is a view of one (C, H·W) plane set
-        if backend == "native":
-            if copy or spans[bi].shape[0]:
-                n_total += _native_pass(
-                    image[bi], out[bi], gbuffer.depth[bi], spans[bi],
-                    None if strength is None else strength[bi],
-                    width[bi] if isinstance(width, torch.Tensor) else width,
-                    None if ddepth is None else ddepth[bi], stretch, axis, f_px, offsets,
-                    weights, follow, inv_scale, copy,
-                )  # fmt: skip
-            continue
-        lin = None if stencils is None else stencils[bi]
-        if lin is not None and lin.numel() == 0:
-            continue
-        depth = gbuffer.depth[bi].reshape(-1)
-        if lin is None:
-            lin = torch.arange(h_ * w_, device=image.device)
-        z = depth[lin]
-        # ---- pixels per kernel-offset unit (DESIGN §2: a pixel covers 2 z tan(fov/2)/H mm)
-        denom = z
-        if ddepth is not None:  # 003 §7.3.1
-            dd = ddepth[bi].reshape(-1)[lin]
-            denom = z + stretch.correction * dd.clamp_max(stretch.maxdd)
-        scale = f_px / denom
-        if isinstance(width, torch.Tensor):
-            scale = scale * width[bi].reshape(-1)[lin]
-        else:
-            scale = scale * width
-        if strength is not None:
-            scale = scale * strength[bi].reshape(-1)[lin]  # 003 §7.3.1 s' = s · alpha
-        row, col = lin // w_, lin % w_
-        if direction == "x":
-            pos, fixed_lin, n_axis, stride_axis = col, row * w_, w_, 1
-        else:
-            pos, fixed_lin, n_axis, stride_axis = row, col, h_, w_
-        rot = None
-        if rotation is not None:
-            ang = rotation.angles[bi].reshape(-1)[lin]
-            # the x pass turns (1, 0) by the angle, the y pass turns (0, 1) by the same angle
-            if direction == "x":
-                dcol, drow = torch.cos(ang), torch.sin(ang)
+    with memo_scope():  # the stencil is verified once per call (see sssbench._memo)
+        if name_ == "native":
+            if inplace:
+                torch.ops.sssbench.gather_(image, *args)
+                out = image
             else:
-                dcol, drow = -torch.sin(ang), torch.cos(ang)
-            rot = (rotation.radius * kernel.extent, row.to(dtype), col.to(dtype), drow, dcol)
-        planes = image[bi].reshape(c_, -1)
-        guide_planes = None if guide is None else guide[bi].to(dtype).reshape(guide.shape[1], -1)
-        fn = _compiled_accumulate() if backend == "compile" else _accumulate
-        acc = fn(
-            planes,
-            depth,
-            guide_planes,
-            lin,
-            fixed_lin,
-            pos.to(dtype),
-            scale,
-            offsets,
-            weights,
-            n_axis,
-            stride_axis,
-            (h_, w_),
-            follow,
-            inv_scale,
-            rot,
-            sample_weight,
-        )
-        out[bi].view(c_, -1)[:, lin] = acc
-        n_total += int(lin.numel())
+                out = torch.ops.sssbench.gather(image, *args)
+            spans = image_spans(strength, (b_, h_, w_))
+            n_total = int(sum(int((s[:, 2] - s[:, 1]).sum()) for s in spans))
+        else:
+            rot = None
+            if rotation is not None:
+                rot = (rotation.angles, rotation.radius * kernel.extent)
+            out, n_total = gather_torch(
+                image, *args, rotation=rot, guide=guide, sample_weight=sample_weight,
+                out=image if inplace else None,
+                accumulate=compiled_accumulate() if name_ == "compile" else None,
+            )  # fmt: skip
     ms = (time.perf_counter() - start) * 1e3
     add_record(PassRecord(name or f"pass.{direction}", len(kernel), n_total, ms))
     return out
 
 
-def _native_pass(
-    image: torch.Tensor,
-    out: torch.Tensor,
-    depth: torch.Tensor,
-    spans: torch.Tensor,
-    strength: torch.Tensor | None,
-    width: float | torch.Tensor,
-    ddepth: torch.Tensor | None,
-    stretch: Stretch | None,
-    axis: int,
-    f_px: float,
-    offsets: torch.Tensor,
-    weights: torch.Tensor,
-    follow: int,
-    inv_scale: torch.Tensor,
-    copy: bool,
-) -> int:
-    """One image of a pass through the native loop (``native/gather_body.h``), which computes
-    the per-pixel scale and the taps exactly as the torch code of :func:`separable_pass` and
-    :func:`_accumulate` and writes ``out`` ``(3, H, W)`` (contiguous) at the active pixels,
-    given as runs by ``spans`` ``(S, 3)`` (:func:`~sssbench.ops._stencil.image_spans`).
-    Per-image tensors are ``(1, H, W)``; ``f_px`` includes the stretch's ``ssslevel``. ``out``
-    may be ``image``: the loop reads every sample of a row (x) or column strip (y) into its
-    own buffer before it writes any result there. ``copy``: ``out`` is uninitialised and
-    gets ``image``'s pixels everywhere else (copied line by line as the loop goes).
-    Returns the number of active pixels."""
-    lib = native.library()
-    _, h, w = image.shape
-    keep = []  # contiguous copies must outlive the call
-
-    def ptr(t: torch.Tensor | None) -> int | None:
-        if t is None:
-            return None
-        if t.dtype != image.dtype and t.is_floating_point():
-            t = t.to(image.dtype)
-        if not t.is_contiguous():
-            t = t.contiguous()
-        keep.append(t)
-        return t.data_ptr()
-
-    correction, maxdd = (0.0, 0.0) if stretch is None else (stretch.correction, stretch.maxdd)
-    per_pixel_width = width if isinstance(width, torch.Tensor) else None
-    fn = lib.sss_gather_f32 if image.dtype == torch.float32 else lib.sss_gather_f64
-    status = fn(
-        ptr(image), ptr(depth), ptr(spans), ptr(strength), ptr(per_pixel_width), ptr(ddepth),
-        ptr(offsets), ptr(weights), ptr(inv_scale), out.data_ptr(),
-        f_px, 0.0 if per_pixel_width is not None else float(width), correction, maxdd,
-        spans.shape[0], offsets.numel(), h, w, int(axis == 2), follow, int(copy),
-        torch.get_num_threads(),
-    )  # fmt: skip
-    if status < 0:
-        raise MemoryError(f"native gather: no memory for the line buffers of a {h}x{w} image")
-    return status
+def _backend_for(
+    image: torch.Tensor, rotation: Rotation | None, sample_weight: SampleWeight | None
+) -> str:
+    """The backend this pass runs on (see :func:`backend`)."""
+    name = get_backend()
+    if rotation is not None or sample_weight is not None:
+        return "torch"  # rotated taps and bilateral weights: torch loop only
+    if name != "native":
+        return name
+    if image.device.type != "cpu" or native.library() is None:
+        return "torch"
+    return "native"
 
 
 def blend_on_stencil(
@@ -418,28 +488,23 @@ def blend_on_stencil(
     §7.3.3, Listing 7.2), on the stencil's pixels only.
 
     Args:
-        out: ``(B, 3, H, W)`` contiguous, overwritten at the active pixels.
+        out: ``(B, 3, H, W)`` contiguous, overwritten at the active pixels (its version counter
+            is bumped on every backend).
         end: ``(B, 3, H, W)`` the blurred step.
         weight: ``(3,)`` per-channel blend weight.
         mask: ``(B, 1, H, W)`` stencil or ``None``.
 
     Returns:
         ``out``. With the native backend (no gradient needed) a C loop over the stencil's
-        runs; otherwise ``torch.lerp`` at the stencil's indices (the two agree to a rounding:
-        torch fuses the multiply-add).
+        runs (``torch.ops.sssbench.blend_``); otherwise ``torch.lerp`` at the stencil's indices
+        (the two agree to a rounding: torch fuses the multiply-add).
     """
     b_, c_, h_, w_ = out.shape
     weight = weight.to(dtype=out.dtype, device=out.device)
     grads = torch.is_grad_enabled() and any(t.requires_grad for t in (out, end, weight))
-    if _backend_for(out, grads, None, None) == "native" and out.is_contiguous():
-        lib = native.library()
-        fn = lib.sss_blend_f32 if out.dtype == torch.float32 else lib.sss_blend_f64
-        end = end.contiguous()
-        weight = weight.contiguous()
-        for bi, spans in enumerate(image_spans(mask, (b_, h_, w_))):
-            if spans.shape[0]:
-                fn(out[bi].data_ptr(), end[bi].data_ptr(), spans.data_ptr(), weight.data_ptr(),
-                   spans.shape[0], h_, w_, torch.get_num_threads())  # fmt: skip
+    if not grads and out.is_contiguous() and _backend_for(out, None, None) == "native":
+        with memo_scope():
+            torch.ops.sssbench.blend_(out, end, weight, mask)
         return out
     stencils = [None] * b_ if mask is None else image_stencils(mask)
     for bi, lin in enumerate(stencils):
@@ -449,147 +514,3 @@ def blend_on_stencil(
         else:
             flat[:, lin] = torch.lerp(flat[:, lin], blurred[:, lin], weight.view(c_, 1))
     return out
-
-
-def _lerp_fetch(planes: torch.Tensor, a: torch.Tensor, b: torch.Tensor, f: torch.Tensor):
-    """``planes[:, a] + f (planes[:, b] − planes[:, a])`` for ``(C, HW)`` planes."""
-    pa = planes[:, a]
-    return pa + f * (planes[:, b] - pa)
-
-
-def _accumulate(
-    planes: torch.Tensor,
-    depth: torch.Tensor,
-    guide: torch.Tensor | None,
-    lin: torch.Tensor,
-    fixed_lin: torch.Tensor,
-    pos_f: torch.Tensor,
-    scale: torch.Tensor,
-    offsets: torch.Tensor,
-    weights: torch.Tensor,
-    n_axis: int,
-    stride_axis: int,
-    hw: tuple[int, int],
-    follow: int,
-    inv_scale: torch.Tensor,
-    rot: tuple | None,
-    sample_weight: SampleWeight | None,
-) -> torch.Tensor:
-    """The one accumulation loop over taps (DESIGN §4), ``(C, N)`` for the active pixels.
-
-    ``planes`` ``(C, H·W)``, ``depth`` ``(H·W,)`` and ``guide`` ``(G, H·W)`` are views of one
-    image; ``lin`` are the active pixels; ``fixed_lin + i·stride_axis`` addresses the i-th
-    pixel along the pass axis. ``follow``: index into :data:`FOLLOW_SURFACE`. ``rot``:
-    ``(radius_mm, row, col, drow, dcol)`` for rotated inner taps. Written with tensors only
-    when ``rot`` and ``sample_weight`` are ``None`` so that ``torch.compile`` can fuse the
-    whole loop (see :func:`set_backend`).
-    """
-    centre_rgb = planes[:, lin]
-    centre_z = depth[lin]
-    centre_guide = None if guide is None else guide[:, lin]
-    acc = torch.zeros_like(centre_rgb)
-    wsum = torch.zeros_like(acc) if sample_weight is not None else None
-    for k in range(offsets.shape[0]):
-        step = offsets[k] * scale
-        if rot is not None and abs(float(offsets[k])) <= rot[0]:
-            _, row_f, col_f, drow, dcol = rot
-            idx, wts = _bilinear_corners(row_f + step * drow, col_f + step * dcol, *hw)
-            rgb = sum(wt * planes[:, i] for i, wt in zip(idx, wts, strict=True))
-            zs = sum(wt * depth[i] for i, wt in zip(idx, wts, strict=True))
-            gs = None
-            if guide is not None:
-                gs = sum(wt * guide[:, i] for i, wt in zip(idx, wts, strict=True))
-        else:
-            p = (pos_f + step).clamp(0, n_axis - 1)  # border clamp
-            p0 = p.floor()
-            frac = p - p0
-            i0 = p0.long()
-            a = fixed_lin + i0 * stride_axis
-            b = fixed_lin + (i0 + 1).clamp_max(n_axis - 1) * stride_axis
-            rgb = _lerp_fetch(planes, a, b, frac)
-            zs = depth[a] + frac * (depth[b] - depth[a])
-            gs = None if guide is None else _lerp_fetch(guide, a, b, frac)
-        weight = weights[k][:, None]
-        if follow:
-            dz = (zs - centre_z).abs()[None, :] * inv_scale[:, None]  # |Δz| / scale
-            if follow == 1:  # 002 appendix shader: lerp back to the centre colour
-                rgb = rgb + dz.clamp(0.0, 1.0) * (centre_rgb - rgb)
-            else:  # 000 eq. 7: one exp with sigma_max
-                weight = weight * torch.exp(-0.5 * dz * dz)
-        if sample_weight is not None:
-            weight = weight * sample_weight(centre_guide.T, gs.T).T
-            wsum = wsum + weight
-        acc = acc + weight * rgb
-    if wsum is not None:
-        acc = acc / wsum.clamp_min(torch.finfo(acc.dtype).tiny)
-    return acc
-
-
-BACKENDS = ("native", "torch", "compile")
-_BACKEND: dict[str, object] = {"name": "native", "compiled": None}
-
-
-def set_backend(name: str) -> None:
-    """Choose how the tap loop runs (process-wide).
-
-    - ``"native"`` (default): a C loop (``sssbench/ops/native``) built on first use with the
-      system compiler (about a second) and cached; same float operations in the same order as
-      the torch loop (tested equal). Used when no autograd graph is needed and the pass has no
-      rotated taps or ``sample_weight``; otherwise, or without a C compiler, the torch loop runs.
-    - ``"torch"``: the eager torch loop (:func:`_accumulate`), differentiable.
-    - ``"compile"``: the torch loop through ``torch.compile`` (inductor; the first call per
-      dtype, direction and follow-surface mode compiles for tens of seconds), differentiable.
-    """
-    _BACKEND["name"] = check_choice("backend", name, BACKENDS)
-
-
-def get_backend() -> str:
-    """The backend chosen by :func:`set_backend`."""
-    return str(_BACKEND["name"])
-
-
-def _needs_grad(image: torch.Tensor, gbuffer: GBuffer, width: float | torch.Tensor) -> bool:
-    """Whether autograd records this pass."""
-    return torch.is_grad_enabled() and any(
-        isinstance(t, torch.Tensor) and t.requires_grad
-        for t in (image, gbuffer.depth, gbuffer.mask, width)
-    )
-
-
-def _backend_for(
-    image: torch.Tensor,
-    grads: bool,
-    rotation: Rotation | None,
-    sample_weight: SampleWeight | None,
-) -> str:
-    """The backend this pass runs on (see :func:`set_backend`)."""
-    name = get_backend()
-    if rotation is not None or sample_weight is not None:
-        return "torch"  # rotated taps and bilateral weights: torch loop only
-    if name != "native":
-        return name
-    if grads or image.device.type != "cpu" or native.library() is None:
-        return "torch"
-    return "native"
-
-
-def _compiled_accumulate():
-    if _BACKEND["compiled"] is None:
-        _BACKEND["compiled"] = torch.compile(_accumulate, dynamic=True)
-    return _BACKEND["compiled"]
-
-
-def _bilinear_corners(
-    row: torch.Tensor, col: torch.Tensor, h: int, w: int
-) -> tuple[list[torch.Tensor], list[torch.Tensor]]:
-    """Flat indices and weights of the four bilinear corners at fractional (row, col), clamped
-    to the image (rotated taps)."""
-    row = row.clamp(0, h - 1)
-    col = col.clamp(0, w - 1)
-    r0f, c0f = row.floor(), col.floor()
-    fr, fc = row - r0f, col - c0f
-    r0, c0 = r0f.long(), c0f.long()
-    r1, c1 = (r0 + 1).clamp_max(h - 1), (c0 + 1).clamp_max(w - 1)
-    idx = [r0 * w + c0, r0 * w + c1, r1 * w + c0, r1 * w + c1]
-    wts = [(1 - fr) * (1 - fc), (1 - fr) * fc, fr * (1 - fc), fr * fc]
-    return idx, wts

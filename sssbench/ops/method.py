@@ -15,10 +15,13 @@ from torch import nn
 from sssbench._checks import check_choice, check_scalar
 from sssbench._memo import memo_scope
 from sssbench.gbuffer import GBuffer
-from sssbench.ops.gather import FOLLOW_SURFACE, SampleWeight
+from sssbench.ops.gather import FOLLOW_SURFACE, SampleWeight, check_writable
 from sssbench.ops.rotation import random_rotation
 
 __all__ = ["SeparableMethod"]
+
+#: G-buffer fields a method may read while it overwrites ``diffuse`` in place
+_READ_FIELDS = ("depth", "mask", "albedo", "specular", "normal", "thickness", "light_dir")
 
 
 class SeparableMethod(nn.Module):
@@ -119,14 +122,21 @@ class SeparableMethod(nn.Module):
                 §7.3.1): a method that :attr:`scatters_in_place` then touches only the
                 stencil's pixels and makes no full-image copy, so its time follows the
                 covered pixels. ``gbuffer.diffuse`` no longer holds the input afterwards.
-                Not with autograd recording ``gbuffer.diffuse``.
+                Not with autograd recording ``gbuffer.diffuse``, nor when ``gbuffer.diffuse``
+                shares memory with another field, ``width`` or ``guide``, or with itself (an
+                expanded view), or is an inference tensor outside inference mode
+                (``ValueError`` naming them, :func:`~sssbench.ops.gather.check_writable`).
         """
         if inplace and torch.is_grad_enabled() and gbuffer.diffuse.requires_grad:
             raise ValueError(
                 "inplace=True overwrites gbuffer.diffuse, which autograd records (it requires "
                 "grad): call without inplace, or under torch.no_grad()"
             )
-        with memo_scope():  # stencils are built once per call even for inference tensors
+        if inplace:
+            fields = {f"gbuffer.{name}": getattr(gbuffer, name) for name in _READ_FIELDS}
+            check_writable("gbuffer.diffuse", gbuffer.diffuse,
+                           {**fields, "width": width, "guide": guide})  # fmt: skip
+        with memo_scope():  # stencils are verified once per call (sssbench._memo)
             options = self.pass_options(gbuffer, width, guide, sample_weight)
             if inplace and self.scatters_in_place:
                 options["inplace"] = True

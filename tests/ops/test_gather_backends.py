@@ -5,7 +5,6 @@ depth, random mask strength and holes; the torch loop is vectorised torch code, 
 loop scalar C, so agreement is between two independent implementations of the same formulas.
 """
 
-import contextlib
 import subprocess
 import sys
 
@@ -17,19 +16,9 @@ from sssbench.gbuffer import GBuffer
 from sssbench.kernels import Kernel1D
 from sssbench.ops import Stretch, native, separable_pass
 from sssbench.ops._stencil import image_stencils
-from sssbench.ops.gather import get_backend, set_backend
+from sssbench.ops.gather import backend
 
 pytestmark = pytest.mark.skipif(native.library() is None, reason="no C compiler")
-
-
-@contextlib.contextmanager
-def backend(name):
-    before = get_backend()
-    set_backend(name)
-    try:
-        yield
-    finally:
-        set_backend(before)
 
 
 def scene(seed=0, b=1, h=23, w=31, dtype=torch.float64, holes=True, cover=0.7):
@@ -121,8 +110,9 @@ def test_native_handles_non_contiguous_inputs():
     torch.testing.assert_close(got, ref, **tol(torch.float64))
 
 
-def test_native_is_bypassed_when_a_gradient_is_needed():
-    """The native loop has no backward: with autograd the torch loop runs (and is checked)."""
+def test_native_pass_is_differentiable():
+    """With autograd the native operator runs too; its backward (the torch loop's VJP) is
+    checked against finite differences of the native forward (more in test_gather_op.py)."""
     g = scene(h=6, w=7)
     image = g.diffuse.clone().requires_grad_(True)
     k = kernel(5)
@@ -249,30 +239,32 @@ def test_native_pool_restarts_in_a_forked_child():
 
     import numpy as np
 
-    from sssbench.ops import gather
-    from sssbench.ops._stencil import image_spans
+    from sssbench._memo import memo_scope
+    from sssbench.ops._gather_native import native_pass
 
     threads = torch.get_num_threads()
     torch.set_num_threads(2)
     try:
         g = scene(seed=1, h=90, w=203, cover=0.9)
-        spans = image_spans(g.mask, (1, 90, 203))[0]
-        args = (g.depth[0], spans, g.mask[0], 1.0, None, None, 2, 40.0,
+        lib = native.library()
+        args = (g.depth, g.mask, None, None,
                 torch.linspace(-4.0, 4.0, 9, dtype=torch.float64),
-                torch.full((9, 3), 1 / 9, dtype=torch.float64), 1,
-                torch.full((3,), 1 / 3.0, dtype=torch.float64), True)  # fmt: skip
-        parent = torch.empty_like(g.diffuse[0])
+                torch.full((9, 3), 1 / 9, dtype=torch.float64),
+                torch.full((3,), 1 / 3.0, dtype=torch.float64),
+                40.0, 1.0, 0.0, 0.0, True, 1)  # fmt: skip
+        parent = torch.empty_like(g.diffuse)
         n_active = int((g.mask > 0).sum())
-        assert gather._native_pass(g.diffuse[0], parent, *args) == n_active
-        pid = os.fork()
-        if pid == 0:  # the child: no torch computation, exit status = verdict
-            status = 2
-            try:
-                child = torch.empty_like(g.diffuse[0])
-                gather._native_pass(g.diffuse[0], child, *args)
-                status = 0 if np.array_equal(child.numpy(), parent.numpy()) else 1
-            finally:
-                os._exit(status)
+        with memo_scope():  # the child finds the stencil's runs here, computing nothing
+            assert native_pass(lib, g.diffuse, parent, args, copy=True) == n_active
+            child = torch.empty_like(g.diffuse)
+            pid = os.fork()
+            if pid == 0:  # the child: no torch computation, exit status = verdict
+                status = 2
+                try:
+                    native_pass(lib, g.diffuse, child, args, copy=True)
+                    status = 0 if np.array_equal(child.numpy(), parent.numpy()) else 1
+                finally:
+                    os._exit(status)
         deadline = time.monotonic() + 60
         while (done := os.waitpid(pid, os.WNOHANG))[0] == 0 and time.monotonic() < deadline:
             time.sleep(0.05)
@@ -281,7 +273,7 @@ def test_native_pool_restarts_in_a_forked_child():
             os.waitpid(pid, 0)
             pytest.fail("the forked child's pass did not finish within 60 s")
         assert os.waitstatus_to_exitcode(done[1]) == 0  # the child's result is the parent's
-        assert not torch.equal(parent, g.diffuse[0])  # which blurred something
+        assert not torch.equal(parent, g.diffuse)  # which blurred something
     finally:
         torch.set_num_threads(threads)
 
@@ -333,24 +325,26 @@ def test_memo_keeps_a_bounded_number_of_entries():
     assert memoised((ts[0],), "probe", lambda: -1) == -1  # evicted: recomputed
 
 
-def test_inference_tensors_are_memoised_only_within_a_call_scope():
-    from sssbench._memo import memo_scope
-
+def test_memo_sees_writes_that_bump_no_version_counter():
+    """An inference tensor has no version counter and ``.data`` / NumPy writes bump none: the
+    memo compares contents, so each of these writes makes the next lookup compute anew (the
+    value is the number of active pixels, recounted independently here)."""
     with torch.inference_mode():
         mask = torch.ones(1, 1, 4, 4)
-    calls = []
 
-    def compute():
-        calls.append(1)
-        return len(calls)
+    def count(m):
+        return memoised((m,), "probe-count", lambda: int((m > 0).sum()))
 
-    memoised((mask,), "probe-inference", compute)
-    memoised((mask,), "probe-inference", compute)
-    assert len(calls) == 2  # no version counter: never cached across calls
-    with memo_scope():
-        memoised((mask,), "probe-inference", compute)
-        memoised((mask,), "probe-inference", compute)
-    assert len(calls) == 3
+    assert count(mask) == 16
+    with torch.inference_mode():
+        mask[0, 0, 0] = 0  # no version counter to bump
+    assert count(mask) == 12
+    normal = torch.ones(1, 1, 4, 4)
+    assert count(normal) == 16
+    normal.data[0, 0, :, 0] = 0  # .data: no version bump
+    assert count(normal) == 12
+    normal.numpy()[0, 0, 3] = 0  # a NumPy view
+    assert count(normal) == 9
 
 
 @pytest.mark.parametrize("name", ["native", "torch"])

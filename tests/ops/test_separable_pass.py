@@ -148,16 +148,12 @@ def test_per_channel_surface_scale_equals_three_scalar_passes(follow):
 
 def test_compiled_loop_equals_eager_loop():
     """torch.compile fuses the tap loop (issue 7); results must equal the eager loop."""
-    from sssbench.ops.gather import get_backend, set_backend
+    from sssbench.ops.gather import backend
 
     g = make(dtype=torch.float32, h=12, w=17)
     kernel = KERNEL.to(torch.float32)
-    before = get_backend()
-    try:
-        set_backend("torch")
+    with backend("torch"):
         eager = separable_pass(g.diffuse, kernel, "x", g, follow_surface="lerp", surface_scale=5.0)
-        set_backend("compile")
+    with backend("compile"):
         fused = separable_pass(g.diffuse, kernel, "x", g, follow_surface="lerp", surface_scale=5.0)
-    finally:
-        set_backend(before)
     torch.testing.assert_close(fused, eager, rtol=1e-5, atol=1e-6)

@@ -9,8 +9,9 @@ compiler (``$CC``, else ``cc``/``gcc``) into a per-user cache
 the source and the compiler, written atomically so that parallel sweep workers may race. No
 Python package beyond the declared ones is needed; on a machine without a C compiler
 :func:`library` returns ``None`` once with a warning and the gather runs its torch loop.
-The torch loop (:func:`sssbench.ops.gather._accumulate`) is the specification: the native
-loop performs the same float operations in the same order and is tested equal to it.
+The torch loop (:mod:`sssbench.ops._gather_torch`) is the specification: the native loop
+performs the same float operations in the same order and is tested bitwise equal to it (but
+for ``exp``); :mod:`sssbench.ops._gather_native` registers it as a torch operator.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ import tempfile
 import warnings
 from pathlib import Path
 
-__all__ = ["library", "cache_dir"]
+__all__ = ["library", "cache_dir", "FALLBACK_NOTE"]
 
 _HERE = Path(__file__).resolve().parent
 _SOURCES = ("gather.c", "gather_body.h", "pool.h")
@@ -46,7 +47,9 @@ def _compiler() -> str | None:
     return None
 
 
-def _build(cc: str) -> Path:
+def _build(cc: str, fresh: bool = False) -> Path:
+    """The library for the current sources and ``cc``: the cached one, or a new build
+    (``fresh``: build anew even when one is cached, replacing it atomically)."""
     digest = hashlib.sha256()
     for name in _SOURCES:
         digest.update((_HERE / name).read_bytes())
@@ -58,7 +61,7 @@ def _build(cc: str) -> Path:
             folder.mkdir(parents=True, exist_ok=True, mode=0o700)
             if folder.stat().st_uid != os.getuid():
                 continue  # never load a library from a folder somebody else owns
-            if (folder / name).exists():
+            if (folder / name).exists() and not fresh:
                 return folder / name
             fd, tmp = tempfile.mkstemp(suffix=".so", dir=folder)
             break
@@ -88,22 +91,43 @@ def _declare(lib: ctypes.CDLL) -> None:
         fn.argtypes = [p] * 4 + [i64] * 3 + [i32]
 
 
+def _load(path: Path) -> ctypes.CDLL:
+    lib = ctypes.CDLL(str(path))
+    _declare(lib)  # AttributeError: a symbol is missing
+    return lib
+
+
+#: what the fallback gives (the warning says it; tests/reliability/test_gather_safety.py
+#: checks it): see ``BACKEND_AGREEMENT`` in sssbench/ops/gather.py
+FALLBACK_NOTE = (
+    "using the torch loop instead (slower; results bitwise equal to the native loop's "
+    "except follow_surface='gaussian', where exp differs by a few ulp)"
+)
+
+
 def library() -> ctypes.CDLL | None:
-    """The loaded native library, building it on first use; ``None`` if it cannot be built."""
+    """The loaded native library, building it on first use; ``None`` if it cannot be had.
+
+    Any failure (no compiler, a failed build, a cached file that does not load or lacks a
+    symbol: ``OSError``, ``AttributeError``, ...) is reported by ONE warning per process and
+    the gather runs its torch loop; a cached library that fails to load is rebuilt once first.
+    """
     if not _STATE["tried"]:
         _STATE["tried"] = True
-        cc = _compiler()
         try:
+            cc = _compiler()
             if cc is None:
                 raise OSError("no C compiler found ($CC, cc, gcc, clang)")
-            lib = ctypes.CDLL(str(_build(cc)))
-            _declare(lib)
+            try:
+                lib = _load(_build(cc))
+            except (OSError, AttributeError):  # a corrupt or stale cached file: build anew
+                lib = _load(_build(cc, fresh=True))
             _STATE["lib"] = lib
-        except (OSError, subprocess.SubprocessError) as exc:
-            detail = getattr(exc, "stderr", None) or exc
+        except Exception as exc:  # any failure: the torch loop
+            detail = getattr(exc, "stderr", None) or f"{type(exc).__name__}: {exc}"
             warnings.warn(
                 f"sssbench: native gather unavailable ({str(detail).strip()[:300]}); "
-                "using the torch loop (slower, same results)",
+                + FALLBACK_NOTE,
                 UserWarning,
                 stacklevel=3,
             )

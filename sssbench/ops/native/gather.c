@@ -1,6 +1,7 @@
 /* Native tap loop of the one gather primitive (sssbench.ops.gather), float32 and float64.
  * Built on first use by sssbench/ops/native/__init__.py with the system C compiler and
  * called through ctypes; the torch loop is the specification and the fallback. */
+#include <float.h>
 #include <math.h>
 #include <pthread.h>
 #include <stdint.h>
@@ -28,6 +29,7 @@
 
 #define SCALAR float
 #define SUFFIX f32
+#define SCALAR_MAX FLT_MAX
 #define EXPF expf
 #define FABSF fabsf
 #define VMIN VMIN_F32
@@ -35,6 +37,7 @@
 #include "gather_body.h"
 #undef SCALAR
 #undef SUFFIX
+#undef SCALAR_MAX
 #undef EXPF
 #undef FABSF
 #undef VMIN
@@ -42,6 +45,7 @@
 
 #define SCALAR double
 #define SUFFIX f64
+#define SCALAR_MAX DBL_MAX
 #define EXPF exp
 #define FABSF fabs
 #define VMIN VMIN_F64

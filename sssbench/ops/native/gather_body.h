@@ -1,9 +1,9 @@
 /* The tap loop of sssbench.ops.gather for one scalar type (included twice by gather.c).
  *
- * Mirrors sssbench.ops.gather._accumulate operation by operation (same order of float
- * operations, so results agree with the torch loop to rounding); see that function and
- * separable_pass for the formulas and their citations. Expects SCALAR, SUFFIX, EXPF, FABSF,
- * VMIN and VMAX.
+ * Mirrors sssbench.ops._gather_torch (pixel_scales, _accumulate) operation by operation
+ * (same float operations in the same order: bitwise equal results but for exp, see
+ * BACKEND_AGREEMENT in sssbench/ops/gather.py); see those functions for the formulas and
+ * their citations. Expects SCALAR, SCALAR_MAX, SUFFIX, EXPF, FABSF, VMIN and VMAX.
  *
  * Work is done per line: a row of the image for an x pass, a strip of columns for a y pass (a
  * y tap stays in its column). For each line the active pixels' scales are computed
@@ -31,7 +31,8 @@ typedef struct {
     SCALAR *dst;             /* (3, H*W) output planes, written at the active pixels */
     const int64_t *lines;    /* per line: (first entry in ids, span count, active pixels) */
     const int64_t *ids;      /* the spans crossing each line, line after line, in order */
-    SCALAR focal_px, width_scalar, correction, maxdd, max_offset;
+    double focal_px, width_scalar, correction, maxdd; /* the scale is computed in double */
+    SCALAR max_offset;
     int64_t k, h, w, first, last, strip; /* this thread's lines [first, last); strip width */
     int axis_y, follow, copy; /* copy: dst starts as a copy of src, line by line */
     SCALAR *buf;   /* per thread: the line's interleaved (r, g, b, depth) window */
@@ -47,18 +48,20 @@ typedef SCALAR CAT(vec_, SUFFIX) __attribute__((vector_size(4 * sizeof(SCALAR)))
 #define WIDE_STRIP ((int64_t)(512 / sizeof(SCALAR)))
 
 /* pixels per kernel-offset unit at flat pixel l: DESIGN §2 pinhole, 003 §7.3.1 stretch and
- * s' = s * alpha; the torch loop's operations in its order */
+ * s' = s * alpha; the torch loop's operations in its order (pixel_scales in
+ * sssbench/ops/_gather_torch.py): in double, clamped to the largest finite SCALAR before the
+ * cast (also NaN, which validated inputs never give), so that offset * s is never NaN */
 static inline SCALAR CAT(scale_at_, SUFFIX)(const CAT(job_, SUFFIX) *j, int64_t l) {
-    const SCALAR cz = j->depth[l];
-    SCALAR denom = cz;
+    double denom = (double)j->depth[l];
     if (j->ddepth) {
-        const SCALAR dd = j->ddepth[l];
-        denom = cz + j->correction * (dd < j->maxdd ? dd : j->maxdd);
+        const double dd = (double)j->ddepth[l];
+        denom = denom + j->correction * (dd < j->maxdd ? dd : j->maxdd);
     }
-    SCALAR s = j->focal_px / denom;
-    s = s * (j->width ? j->width[l] : j->width_scalar);
-    if (j->mask) s = s * j->mask[l];
-    return s;
+    double s = j->focal_px / denom;
+    s = s * (j->width ? (double)j->width[l] : j->width_scalar);
+    if (j->mask) s = s * (double)j->mask[l];
+    if (!(s <= (double)SCALAR_MAX)) s = (double)SCALAR_MAX;
+    return (SCALAR)s;
 }
 
 /* The taps of one pixel at position pos along the axis. The window buffer holds positions
@@ -271,9 +274,8 @@ int64_t CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const i
             done += lines[3 * q++ + 2];
         SCALAR *mine = memory + (size_t)k * 4 + per_thread * (size_t)t;
         CAT(job_, SUFFIX) jb = {src, depth, spans, mask, width, ddepth, offsets, weights4,
-                                inv_scale, dst, lines, ids, (SCALAR)focal_px,
-                                (SCALAR)width_scalar, (SCALAR)correction, (SCALAR)maxdd,
-                                max_offset, k, h, w, first, q, strip, axis_y, follow, copy,
+                                inv_scale, dst, lines, ids, focal_px, width_scalar,
+                                correction, maxdd, max_offset, k, h, w, first, q, strip, axis_y, follow, copy,
                                 mine, mine + 4 * (size_t)line_len};
         jobs[t] = jb;
     }

@@ -1,0 +1,192 @@
+"""The native tap loop as torch operators: ``torch.ops.sssbench.gather`` (a new tensor) and
+``torch.ops.sssbench.gather_`` (in place), plus ``torch.ops.sssbench.blend_`` (the
+sum-of-Gaussians blend on the stencil, in place).
+
+Registered with :func:`torch.library.custom_op`, so that the dispatcher treats the C loop like
+any torch kernel:
+
+- the in-place forms declare ``mutates_args``: every write bumps the tensor's version counter
+  as a torch in-place op does, so autograd raises on a saved tensor the pass overwrote instead
+  of computing a wrong gradient;
+- ``register_fake`` gives the output's shape, so ``torch.compile(fullgraph=True)`` traces a
+  module that calls the op without a graph break (``separable_pass`` itself validates its
+  inputs with data-dependent checks, e.g. ``width >= 0``, which break a graph: a compiled
+  module calls the operator with validated inputs);
+- ``register_autograd`` gives ``gather`` a backward: the vector-Jacobian product of the torch
+  loop (:func:`~sssbench.ops._gather_torch.gather_torch`), recomputed inside backward from the
+  saved inputs and differentiated by autograd (the loop is a gather, its adjoint a scatter-add
+  of the same taps; recomputing costs one torch-loop forward per backward and keeps one
+  specification instead of a second hand-written adjoint). First-order only: the backward
+  itself is not differentiable (no double backward).
+
+Without the C library (no compiler, failed load) the operators run the torch loop, so they work
+everywhere; :mod:`sssbench.ops.gather` decides which backend a pass uses.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from sssbench.ops import native
+from sssbench.ops._gather_torch import gather_torch
+from sssbench.ops._stencil import image_spans
+
+__all__ = ["gather", "gather_", "blend_", "native_pass"]
+
+Tensor = torch.Tensor
+
+
+#: the schema's arguments after ``image``, in :func:`~sssbench.ops._gather_torch.gather_torch`'s
+#: order (see there for shapes and units)
+_PASS_ARGS = (
+    "Tensor depth, Tensor? strength, Tensor? width, Tensor? ddepth, Tensor offsets, "
+    "Tensor weights, Tensor inv_scale, float f_px, float width_scalar, float correction, "
+    "float maxdd, bool axis_y, int follow"
+)
+_N_TENSORS = 8  # image and the seven tensors above: what the backward differentiates
+
+
+def native_pass(lib: object, image: Tensor, out: Tensor, args: tuple, copy: bool) -> int:
+    """One pass over a batch through the C loop (``native/gather_body.h``); the active pixel
+    count. ``args``: the arguments after ``image`` of
+    :func:`~sssbench.ops._gather_torch.gather_torch`; ``out`` ``(B, 3, H, W)`` contiguous may
+    be ``image`` (the loop reads every sample of a row (x) or column strip (y) into its own
+    buffer before it writes any result there); ``copy``: ``out`` is uninitialised and gets
+    ``image``'s pixels everywhere else (copied line by line as the loop goes, no separate
+    full-image pass). Threads: ``torch.get_num_threads()``."""
+    depth, strength, width, ddepth, offsets, weights, inv_scale, *scalars = args
+    f_px, width_scalar, correction, maxdd, axis_y, follow = scalars
+    b, _, h, w = image.shape
+    dtype = image.dtype
+    keep = []  # contiguous copies must outlive the call
+
+    def ptr(t: Tensor | None) -> int | None:
+        if t is None:
+            return None
+        if t.dtype != dtype and t.is_floating_point():
+            t = t.to(dtype)
+        t = t.detach().contiguous()
+        keep.append(t)
+        return t.data_ptr()
+
+    def at(t: Tensor | None, bi: int) -> int | None:
+        return ptr(None if t is None else t[bi])
+
+    fn = lib.sss_gather_f32 if dtype == torch.float32 else lib.sss_gather_f64
+    n_total = 0
+    threads = torch.get_num_threads()
+    for bi, spans in enumerate(image_spans(strength, (b, h, w))):
+        if not (copy or spans.shape[0]):
+            continue
+        status = fn(
+            at(image, bi), at(depth, bi), ptr(spans), at(strength, bi), at(width, bi),
+            at(ddepth, bi), ptr(offsets), ptr(weights), ptr(inv_scale), out[bi].data_ptr(),
+            f_px, width_scalar, correction, maxdd, spans.shape[0], offsets.numel(), h, w,
+            int(axis_y), follow, int(copy), threads,
+        )  # fmt: skip
+        if status < 0:
+            raise MemoryError(f"native gather: no memory for the line buffers of a {h}x{w} image")
+        n_total += status
+    return n_total
+
+
+def _gather(image: Tensor, *args) -> Tensor:
+    """``torch.ops.sssbench.gather``: one gather pass over a batch, a new ``(B, 3, H, W)``
+    contiguous tensor, the active pixels blurred and the others ``image``'s. Arguments as
+    :func:`~sssbench.ops._gather_torch.gather_torch` (validated by
+    :func:`~sssbench.ops.gather.separable_pass`, the public entry)."""
+    lib = native.library()
+    if lib is None:
+        with torch.no_grad():
+            return gather_torch(image, *args)[0]
+    out = torch.empty(image.shape, dtype=image.dtype, device=image.device)
+    native_pass(lib, image, out, args, copy=True)
+    return out
+
+
+def _gather_inplace(image: Tensor, *args) -> None:
+    """``torch.ops.sssbench.gather_``: :func:`_gather` written into ``image`` (contiguous,
+    overlapping no other argument: :func:`~sssbench.ops.gather.check_writable`); only the
+    active pixels are touched. Bumps ``image``'s version counter (``mutates_args``). No
+    autograd: not for a tensor autograd records."""
+    lib = native.library()
+    if lib is None:
+        with torch.no_grad():
+            gather_torch(image, *args, out=image)
+        return
+    native_pass(lib, image, image, args, copy=False)
+
+
+gather = torch.library.custom_op(
+    "sssbench::gather", _gather, mutates_args=(), device_types="cpu",
+    schema=f"(Tensor image, {_PASS_ARGS}) -> Tensor",
+)  # fmt: skip
+gather_ = torch.library.custom_op(
+    "sssbench::gather_", _gather_inplace, mutates_args=("image",), device_types="cpu",
+    schema=f"(Tensor(a!) image, {_PASS_ARGS}) -> ()",
+)  # fmt: skip
+
+
+@gather.register_fake
+def _(image, *args):
+    return torch.empty(image.shape, dtype=image.dtype, device=image.device)
+
+
+@gather_.register_fake
+def _(image, *args) -> None:
+    return None
+
+
+def _setup_context(ctx, inputs, output) -> None:
+    ctx.save_for_backward(*inputs[:_N_TENSORS])
+    ctx.scalars = inputs[_N_TENSORS:]
+
+
+def _backward(ctx, grad_out: Tensor):
+    """The vector-Jacobian product of the torch loop at the saved inputs (see the module
+    docstring): gradients for the eight tensor inputs, ``None`` for the scalars."""
+    saved = ctx.saved_tensors
+    needs = ctx.needs_input_grad[:_N_TENSORS]
+    with torch.enable_grad():
+        leaves = [
+            None if t is None else t.detach().requires_grad_(bool(n) and t.is_floating_point())
+            for t, n in zip(saved, needs, strict=True)
+        ]
+        out, _ = gather_torch(*leaves, *ctx.scalars)
+        wrt = [t for t in leaves if t is not None and t.requires_grad]
+        grads = iter(torch.autograd.grad(out, wrt, grad_out, allow_unused=True) if wrt else ())
+    result = [next(grads) if t is not None and t.requires_grad else None for t in leaves]
+    return (*result, *([None] * len(ctx.scalars)))
+
+
+gather.register_autograd(_backward, setup_context=_setup_context)
+
+
+def _blend(out: Tensor, end: Tensor, weight: Tensor, mask: Tensor | None) -> None:
+    """``torch.ops.sssbench.blend_``: ``out ← lerp(out, end, weight)`` at the pixels with
+    ``mask > 0`` (all without a mask), in place (bumps ``out``'s version): the
+    sum-of-Gaussians blend (003 §7.3.3, Listing 7.2) in C, torch.lerp's formula with a
+    separate multiply and add (torch fuses them: the two agree to a rounding).
+
+    ``out``, ``end``: ``(B, 3, H, W)`` (``out`` contiguous); ``weight``: ``(3,)`` of their
+    dtype; ``mask``: ``(B, 1, H, W)`` or ``None``. Needs the C library."""
+    lib = native.library()
+    b, _, h, w = out.shape
+    fn = lib.sss_blend_f32 if out.dtype == torch.float32 else lib.sss_blend_f64
+    end = end.contiguous()
+    weight = weight.to(out.dtype).contiguous()
+    for bi, spans in enumerate(image_spans(mask, (b, h, w))):
+        if spans.shape[0]:
+            fn(out[bi].data_ptr(), end[bi].data_ptr(), spans.data_ptr(), weight.data_ptr(),
+               spans.shape[0], h, w, torch.get_num_threads())  # fmt: skip
+
+
+blend_ = torch.library.custom_op(
+    "sssbench::blend_", _blend, mutates_args=("out",), device_types="cpu",
+    schema="(Tensor(a!) out, Tensor end, Tensor weight, Tensor? mask) -> ()",
+)  # fmt: skip
+
+
+@blend_.register_fake
+def _(out, end, weight, mask) -> None:
+    return None
