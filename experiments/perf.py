@@ -181,31 +181,30 @@ def run(ctx: Context) -> Section:
         size = gbuffer_mb(g)
         baselines[res_name] = (kornia_ms, floor_ms, size)
         for backend in backends:
-            gather.set_backend(backend)
-            for taps in taps_list:
-                for name, make in methods(taps).items():
-                    if backend != "native" and name != "preintegrated":
-                        continue  # the slower backends on the headline method only
-                    if backend == "compile" and taps != 7:
-                        continue  # compiling costs tens of seconds per configuration
-                    op = make()
-                    total, passes = time_method(op, g, repeats)
-                    rows.append(
-                        dict(
-                            method=name + BACKEND_LABELS[backend],
-                            resolution=res_name,
-                            taps=taps,
-                            passes=len(passes),
-                            ms_per_pass=total / max(len(passes), 1),
-                            total_ms=total,
-                            vs_kornia=total / kornia_ms,
-                            vs_floor=total / floor_ms,
-                            coverage=coverage,
+            with gather.backend(backend):
+                for taps in taps_list:
+                    for name, make in methods(taps).items():
+                        if backend != "native" and name != "preintegrated":
+                            continue  # the slower backends on the headline method only
+                        if backend == "compile" and taps != 7:
+                            continue  # compiling costs tens of seconds per configuration
+                        op = make()
+                        total, passes = time_method(op, g, repeats)
+                        rows.append(
+                            dict(
+                                method=name + BACKEND_LABELS[backend],
+                                resolution=res_name,
+                                taps=taps,
+                                passes=len(passes),
+                                ms_per_pass=total / max(len(passes), 1),
+                                total_ms=total,
+                                vs_kornia=total / kornia_ms,
+                                vs_floor=total / floor_ms,
+                                coverage=coverage,
+                            )
                         )
-                    )
-                    measured.append((rows[-1], backend, op, g, size))
-                    print(f"perf: {rows[-1]}", flush=True)
-        gather.set_backend("native")
+                        measured.append((rows[-1], backend, op, g, size))
+                        print(f"perf: {rows[-1]}", flush=True)
         lines.append(
             f"- {res_name} (`head_close`, {coverage:.0%} of pixels masked, G-buffer "
             f"{size:.0f} MB): kornia `gaussian_blur2d` 7×7 {kornia_ms:.1f} ms; read+write "
@@ -253,11 +252,10 @@ def run(ctx: Context) -> Section:
     # for the rest of the process, which would add page faults to any timing after it
     with PeakMemory() as memory:
         for row, backend, op, g, size in measured:
-            gather.set_backend(backend)
-            row["peak_mb"] = memory(lambda op=op, g=g: op(g))
+            with gather.backend(backend):
+                row["peak_mb"] = memory(lambda op=op, g=g: op(g))
             row["vs_gbuffer"] = row["peak_mb"] / size
     measured.clear()
-    gather.set_backend("native")
 
     def total_ms(method: str, taps: int, res_name: str) -> float | None:
         for r in rows:

@@ -150,16 +150,15 @@ def time_limit(seconds: float | None) -> Iterator[None]:
 @contextlib.contextmanager
 def torch_settings(threads: int | None, backend: str) -> Iterator[None]:
     """Set torch's intra-op threads and the gather backend for a block; restore both."""
-    from sssbench.ops import get_backend, set_backend
+    from sssbench.ops import backend as use_backend
 
-    before_threads, before_backend = torch.get_num_threads(), get_backend()
+    before_threads = torch.get_num_threads()
     if threads is not None:
         torch.set_num_threads(int(threads))
     try:
-        set_backend(backend)
-        yield
+        with use_backend(backend):
+            yield
     finally:
-        set_backend(before_backend)
         torch.set_num_threads(before_threads)
 
 

@@ -90,8 +90,8 @@ from sssbench._checks import check_choice, check_int, check_scalar
 from sssbench.gbuffer import GBuffer, pixel_size_mm, view_positions
 from sssbench.ops._disk_noise import blue_noise_mask
 from sssbench.ops._disk_radial import RadialSampler, radial_sampler
+from sssbench.ops._gather_torch import _bilinear_corners
 from sssbench.ops._stencil import active_pixels
-from sssbench.ops.gather import _bilinear_corners
 from sssbench.ops.timing import timed_pass
 from sssbench.profiles.base import Profile
 

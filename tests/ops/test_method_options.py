@@ -42,19 +42,15 @@ def test_inplace_call_writes_the_same_result_into_the_diffuse(name, backend):
     result bit for bit, in ``gbuffer.diffuse``; two-pass methods change no pixel outside the
     stencil, so the untouched pixels are the input's."""
     from sssbench.ops import LowRankSSS
-    from sssbench.ops.gather import get_backend, set_backend
+    from sssbench.ops import backend as use_backend
 
     make = METHODS.get(name, lambda: LowRankSSS(SKIN, 2, n=7))
     g = data_synth.make_scene("head", resolution=(40, 48), dtype=torch.float64)
-    before = get_backend()
-    set_backend(backend)
-    try:
+    with use_backend(backend):
         op = make()
         ref = op(g)
         work = g.replace(diffuse=g.diffuse.clone())
         got = op(work, inplace=True)
-    finally:
-        set_backend(before)
     assert got is work.diffuse
     torch.testing.assert_close(got, ref, rtol=0, atol=0)
     outside = g.mask == 0
