@@ -793,7 +793,7 @@ def _face(ctx: Ctx, **params) -> FaceBuild:
     aim="face",
     yaw=20.0,
     pitch=0.0,
-    back_dir=(0.1, 0.35, -0.93),
+    back_dir=(0.4, 0.3, -0.87),
     back_intensity=0.8,
     key_dir=(-0.55, 0.45, 0.70),
     key_intensity=1.0,
@@ -813,10 +813,10 @@ def face(ctx: Ctx, **params) -> GBuffer:
     left, the right ear in view) and ``pitch`` degrees.
 
     Lights (view space, toward the light; the first is the G-buffer's ``light_dir`` and defines
-    ``thickness``): ``back_dir`` behind the head and slightly up (through the ears: their
-    ``thickness`` is the chord of the 3 mm slab, ~4–5 mm), ``key_dir`` from the upper left in
-    front (the nose casts its shadow on the right cheek and lip), ``rim_dir`` from behind on the
-    right (a bright edge along the right silhouette); ``ambient`` everywhere.
+    ``thickness``): ``back_dir`` behind the head, to the right and slightly up (through the
+    right ear: its ``thickness`` is the chord of the 3 mm slab, ~7 mm), ``key_dir`` from the
+    upper left in front (the nose casts its shadow on the right cheek and lip), ``rim_dir``
+    from behind on the right (a bright edge along the right silhouette); ``ambient`` everywhere.
 
     Randomness (``seed``): the textures' offsets and turns and the skin's tint field. Mask 1 on
     skin (face, nose, lips, ears, neck); hair, brows, eyes, clothes and wall 0. Part labels:
