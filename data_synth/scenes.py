@@ -837,7 +837,7 @@ def face_parts(
 
     Example:
         >>> b = face_parts((32, 32), pixel_mm="medium", fields=[])
-        >>> b.parts.shape, int(b.parts.max()) <= max(face_model.FACE_PARTS.values())
+        >>> tuple(b.parts.shape), int(b.parts.max()) <= max(face_model.FACE_PARTS.values())
         ((1, 1, 32, 32), True)
     """
     spec, ctx = _context("face", resolution, seed, fields, dtype, params)
