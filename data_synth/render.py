@@ -201,6 +201,8 @@ class CulledUnion(SceneObject):
         """Per part: the selected rays ``sel`` and their ``(t_in, t_out, normal)``."""
         if o.ndim == 1:
             select = self._cone_select(o, d)
+        elif d.shape[0] and bool((d == d[0]).all()):
+            select = self._parallel_select(o, d[0], t_min)
         else:
             select = self._ray_select(o, d, t_min)
         o = o.expand_as(d)
@@ -235,6 +237,35 @@ class CulledUnion(SceneObject):
             cand = order[a:b]
             yc = py[cand]
             return cand[(yc >= lo[1]) & (yc <= hi[1])]
+
+        return select
+
+    def _parallel_select(self, o: torch.Tensor, d: torch.Tensor, t_min):
+        """Rays of one direction ``d`` (a directional light): per part, those whose origin
+        projects, along ``d``, into the disc of the part's bounding sphere and that reach it
+        beyond ``t_min``; origins sorted along one axis of the disc's plane once."""
+        u = unit(d)
+        e1 = unit(torch.linalg.cross(u, torch.tensor([1.0, 0.0, 0.0], dtype=d.dtype)))
+        if float(e1.norm()) < 0.5 or abs(float(u[0])) > 0.9:
+            e1 = unit(torch.linalg.cross(u, torch.tensor([0.0, 1.0, 0.0], dtype=d.dtype)))
+        e2 = torch.linalg.cross(u, e1)
+        basis = torch.stack([e1, e2, u])  # rows
+        proj = (o @ basis.T).T.contiguous()  # (3, N): along e1, e2 and the ray
+        a_sorted, order = proj[0].sort()
+        t_min = torch.as_tensor(t_min, dtype=d.dtype).expand(o.shape[0]) * float(d.norm())
+
+        def select(k):
+            c, r = self._bounds[k]
+            pc = (basis @ c.to(d.dtype)).tolist()
+            ends = torch.tensor([pc[0] - r, pc[0] + r], dtype=a_sorted.dtype)
+            lo, hi = torch.searchsorted(a_sorted, ends).tolist()
+            cand = order[lo:hi]
+            da = proj[0, cand] - pc[0]
+            db = proj[1, cand] - pc[1]
+            near = (da * da + db * db) <= r * r
+            # the far side of the sphere along the ray lies beyond t_min
+            ahead = (pc[2] + r) - proj[2, cand] > t_min[cand]
+            return cand[near & ahead]
 
         return select
 
