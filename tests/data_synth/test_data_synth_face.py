@@ -40,10 +40,10 @@ def test_ear_thickness_is_the_chord_of_the_3_mm_slab(portrait):
     g, parts = portrait.gbuffer, portrait.parts
     light = _cam(g.light_dir[0])  # the back light, toward the light
     assert float(g.light_dir[0, 2]) < 0  # behind the head
-    pos = view_positions(g.depth, g.fov_y)[0].reshape(3, -1).T  # camera frame, mm
-    th = g.thickness.reshape(-1)
     ear = (parts == FACE_PARTS["ear"]).reshape(-1)
-    assert bool(((th[ear] > 0) & (th[ear] < 10.0)).float().mean() > 0.6)
+    pos = view_positions(g.depth, g.fov_y)[0].reshape(3, -1).T[ear]  # camera frame, mm
+    th = g.thickness.reshape(-1)[ear]
+    assert bool(((th > 0) & (th < 10.0)).float().mean() > 0.9)  # measured: 98 %
     checked = 0
     for e in portrait.ears:
         q = pos - e.center
@@ -58,7 +58,7 @@ def test_ear_thickness_is_the_chord_of_the_3_mm_slab(portrait):
             return ((u / (ra - margin)) ** 2 + (v / (rb - margin)) ** 2) < 1
 
         # back half of the ear (>= 7 mm proud of the head), entry and exit inside the outline
-        sel = ear & on_face & into & (a > 0) & inside(a, b) & inside(a + chord * lu, b + chord * lv)
+        sel = on_face & into & (a > 0) & inside(a, b) & inside(a + chord * lu, b + chord * lv)
         if bool(sel.any()):
             torch.testing.assert_close(th[sel], torch.full_like(th[sel], chord), rtol=1e-6, atol=0)
             checked += int(sel.sum())
