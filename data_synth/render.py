@@ -221,6 +221,7 @@ class CulledUnion(SceneObject):
         px, py = d[:, 0] / dz, d[:, 1] / dz
         forward = bool((dz > 0).all())
         px_sorted, order = px.sort()
+        py_sorted = py[order]
         everything = torch.arange(d.shape[0])
 
         def select(k):
@@ -234,9 +235,8 @@ class CulledUnion(SceneObject):
             hi = [(float(c[a]) + r) / (far if float(c[a]) + r < 0 else near) for a in (0, 1)]
             ends = torch.tensor([lo[0], hi[0]], dtype=px_sorted.dtype)  # x range, then filter y
             a, b = torch.searchsorted(px_sorted, ends).tolist()
-            cand = order[a:b]
-            yc = py[cand]
-            return cand[(yc >= lo[1]) & (yc <= hi[1])]
+            yc = py_sorted[a:b]
+            return order[a:b][(yc >= lo[1]) & (yc <= hi[1])]
 
         return select
 
@@ -252,20 +252,21 @@ class CulledUnion(SceneObject):
         basis = torch.stack([e1, e2, u])  # rows
         proj = (o @ basis.T).T.contiguous()  # (3, N): along e1, e2 and the ray
         a_sorted, order = proj[0].sort()
+        b_sorted, s_sorted = proj[1][order], proj[2][order]
         t_min = torch.as_tensor(t_min, dtype=d.dtype).expand(o.shape[0]) * float(d.norm())
+        t_sorted = t_min[order]
 
         def select(k):
             c, r = self._bounds[k]
             pc = (basis @ c.to(d.dtype)).tolist()
             ends = torch.tensor([pc[0] - r, pc[0] + r], dtype=a_sorted.dtype)
             lo, hi = torch.searchsorted(a_sorted, ends).tolist()
-            cand = order[lo:hi]
-            da = proj[0, cand] - pc[0]
-            db = proj[1, cand] - pc[1]
-            near = (da * da + db * db) <= r * r
+            da = a_sorted[lo:hi] - pc[0]
+            db = b_sorted[lo:hi] - pc[1]
+            near = torch.addcmul(da * da, db, db) <= r * r
             # the far side of the sphere along the ray lies beyond t_min
-            ahead = (pc[2] + r) - proj[2, cand] > t_min[cand]
-            return cand[near & ahead]
+            near &= (pc[2] + r) - s_sorted[lo:hi] > t_sorted[lo:hi]
+            return order[lo:hi][near]
 
         return select
 
