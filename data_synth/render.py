@@ -205,13 +205,12 @@ class CulledUnion(SceneObject):
             select = self._parallel_select(o, d[0], t_min)
         else:
             select = self._ray_select(o, d, t_min)
-        o = o.expand_as(d)
         for k, part in enumerate(self.parts):
             if not (normals or part.casts_shadow):
                 continue
             sel = select(k)
-            if sel.numel():
-                yield k, sel, part.interval(o[sel], d[sel], normals)
+            if sel.numel():  # one origin (3,) broadcasts in Primitive.interval
+                yield k, sel, part.interval(o if o.ndim == 1 else o[sel], d[sel], normals)
 
     def _cone_select(self, origin: torch.Tensor, d: torch.Tensor):
         """Rays from one ``origin``: per part, those whose direction ``(x/z, y/z)`` falls in the
