@@ -436,12 +436,14 @@ def head(ctx: Ctx, *, fov_y, pixel_mm, distance, aim, yaw, light_dir, intensity,
     """A procedural head (:func:`~data_synth.head.head_object`) before a wall 600 mm behind it.
 
     Scale: ``pixel_mm`` mm per pixel at the focus (the head surface on the view axis); default
-    (``None``) 1.0 (a medium shot: the 230 mm head is 230 px tall at any resolution).
+    (``None``) 1.0 (a medium shot: the 230 mm head spans ~200 px at any resolution).
     ``head_close``, ``head_mid``, ``head_far`` preset 0.3, 1.0 and 6.0 mm per pixel
     (:data:`HEAD_PIXEL_MM`).
     ``distance`` replaces ``pixel_mm``: a preset name (``"close"``, ``"mid"``, ``"far"``, the
     same scales) or a number, the camera-to-head-centre distance in mm (> 150; then the scale
-    follows the resolution). ``aim``: ``"face"`` (the face centre on the view axis) or
+    follows the resolution: ``distance=268`` with ``aim="cheek"``, 743 and 3553 are the
+    screen-relative close / mid / far framings these presets had before they had a scale).
+    ``aim``: ``"face"`` (the face centre on the view axis) or
     ``"cheek"`` (the right cheek on the axis); default ``"cheek"`` for ``"close"`` and
     ``"face"`` otherwise. ``yaw``: head turn in degrees about the vertical axis (positive turns
     the face toward the viewer's left). Mask covers skin (face, ears, neck-less head); eyes,
