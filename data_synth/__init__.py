@@ -2,28 +2,45 @@
 
 ``make_scene(name, resolution, seed, fields=..., dtype=..., **params)`` builds one scene as a
 :class:`~sssbench.gbuffer.GBuffer`; :data:`SCENES` maps each name to its :class:`SceneSpec`
-(builder, the optional fields it provides, parameter defaults). Shared ray/solid geometry and
-lighting live in :mod:`data_synth.geometry`.
+(builder, the optional fields it provides, parameter defaults). Every scene takes ``pixel_mm``,
+the skin footprint of one pixel at its focus (:mod:`data_synth.scale`, :data:`SCALES`);
+:func:`pixel_footprint_mm` reads it back from a G-buffer.
+
+Modules: :mod:`~data_synth.scenes` (the catalogue and builders), :mod:`~data_synth.render`
+(tracing, shading, shadows, thickness), :mod:`~data_synth.geometry` (rays and convex
+primitives), :mod:`~data_synth.head` (the ellipsoid head), :mod:`~data_synth.face` (the implicit
+face), :mod:`~data_synth.scale` (physical scale), :mod:`~data_synth.textures` (image textures).
 """
 
+from data_synth.face import FACE_PARTS
+from data_synth.head import HEAD_HEIGHT_MM, head_object
+from data_synth.render import OPTIONAL_FIELDS
+from data_synth.scale import SCALES, focus_depth, pixel_footprint_mm
 from data_synth.scenes import (
     DEFAULT_FOV_Y,
     DEFAULT_RESOLUTION,
-    HEAD_HEIGHT_MM,
-    OPTIONAL_FIELDS,
+    HEAD_PIXEL_MM,
     SCENES,
+    FaceBuild,
     SceneSpec,
-    head_object,
+    face_parts,
     make_scene,
 )
 
 __all__ = [
     "DEFAULT_FOV_Y",
     "DEFAULT_RESOLUTION",
+    "FACE_PARTS",
+    "FaceBuild",
     "HEAD_HEIGHT_MM",
+    "HEAD_PIXEL_MM",
     "OPTIONAL_FIELDS",
+    "SCALES",
     "SCENES",
     "SceneSpec",
+    "face_parts",
+    "focus_depth",
     "head_object",
     "make_scene",
+    "pixel_footprint_mm",
 ]

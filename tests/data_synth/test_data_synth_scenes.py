@@ -7,7 +7,7 @@ import math
 import pytest
 import torch
 
-from data_synth import HEAD_HEIGHT_MM, OPTIONAL_FIELDS, SCENES, make_scene
+from data_synth import HEAD_HEIGHT_MM, OPTIONAL_FIELDS, SCENES, make_scene, pixel_footprint_mm
 from sssbench.gbuffer import GBuffer, pixel_size_mm, view_positions
 
 SMALL = (48, 64)  # non-square: catches H/W mix-ups
@@ -260,21 +260,27 @@ def _rows_covered(g: GBuffer) -> float:
     return float(head.any(dim=1).float().mean())
 
 
-def test_head_presets_frame_the_head_as_documented():
-    far = make_scene("head_far", (80, 80), fields=[])
-    mid = make_scene("head_mid", (80, 80), fields=[])
-    close = make_scene("head_close", (80, 80), fields=[])
-    assert 0.1 < _rows_covered(far) < 0.2  # ~0.15 screen heights
-    assert 0.65 < _rows_covered(mid) < 0.95  # ~0.8
-    assert float((close.depth < close.depth.max()).float().mean()) > 0.7  # close-up
+def test_head_presets_keep_the_physical_scale_at_any_resolution():
+    # head_far is 6 mm per pixel at the face: the 230 mm head spans ~230 / 6 rows at the depth
+    # of its centre whatever the image height (it was a fixed fraction of the screen before)
+    rows = {}
+    for h in (80, 160):
+        g = make_scene("head_far", (h, h), dtype=torch.float64, fields=[])
+        rows[h] = _rows_covered(g) * h
+        z_f = float(pixel_footprint_mm(g)[0]) * h / (2 * math.tan(g.fov_y / 2))
+        z_c = z_f + 114.0  # the head centre: the nose tip stands 114 mm in front of it
+        assert rows[h] * 6.0 * z_c / z_f == pytest.approx(HEAD_HEIGHT_MM, rel=0.06)
+    assert rows[160] == pytest.approx(rows[80], rel=0.1)  # not twice as many
     assert torch.equal(
         make_scene("head", (32, 32), distance="far").depth, make_scene("head_far", (32, 32)).depth
     )
-    # the head is 230 mm tall: rows covered x screen height at the centre depth
+    # a numeric distance keeps the head at that distance: rows x screen height at its centre
     dist = 700.0
     g = make_scene("head", (128, 128), distance=dist, fields=[])
     screen = 2 * dist * math.tan(g.fov_y / 2)
     assert _rows_covered(g) * screen == pytest.approx(HEAD_HEIGHT_MM, rel=0.1)
+    with pytest.raises(ValueError, match="either distance or pixel_mm"):
+        make_scene("head_close", (8, 8), distance=500.0)
 
 
 def test_head_mask_excludes_eyes_brows_hair_and_background():
@@ -292,7 +298,7 @@ def test_crowd_has_heads_at_several_depths():
     skin_depths = g.depth[g.mask > 0]
     assert float(skin_depths.max() - skin_depths.min()) > 1000.0
     with pytest.raises(ValueError, match="300 mm"):
-        make_scene("crowd", SMALL, n_heads=10, near=800.0, far=1000.0)
+        make_scene("crowd", SMALL, n_heads=10, spread=200.0)
 
 
 # ---------------------------------------------------------------- details
