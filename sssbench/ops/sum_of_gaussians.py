@@ -312,8 +312,23 @@ class SumOfGaussiansSSS(SeparableMethod):
         tag = ("sog_lod", sigma, level, focal_px, self.lod_threshold)
         return memoised((gbuffer.depth, gbuffer.mask), tag, compute)
 
+    def _axis_options(self, gbuffer: GBuffer, options: dict[str, object]) -> dict[str, dict]:
+        """Per pass axis, the pass options with the stretch (003 §7.3.1).
+
+        Small images: along an axis of length 1 (a 1×N, N×1 or 1×1 image) the depth
+        derivative is 0 — there is no neighbour to difference with — so the stretch factor
+        is just ``ssslevel``; and every tap of a pass along that axis clamps onto its one
+        pixel whatever the scale, so the pass is exact without the stretch. It is run without
+        it (the central difference, ``torch.gradient``, needs two samples per axis).
+        """
+        _, h, w = gbuffer.shape
+        return {
+            axis: dict(options, stretch=self.stretch if length > 1 else None)
+            for axis, length in (("x", w), ("y", h))
+        }
+
     def scatter(self, gbuffer: GBuffer, options: dict[str, object]) -> torch.Tensor:
-        options = dict(options, stretch=self.stretch)  # 003 §7.3.1
+        per_axis = self._axis_options(gbuffer, options)  # 003 §7.3.1
         dtype = gbuffer.dtype
         rt1 = gbuffer.diffuse  # the widest Gaussian so far (003 Fig. 7.6: RT1)
         rtf = gbuffer.diffuse  # the blended result (RTF)
@@ -332,10 +347,10 @@ class SumOfGaussiansSSS(SeparableMethod):
             # render targets owned by this call are overwritten (no full-image copy per pass)
             owned = rt1 is not gbuffer.diffuse
             tmp = separable_pass(
-                rt1, step.kernel, "x", g, name=f"{name}.x", inplace=owned, **options
+                rt1, step.kernel, "x", g, name=f"{name}.x", inplace=owned, **per_axis["x"]
             )
             rt1 = separable_pass(
-                tmp, step.kernel, "y", g, name=f"{name}.y", inplace=True, **options
+                tmp, step.kernel, "y", g, name=f"{name}.y", inplace=True, **per_axis["y"]
             )
             if rtf is gbuffer.diffuse:
                 rtf = rtf.clone(memory_format=torch.contiguous_format)
