@@ -10,7 +10,13 @@ from dataclasses import dataclass
 
 import torch
 
-from sssbench._checks import check_choice, check_int, check_scalar, check_tensor
+from sssbench._checks import (
+    check_choice,
+    check_int,
+    check_magnitude,
+    check_method_options,
+    check_tensor,
+)
 from sssbench._memo import memoised
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.kernel1d import Kernel1D
@@ -41,6 +47,8 @@ LISTING_EXTENT_SIGMAS = 3.0
 #: 003 §7.3.1 calibration: a head 1.0 units tall, fov 20°, 720 px viewport
 _JG10_FOV = math.radians(20.0)
 _JG10_HEIGHT = 720
+#: largest image height :func:`jg10_stretch` accepts (pixels)
+MAX_HEIGHT = 1 << 20
 
 
 def blend_weights(weights: torch.Tensor) -> torch.Tensor:
@@ -145,11 +153,11 @@ def jg10_stretch(
         >>> round(s.ssslevel, 3), s.correction, round(s.maxdd, 3)
         (1.183, 800.0, 0.23)
     """
-    height = check_int("height", height, 1)
-    check_scalar("ssslevel", ssslevel, 0.0)
-    check_scalar("correction", correction, 0.0)
-    check_scalar("maxdd", maxdd, 0.0, low_inclusive=False)
-    check_scalar("head_mm", head_mm, 0.0, low_inclusive=False)
+    height = check_int("height", height, 1, MAX_HEIGHT)
+    check_magnitude("ssslevel", ssslevel, "factor", zero=True)
+    check_magnitude("correction", correction, "factor", zero=True)
+    check_magnitude("maxdd", maxdd, "factor")  # head units per pixel
+    check_magnitude("head_mm", head_mm, "length")
     ratio = 2.0 * math.tan(_JG10_FOV / 2.0) * head_mm / (LISTING_EXTENT_SIGMAS * _JG10_HEIGHT)
     return Stretch(
         ssslevel=ssslevel * ratio,
@@ -254,12 +262,13 @@ class SumOfGaussiansSSS(SeparableMethod):
         super().__init__()
         if not isinstance(profile, SumOfGaussians):
             raise TypeError(f"profile must be a SumOfGaussians, got {type(profile).__name__}")
+        check_method_options(surface_scale, seed)
         check_int("samples", samples, 1, MAX_SAMPLES)
         check_choice("sampling", sampling, SAMPLINGS)
         if stretch is not None and not isinstance(stretch, Stretch):
             raise TypeError(f"stretch must be a Stretch or None, got {type(stretch).__name__}")
-        self.lod_threshold = check_scalar("lod_threshold", lod_threshold, 0.0)
-        extent_sigmas = check_scalar("extent_sigmas", extent_sigmas, 0.0, low_inclusive=False)
+        self.lod_threshold = check_magnitude("lod_threshold", lod_threshold, "factor", zero=True)
+        extent_sigmas = check_magnitude("extent_sigmas", extent_sigmas, "factor")
         self.set_options(
             follow_surface, surface_scale, rotation, seed, default_scale=profile.length_scales()[1]
         )

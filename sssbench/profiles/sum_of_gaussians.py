@@ -11,12 +11,15 @@ import math
 
 import torch
 
-from sssbench._checks import check_tensor
+from sssbench._checks import check_magnitude, check_range, check_tensor
 from sssbench.profiles.base import Profile, _gauss_legendre, as_r
 
 __all__ = ["SumOfGaussians", "SOG_TABLES", "interval_mass"]
 
 _SQRT2 = math.sqrt(2.0)
+#: largest |weight| accepted (dimensionless; a pole fit at the smallest depth, 1e-6 mm, has
+#: weights near 1e7): larger ones overflow float32 when a kernel is cast for a pass
+MAX_WEIGHT = 1e12
 
 #: Published tables: name -> (variances mm², weights rows (R, G, B) per Gaussian).
 SOG_TABLES: dict[str, tuple[list[float], list[list[float]]]] = {
@@ -79,9 +82,9 @@ class SumOfGaussians(Profile):
     """``R(r) = Σ_i w_i exp(-r²/2v_i) / (2π v_i)`` (001 eq. 6–7).
 
     Args:
-        variances: ``(N,)`` variances in mm², > 0.
+        variances: ``(N,)`` variances in mm², in [1e-12, 1e12] (``_checks.MAGNITUDES``).
         weights: ``(N, 3)`` per-channel weights (dimensionless; their sum is the total
-            diffuse reflectance of each channel).
+            diffuse reflectance of each channel), ``|w| <= MAX_WEIGHT``.
 
     Shape:
         ``__call__(r)``: ``(...,) -> (..., 3)``.
@@ -111,8 +114,8 @@ class SumOfGaussians(Profile):
                 f"weights must have shape ({n}, 3) to match variances {tuple(variances.shape)}, "
                 f"got {tuple(weights.shape)}"
             )
-        if bool((variances <= 0).any()):
-            raise ValueError(f"variances must be > 0 mm², got min {float(variances.min()):g}")
+        check_magnitude("variances", variances, "variance")
+        check_range("weights", weights, -MAX_WEIGHT, MAX_WEIGHT)
         self.variances = variances.double()
         self.weights = weights.double()
 
