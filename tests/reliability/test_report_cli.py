@@ -32,8 +32,14 @@ def _sweep_with(tmp_path, text: str):
 
 
 CASES = {
-    "text_file": (lambda p: (p / "notes.txt").write_text("hello\n") and p / "notes.txt", "notes.txt"),
-    "binary_file": (lambda p: (p / "b.dat").write_bytes(bytes(range(256))) and p / "b.dat", "b.dat"),
+    "text_file": (
+        lambda p: (p / "notes.txt").write_text("hello\n") and p / "notes.txt",
+        "notes.txt",
+    ),
+    "binary_file": (
+        lambda p: (p / "b.dat").write_bytes(bytes(range(256))) and p / "b.dat",
+        "b.dat",
+    ),
     "empty_file": (lambda p: (p / "e.sqlite").write_bytes(b"") == 0 and p / "e.sqlite", "e.sqlite"),
     "foreign_sqlite": (lambda p: _foreign_sqlite(p / "other.sqlite"), "other.sqlite"),
     "missing_path": (lambda p: p / "missing.sqlite", "missing.sqlite"),

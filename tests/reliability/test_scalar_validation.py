@@ -13,8 +13,14 @@ import torch
 
 from sssbench import GBuffer
 from sssbench._checks import MAGNITUDES, check_magnitude
-from sssbench.kernels import Kernel1D, artist, cell_centres, jimenez2012, preintegrated
-from sssbench.kernels import tap_positions
+from sssbench.kernels import (
+    Kernel1D,
+    artist,
+    cell_centres,
+    jimenez2012,
+    preintegrated,
+    tap_positions,
+)
 from sssbench.ops import (
     ArtistSSS,
     CurvatureModulation,
@@ -49,7 +55,9 @@ def _g() -> GBuffer:
 
 
 def _sog(v: float = 1.0, w: float = 1.0) -> SumOfGaussians:
-    return SumOfGaussians(torch.tensor([v], dtype=torch.float64), torch.full((1, 3), w, dtype=torch.float64))
+    return SumOfGaussians(
+        torch.tensor([v], dtype=torch.float64), torch.full((1, 3), w, dtype=torch.float64)
+    )
 
 
 # (id, thunk, argument name that the message must contain)
@@ -70,7 +78,11 @@ CASES = [
     # ---- kernels
     ("artist_scale_huge", lambda: artist(0.1, 0.5, 0.5, 1e300, 7), "scale"),
     ("artist_scale_tiny", lambda: artist(0.1, 0.5, 0.5, 1e-300, 7), "scale"),
-    ("artist_extent_huge", lambda: artist(0.1, 0.5, 0.5, 1.0, 7, "uniform", extent=1e300), "extent"),
+    (
+        "artist_extent_huge",
+        lambda: artist(0.1, 0.5, 0.5, 1.0, 7, "uniform", extent=1e300),
+        "extent",
+    ),
     ("jimenez_falloff_huge", lambda: jimenez2012(0.5, 1e300, 9), "falloff"),
     ("tap_extent_tiny", lambda: tap_positions(7, "uniform", 1e-300), "extent"),
     ("tap_exponent_huge", lambda: tap_positions(7, "power", 1.0, exponent=1e300), "exponent"),
@@ -81,7 +93,11 @@ CASES = [
     # ---- method constructors (before any kernel is built)
     ("jimenez_width_tiny", lambda: Jimenez2012SSS(0.5, 0.5, 1e-300), "width"),
     ("jimenez_width_huge", lambda: Jimenez2012SSS(0.5, 0.5, 1e300), "width"),
-    ("jimenez_surface_scale", lambda: Jimenez2012SSS(0.5, 0.5, 1.0, surface_scale=1e-300), "surface_scale"),
+    (
+        "jimenez_surface_scale",
+        lambda: Jimenez2012SSS(0.5, 0.5, 1.0, surface_scale=1e-300),
+        "surface_scale",
+    ),
     ("jimenez_seed", lambda: Jimenez2012SSS(0.5, 0.5, 1.0, seed=2**70), "seed"),
     ("sog_surface_scale", lambda: SumOfGaussiansSSS(SKIN, surface_scale=1e-300), "surface_scale"),
     ("sog_extent_sigmas", lambda: SumOfGaussiansSSS(SKIN, extent_sigmas=1e300), "extent_sigmas"),
@@ -89,7 +105,11 @@ CASES = [
     ("sog_seed", lambda: SumOfGaussiansSSS(SKIN, seed=-1), "seed"),
     ("low_rank_extent", lambda: LowRankSSS(SKIN, 3, 9, extent=1e-300), "extent"),
     ("low_rank_surface_scale", lambda: LowRankSSS(SKIN, 3, 9, surface_scale=INF), "surface_scale"),
-    ("preintegrated_halo_sigma", lambda: PreintegratedSSS(SKIN, halo="lab", halo_sigma=1e-300), "halo_sigma"),
+    (
+        "preintegrated_halo_sigma",
+        lambda: PreintegratedSSS(SKIN, halo="lab", halo_sigma=1e-300),
+        "halo_sigma",
+    ),
     ("preintegrated_seed", lambda: PreintegratedSSS(SKIN, seed=1.5), "seed"),
     ("artist_op_scale", lambda: ArtistSSS(0.1, 0.5, 0.5, 1e300), "scale"),
     ("artist_op_seed", lambda: ArtistSSS(0.1, 0.5, 0.5, 1.0, seed=2**64), "seed"),
@@ -99,12 +119,24 @@ CASES = [
     # ---- extensions
     ("range_weight_tiny", lambda: range_weight(1e-300), "sigma"),
     ("halo_min_cos_tiny", lambda: halo_guide(_g(), min_cos=1e-300), "min_cos"),
-    ("curvature_gain_huge", lambda: curvature_width(torch.ones(1, 1, 2, 2), "increase", gain=1e300), "gain"),
-    ("curvature_reference_tiny", lambda: curvature_width(torch.ones(1, 1, 2, 2), reference=1e-300), "reference"),
+    (
+        "curvature_gain_huge",
+        lambda: curvature_width(torch.ones(1, 1, 2, 2), "increase", gain=1e300),
+        "gain",
+    ),
+    (
+        "curvature_reference_tiny",
+        lambda: curvature_width(torch.ones(1, 1, 2, 2), reference=1e-300),
+        "reference",
+    ),
     ("curvature_smooth_huge", lambda: CurvatureModulation(smooth=2 * 10**9 + 1), "smooth"),
     ("curvature_edge_ratio", lambda: screen_space_curvature(_g(), edge_ratio=1e300), "edge_ratio"),
     ("translucency_width_tiny", lambda: translucency(_g(), "skin_deon6", 0.0, 1e-300), "width"),
-    ("translucency_intensity_huge", lambda: Translucency("skin_deon6", intensity=1e300), "intensity"),
+    (
+        "translucency_intensity_huge",
+        lambda: Translucency("skin_deon6", intensity=1e300),
+        "intensity",
+    ),
     ("rotation_seed_huge", lambda: random_rotation(_g(), 0.1, 2**70), "seed"),
 ]
 
