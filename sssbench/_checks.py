@@ -92,7 +92,8 @@ def check_range(
     """Check that every element of ``value`` lies in the interval [low, high] (or open ends)."""
     if value.numel() == 0:
         return value
-    _check_bounds(name, float(value.min()), float(value.max()), low, high, low_inclusive,
+    v = value.detach()  # a bound is checked on the values, not recorded by autograd
+    _check_bounds(name, float(v.min()), float(v.max()), low, high, low_inclusive,
                   high_inclusive)  # fmt: skip
     return value
 
