@@ -356,8 +356,10 @@ def pass_tolerance(records, spec: Spec, op: object, g: GBuffer) -> float:
         follow = 4 * ulp / smin
     mass = 1.0
     if spec.name == "low_rank":
-        mass = max(float(h.weights.abs().sum(0).max() * v.weights.abs().sum(0).max())
-                   for h, v in op.kernel.terms)  # fmt: skip
+        mass = max(
+            float(h.weights.abs().sum(0).max() * v.weights.abs().sum(0).max())
+            for h, v in op.kernel.terms
+        )
         mass *= len(op.kernel.terms)
     return sum(max(1e-5, r.samples * 2.0**-24) + follow for r in records) * mass
 
@@ -419,15 +421,23 @@ def with_layout(g: GBuffer, how: str) -> GBuffer:
         if g.shape[0] != 1:
             return g
         fields["light_dir"] = fields["light_dir"].expand(2, 3)
-    return GBuffer(**{k: relayout(v, how) if k != "light_dir" and isinstance(v, torch.Tensor)
-                      else v for k, v in fields.items()})  # fmt: skip
+    return GBuffer(
+        **{
+            k: relayout(v, how) if k != "light_dir" and isinstance(v, torch.Tensor) else v
+            for k, v in fields.items()
+        }
+    )
 
 
 def contiguous(g: GBuffer) -> GBuffer:
     """The same values, every tensor its own contiguous memory."""
     fields = {k: getattr(g, k) for k in g.__dataclass_fields__}
-    return GBuffer(**{k: v.clone(memory_format=torch.contiguous_format)
-                      if isinstance(v, torch.Tensor) else v for k, v in fields.items()})  # fmt: skip
+    return GBuffer(
+        **{
+            k: v.clone(memory_format=torch.contiguous_format) if isinstance(v, torch.Tensor) else v
+            for k, v in fields.items()
+        }
+    )
 
 
 LAYOUTS = st.sampled_from(
@@ -479,8 +489,11 @@ def check_inplace(data, g: GBuffer, how: str) -> None:
 
 
 @fuzz(1.5)
-@given(data=st.data(), g=scenes(), how=st.sampled_from(["contiguous", "channels_last", "slice",
-                                                        "transposed"]))  # fmt: skip
+@given(
+    data=st.data(),
+    g=scenes(),
+    how=st.sampled_from(["contiguous", "channels_last", "slice", "transposed"]),
+)
 def test_fuzz_inplace_matches_copy(data, g, how):
     check_inplace(data, g, how)
 
@@ -541,9 +554,13 @@ def _profile_case(d) -> tuple[Callable[[], object], tuple[str, ...], dict]:
     which = d(st.sampled_from(["sog", "burley", "dipole", "pole"]))
     if which == "sog":
         kw = {"variances": d(st.sampled_from([1e-6, 0.5, 1e4])), "weights": 0.5}
-        return (lambda variances, weights: SumOfGaussians(
-            torch.tensor([variances, 2 * variances]), torch.full((2, 3), weights)),
-            ("variances", "weights"), kw)  # fmt: skip
+        return (
+            lambda variances, weights: SumOfGaussians(
+                torch.tensor([variances, 2 * variances]), torch.full((2, 3), weights)
+            ),
+            ("variances", "weights"),
+            kw,
+        )
     if which == "burley":
         kw = {"d": d(st.sampled_from([1e-3, 1.0, 1e3])), "albedo": d(st.sampled_from([0.0, 0.5]))}
         return BurleyNormalized, ("d", "albedo"), kw
@@ -595,19 +612,31 @@ def _kernel_case(d) -> tuple[Callable[[], Kernel1D], tuple[str, ...], dict, bool
         }
         return (lambda **k: preintegrated(prof, **k)), ("samples", "extent"), kw, True
     if which == "artist":
-        kw = {"near": 0.1, "far": 0.5, "weight": 0.5, "scale": d(st.sampled_from([0.1, 10.0])),
-              "samples": d(SAMPLES), "sampling": d(SAMPLING)}  # fmt: skip
+        kw = {
+            "near": 0.1,
+            "far": 0.5,
+            "weight": 0.5,
+            "scale": d(st.sampled_from([0.1, 10.0])),
+            "samples": d(SAMPLES),
+            "sampling": d(SAMPLING),
+        }
         return artist, ("near", "far", "weight", "scale", "samples"), kw, True
     if which == "jimenez2012":
-        kw = {"strength": 0.5, "falloff": d(st.sampled_from([0.0, 0.4, 1e3])),
-              "samples": d(st.sampled_from([1, 2, 9, 33]))}  # fmt: skip
+        kw = {
+            "strength": 0.5,
+            "falloff": d(st.sampled_from([0.0, 0.4, 1e3])),
+            "samples": d(st.sampled_from([1, 2, 9, 33])),
+        }
         return jimenez2012, ("strength", "falloff", "samples"), kw, True
     if which == "low_rank":
         kw = {"rank": d(st.integers(1, 3)), "extent": d(st.sampled_from([1.0, 5.0])), "n": 5}
-        return ((lambda **k: low_rank(prof, **k).terms[0][0]), ("rank", "extent", "n"), kw,
-                False)  # fmt: skip
-    kw = {"samples": d(SAMPLES), "sampling": d(st.sampled_from(["uniform", "power"])),
-          "extent": d(st.sampled_from([1e-6, 1.0, 1e6])), "exponent": d(st.sampled_from([0.5, 2.0]))}  # fmt: skip
+        return ((lambda **k: low_rank(prof, **k).terms[0][0]), ("rank", "extent", "n"), kw, False)
+    kw = {
+        "samples": d(SAMPLES),
+        "sampling": d(st.sampled_from(["uniform", "power"])),
+        "extent": d(st.sampled_from([1e-6, 1.0, 1e6])),
+        "exponent": d(st.sampled_from([0.5, 2.0])),
+    }
 
     def taps(**k) -> Kernel1D:
         c, e = tap_positions(**k)
@@ -665,23 +694,27 @@ def test_fuzz_extensions_valid_or_named_error(data, g):
     d = data.draw
     which = d(st.sampled_from(["translucency", "curvature", "texturing", "halo", "range"]))
     if which == "translucency":
-        kw = {"profile": d(st.sampled_from(["skin_deon6", "skin_jg10"])),
-              "translucency": d(st.sampled_from([0.0, 0.5, 0.99])),
-              "width": d(st.sampled_from([0.1, 8.25, 100.0])),
-              "form": d(st.sampled_from(["jimenez2012", "deon"])),
-              "intensity": d(st.sampled_from([0.0, 1.0, 1e3]))}  # fmt: skip
+        kw = {
+            "profile": d(st.sampled_from(["skin_deon6", "skin_jg10"])),
+            "translucency": d(st.sampled_from([0.0, 0.5, 0.99])),
+            "width": d(st.sampled_from([0.1, 8.25, 100.0])),
+            "form": d(st.sampled_from(["jimenez2012", "deon"])),
+            "intensity": d(st.sampled_from([0.0, 1.0, 1e3])),
+        }
         scalars = ("translucency", "width", "intensity")
 
         def call(**k):
             return Translucency(**k)(g)
 
     elif which == "curvature":
-        kw = {"strategy": d(st.sampled_from(["increase", "reduce", "reduce_min"])),
-              "reference": d(st.sampled_from([0.01, 0.05, 1.0])),
-              "gain": d(st.sampled_from([0.0, 1.0, 10.0])),
-              "minimum": d(st.sampled_from([0.0, 0.5, 1.0])),
-              "mode": d(st.sampled_from(["divergence", "magnitude"])),
-              "smooth": d(st.sampled_from([1, 3, 5, 25]))}  # fmt: skip
+        kw = {
+            "strategy": d(st.sampled_from(["increase", "reduce", "reduce_min"])),
+            "reference": d(st.sampled_from([0.01, 0.05, 1.0])),
+            "gain": d(st.sampled_from([0.0, 1.0, 10.0])),
+            "minimum": d(st.sampled_from([0.0, 0.5, 1.0])),
+            "mode": d(st.sampled_from(["divergence", "magnitude"])),
+            "smooth": d(st.sampled_from([1, 3, 5, 25])),
+        }
         scalars = ("reference", "gain", "minimum", "smooth")
 
         def call(**k):
@@ -701,9 +734,11 @@ def test_fuzz_extensions_valid_or_named_error(data, g):
             return out
 
     elif which == "halo":
-        kw = {"kind": d(st.sampled_from(["bilateral", "lab"])),
-              "sigma": d(st.sampled_from([None, 0.1, 10.0])),
-              "min_cos": d(st.sampled_from([1e-3, 0.02, 1.0]))}  # fmt: skip
+        kw = {
+            "kind": d(st.sampled_from(["bilateral", "lab"])),
+            "sigma": d(st.sampled_from([None, 0.1, 10.0])),
+            "min_cos": d(st.sampled_from([1e-3, 0.02, 1.0])),
+        }
         scalars = ("sigma", "min_cos")
 
         def call(kind, sigma, min_cos):
