@@ -107,6 +107,7 @@ def tap_positions(
             if k > 1
             else torch.zeros(1, dtype=torch.float64)
         )
+        t = 0.5 * (t - t.flip(0))  # exactly odd: linspace's middle value is ~1e-16, not 0
         if sampling == "power":
             exponent = check_magnitude("exponent", exponent, "factor")
             t = torch.sign(t) * t.abs() ** exponent

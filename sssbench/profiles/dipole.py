@@ -45,6 +45,10 @@ MATERIALS: dict[str, tuple[tuple[float, float, float], tuple[float, float, float
 
 def _rgb(name: str, value: object) -> torch.Tensor:
     """A per-channel coefficient as a ``(3,)`` float64 tensor (scalars broadcast)."""
+    if isinstance(value, bool) or (
+        isinstance(value, (list, tuple)) and any(isinstance(v, bool) for v in value)
+    ):
+        raise TypeError(f"{name} must be a number or a (3,) sequence/tensor of floats, got a bool")
     if isinstance(value, torch.Tensor):
         t = value
     else:

@@ -78,6 +78,16 @@ def interval_mass(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return upper
 
 
+def _as_tensor(name: str, value: object, expected: str) -> torch.Tensor:
+    """``value`` as a tensor, or a ``TypeError`` naming the argument (``None``, strings ...)."""
+    if isinstance(value, torch.Tensor):
+        return value
+    try:
+        return torch.as_tensor(value, dtype=torch.float64)
+    except (TypeError, ValueError, RuntimeError) as exc:
+        raise TypeError(f"{name} must be {expected}, got {type(value).__name__}") from exc
+
+
 class SumOfGaussians(Profile):
     """``R(r) = Σ_i w_i exp(-r²/2v_i) / (2π v_i)`` (001 eq. 6–7).
 
@@ -98,8 +108,8 @@ class SumOfGaussians(Profile):
     name = "sum_of_gaussians"
 
     def __init__(self, variances: torch.Tensor, weights: torch.Tensor) -> None:
-        variances = torch.as_tensor(variances)
-        weights = torch.as_tensor(weights)
+        variances = _as_tensor("variances", variances, "(N,) variances in mm²")
+        weights = _as_tensor("weights", weights, "(N, 3) per-channel weights")
         if not variances.is_floating_point():
             variances = variances.double()
         if not weights.is_floating_point():
