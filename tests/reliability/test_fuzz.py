@@ -308,6 +308,22 @@ def assert_names(exc: BaseException, name: str) -> None:
     assert name in msg, f"{type(exc).__name__} does not name {name!r}: {msg}"
 
 
+def call_or_named_error(d, call: Callable[..., object], kw: dict, scalars, label: str = ""):
+    """``call(**kw)`` after maybe replacing one of ``scalars`` with an extreme value: its
+    result, or ``None`` when it raised a ``ValueError`` / ``TypeError`` naming that argument (a
+    call without an injected value must not raise)."""
+    injected = d(st.sampled_from([None, *scalars])) if scalars else None
+    if injected is not None:
+        kw[injected] = d(st.sampled_from(EXTREMES))
+    note(f"{label} {kw} injected={injected}")
+    try:
+        return call(**kw)
+    except (ValueError, TypeError) as exc:
+        assert injected is not None, f"valid call refused: {exc}"
+        assert_names(exc, injected)
+        return None
+
+
 def check_output(out: torch.Tensor, g: GBuffer, spec: Spec) -> None:
     """Finite, shaped, typed; a normalised method's output within the input's range."""
     assert out.shape == g.diffuse.shape and out.dtype == g.dtype
@@ -327,19 +343,14 @@ def test_fuzz_methods_valid_or_named_error(data, g):
     spec = method_spec(d, d(st.sampled_from(METHODS)), g.shape[1])
     if spec.name == "reference":
         assume(max(g.shape[1:]) <= 13)
-    injected = None
-    if d(st.booleans()):
-        injected = d(st.sampled_from(spec.scalars))
-        spec.kwargs[injected] = d(st.sampled_from(EXTREMES))
-    note(f"{spec.name} {spec.kwargs} injected={injected}")
-    try:
-        op = spec.build()
-        out = run(op, g, **forward_options(d, spec, g))
-    except (ValueError, TypeError) as exc:
-        assert injected is not None, f"valid call refused: {exc}"
-        assert_names(exc, injected)
-        return
-    check_output(out, g, spec)
+    opts = forward_options(d, spec, g)
+
+    def call(**kw):
+        return run(spec.factory(**kw), g, **opts)
+
+    out = call_or_named_error(d, call, spec.kwargs, spec.scalars, spec.name)
+    if out is not None:
+        check_output(out, g, spec)
 
 
 @pytest.mark.xfail(
@@ -594,15 +605,8 @@ def _profile_case(d) -> tuple[Callable[[], object], tuple[str, ...], dict]:
 def test_fuzz_profiles_valid_or_named_error(data):
     d = data.draw
     factory, scalars, kw = _profile_case(d)
-    injected = d(st.sampled_from([None, *scalars]))
-    if injected is not None:
-        kw[injected] = d(st.sampled_from(EXTREMES))
-    note(f"{factory} {kw}")
-    try:
-        p = factory(**kw)
-    except (ValueError, TypeError) as exc:
-        assert injected is not None, f"valid call refused: {exc}"
-        assert_names(exc, injected)
+    p = call_or_named_error(d, factory, kw, scalars)
+    if p is None:
         return
     total = p.total()
     assert bool(torch.isfinite(total).all())  # fitted weights may be negative
@@ -665,15 +669,8 @@ def _kernel_case(d) -> tuple[Callable[[], Kernel1D], tuple[str, ...], dict, bool
 def test_fuzz_kernels_valid_or_named_error(data):
     d = data.draw
     builder, scalars, kw, normalised = _kernel_case(d)
-    injected = d(st.sampled_from([None, *scalars]))
-    if injected is not None:
-        kw[injected] = d(st.sampled_from(EXTREMES))
-    note(f"{kw}")
-    try:
-        k = builder(**kw)
-    except (ValueError, TypeError) as exc:
-        assert injected is not None, f"valid call refused: {exc}"
-        assert_names(exc, injected)
+    k = call_or_named_error(d, builder, kw, scalars)
+    if k is None:
         return
     assert isinstance(k, Kernel1D)
     assert bool(torch.isfinite(k.offsets).all() and torch.isfinite(k.weights).all())
@@ -772,15 +769,8 @@ def test_fuzz_extensions_valid_or_named_error(data, g):
         def call(sigma):
             return range_weight(sigma)(g.diffuse[0].reshape(3, -1).T, g.albedo[0].reshape(3, -1).T)
 
-    injected = d(st.sampled_from([None, *scalars])) if scalars else None
-    if injected is not None:
-        kw[injected] = d(st.sampled_from(EXTREMES))
-    note(f"{which} {kw}")
-    try:
-        out = call(**kw)
-    except (ValueError, TypeError) as exc:
-        assert injected is not None, f"valid call refused: {exc}"
-        assert_names(exc, injected)
+    out = call_or_named_error(d, call, kw, scalars, which)
+    if out is None:
         return
     assert bool(torch.isfinite(out).all())
     if which in ("translucency", "curvature", "range"):

@@ -11,7 +11,7 @@ import re
 import pytest
 import torch
 
-from sssbench import GBuffer
+from sssbench import GBuffer, ops
 from sssbench._checks import MAGNITUDES, check_magnitude
 from sssbench.kernels import (
     Kernel1D,
@@ -20,22 +20,6 @@ from sssbench.kernels import (
     jimenez2012,
     preintegrated,
     tap_positions,
-)
-from sssbench.ops import (
-    ArtistSSS,
-    CurvatureModulation,
-    Jimenez2012SSS,
-    LowRankSSS,
-    PreintegratedSSS,
-    SumOfGaussiansSSS,
-    Translucency,
-    curvature_width,
-    halo_guide,
-    jg10_stretch,
-    random_rotation,
-    range_weight,
-    screen_space_curvature,
-    translucency,
 )
 from sssbench.profiles import BurleyNormalized, Dipole, Layer, SumOfGaussians
 from sssbench.profiles.empirical import empirical_pole_fit
@@ -91,53 +75,73 @@ CASES = [
     ("kernel_scaled_nan", lambda: Kernel1D(torch.zeros(1), torch.ones(1, 3)).scaled(NAN), "factor"),
     ("kernel_scaled_inf", lambda: Kernel1D(torch.zeros(1), torch.ones(1, 3)).scaled(INF), "factor"),
     # ---- method constructors (before any kernel is built)
-    ("jimenez_width_tiny", lambda: Jimenez2012SSS(0.5, 0.5, 1e-300), "width"),
-    ("jimenez_width_huge", lambda: Jimenez2012SSS(0.5, 0.5, 1e300), "width"),
+    ("jimenez_width_tiny", lambda: ops.Jimenez2012SSS(0.5, 0.5, 1e-300), "width"),
+    ("jimenez_width_huge", lambda: ops.Jimenez2012SSS(0.5, 0.5, 1e300), "width"),
     (
         "jimenez_surface_scale",
-        lambda: Jimenez2012SSS(0.5, 0.5, 1.0, surface_scale=1e-300),
+        lambda: ops.Jimenez2012SSS(0.5, 0.5, 1.0, surface_scale=1e-300),
         "surface_scale",
     ),
-    ("jimenez_seed", lambda: Jimenez2012SSS(0.5, 0.5, 1.0, seed=2**70), "seed"),
-    ("sog_surface_scale", lambda: SumOfGaussiansSSS(SKIN, surface_scale=1e-300), "surface_scale"),
-    ("sog_extent_sigmas", lambda: SumOfGaussiansSSS(SKIN, extent_sigmas=1e300), "extent_sigmas"),
-    ("sog_lod_threshold", lambda: SumOfGaussiansSSS(SKIN, lod_threshold=1e300), "lod_threshold"),
-    ("sog_seed", lambda: SumOfGaussiansSSS(SKIN, seed=-1), "seed"),
-    ("low_rank_extent", lambda: LowRankSSS(SKIN, 3, 9, extent=1e-300), "extent"),
-    ("low_rank_surface_scale", lambda: LowRankSSS(SKIN, 3, 9, surface_scale=INF), "surface_scale"),
+    ("jimenez_seed", lambda: ops.Jimenez2012SSS(0.5, 0.5, 1.0, seed=2**70), "seed"),
+    (
+        "sog_surface_scale",
+        lambda: ops.SumOfGaussiansSSS(SKIN, surface_scale=1e-300),
+        "surface_scale",
+    ),
+    (
+        "sog_extent_sigmas",
+        lambda: ops.SumOfGaussiansSSS(SKIN, extent_sigmas=1e300),
+        "extent_sigmas",
+    ),
+    (
+        "sog_lod_threshold",
+        lambda: ops.SumOfGaussiansSSS(SKIN, lod_threshold=1e300),
+        "lod_threshold",
+    ),
+    ("sog_seed", lambda: ops.SumOfGaussiansSSS(SKIN, seed=-1), "seed"),
+    ("low_rank_extent", lambda: ops.LowRankSSS(SKIN, 3, 9, extent=1e-300), "extent"),
+    (
+        "low_rank_surface_scale",
+        lambda: ops.LowRankSSS(SKIN, 3, 9, surface_scale=INF),
+        "surface_scale",
+    ),
     (
         "preintegrated_halo_sigma",
-        lambda: PreintegratedSSS(SKIN, halo="lab", halo_sigma=1e-300),
+        lambda: ops.PreintegratedSSS(SKIN, halo="lab", halo_sigma=1e-300),
         "halo_sigma",
     ),
-    ("preintegrated_seed", lambda: PreintegratedSSS(SKIN, seed=1.5), "seed"),
-    ("artist_op_scale", lambda: ArtistSSS(0.1, 0.5, 0.5, 1e300), "scale"),
-    ("artist_op_seed", lambda: ArtistSSS(0.1, 0.5, 0.5, 1.0, seed=2**64), "seed"),
-    ("jg10_ssslevel", lambda: jg10_stretch(8, ssslevel=1e300), "ssslevel"),
-    ("jg10_correction", lambda: jg10_stretch(8, correction=1e300), "correction"),
-    ("jg10_head", lambda: jg10_stretch(8, head_mm=1e-300), "head_mm"),
+    ("preintegrated_seed", lambda: ops.PreintegratedSSS(SKIN, seed=1.5), "seed"),
+    ("artist_op_scale", lambda: ops.ArtistSSS(0.1, 0.5, 0.5, 1e300), "scale"),
+    ("artist_op_seed", lambda: ops.ArtistSSS(0.1, 0.5, 0.5, 1.0, seed=2**64), "seed"),
+    ("jg10_ssslevel", lambda: ops.jg10_stretch(8, ssslevel=1e300), "ssslevel"),
+    ("jg10_correction", lambda: ops.jg10_stretch(8, correction=1e300), "correction"),
+    ("jg10_head", lambda: ops.jg10_stretch(8, head_mm=1e-300), "head_mm"),
     # ---- extensions
-    ("range_weight_tiny", lambda: range_weight(1e-300), "sigma"),
-    ("halo_min_cos_tiny", lambda: halo_guide(_g(), min_cos=1e-300), "min_cos"),
+    ("range_weight_tiny", lambda: ops.range_weight(1e-300), "sigma"),
+    ("halo_min_cos_tiny", lambda: ops.halo_guide(_g(), min_cos=1e-300), "min_cos"),
     (
         "curvature_gain_huge",
-        lambda: curvature_width(torch.ones(1, 1, 2, 2), "increase", gain=1e300),
+        lambda: ops.curvature_width(torch.ones(1, 1, 2, 2), "increase", gain=1e300),
         "gain",
     ),
     (
         "curvature_reference_tiny",
-        lambda: curvature_width(torch.ones(1, 1, 2, 2), reference=1e-300),
+        lambda: ops.curvature_width(torch.ones(1, 1, 2, 2), reference=1e-300),
         "reference",
     ),
-    ("curvature_smooth_huge", lambda: CurvatureModulation(smooth=2 * 10**9 + 1), "smooth"),
-    ("curvature_edge_ratio", lambda: screen_space_curvature(_g(), edge_ratio=1e300), "edge_ratio"),
-    ("translucency_width_tiny", lambda: translucency(_g(), "skin_deon6", 0.0, 1e-300), "width"),
+    ("curvature_smooth_huge", lambda: ops.CurvatureModulation(smooth=2 * 10**9 + 1), "smooth"),
+    (
+        "curvature_edge_ratio",
+        lambda: ops.screen_space_curvature(_g(), edge_ratio=1e300),
+        "edge_ratio",
+    ),
+    ("translucency_width_tiny", lambda: ops.translucency(_g(), "skin_deon6", 0.0, 1e-300), "width"),
     (
         "translucency_intensity_huge",
-        lambda: Translucency("skin_deon6", intensity=1e300),
+        lambda: ops.Translucency("skin_deon6", intensity=1e300),
         "intensity",
     ),
-    ("rotation_seed_huge", lambda: random_rotation(_g(), 0.1, 2**70), "seed"),
+    ("rotation_seed_huge", lambda: ops.random_rotation(_g(), 0.1, 2**70), "seed"),
 ]
 
 
@@ -173,7 +177,7 @@ def test_magnitude_bounds_are_inclusive_and_named(kind):
 def test_a_smooth_window_larger_than_needed_is_refused_before_allocating():
     # the box filter of side `smooth` would allocate smooth² weights
     with pytest.raises(ValueError, match="smooth"):
-        CurvatureModulation(smooth=10**6 + 1)
+        ops.CurvatureModulation(smooth=10**6 + 1)
 
 
 def test_kernel_matrix_in_row_chunks_matches_the_closed_form(monkeypatch):

@@ -7,33 +7,24 @@ from __future__ import annotations
 import pytest
 import torch
 
-from sssbench import GBuffer
-from sssbench.ops import (
-    ArtistSSS,
-    Jimenez2012SSS,
-    LowRankSSS,
-    PreintegratedSSS,
-    ReferenceSSS,
-    SumOfGaussiansSSS,
-    jg10_stretch,
-)
+from sssbench import GBuffer, ops
 from sssbench.profiles import SumOfGaussians
 
 SHAPES = [(1, 1), (1, 5), (5, 1), (2, 2)]
 SKIN = SumOfGaussians.from_table("skin_jg10")
 
 METHODS = {
-    "preintegrated": lambda h: PreintegratedSSS(SKIN, 7),
-    "preintegrated_lerp": lambda h: PreintegratedSSS(SKIN, 7, follow_surface="lerp"),
-    "sum_of_gaussians": lambda h: SumOfGaussiansSSS(SKIN, lod=False),
-    "sum_of_gaussians_jg10": lambda h: SumOfGaussiansSSS(SKIN, stretch=jg10_stretch(h)),
-    "sum_of_gaussians_jg10_no_lod": lambda h: SumOfGaussiansSSS(
-        SKIN, stretch=jg10_stretch(h), lod=False, follow_surface="gaussian"
+    "preintegrated": lambda h: ops.PreintegratedSSS(SKIN, 7),
+    "preintegrated_lerp": lambda h: ops.PreintegratedSSS(SKIN, 7, follow_surface="lerp"),
+    "sum_of_gaussians": lambda h: ops.SumOfGaussiansSSS(SKIN, lod=False),
+    "sum_of_gaussians_jg10": lambda h: ops.SumOfGaussiansSSS(SKIN, stretch=ops.jg10_stretch(h)),
+    "sum_of_gaussians_jg10_no_lod": lambda h: ops.SumOfGaussiansSSS(
+        SKIN, stretch=ops.jg10_stretch(h), lod=False, follow_surface="gaussian"
     ),
-    "low_rank_full": lambda h: LowRankSSS(SKIN, rank=9, n=9, extent=3.0),
-    "artist": lambda h: ArtistSSS.preset("production"),
-    "jimenez2012": lambda h: Jimenez2012SSS.preset("shader_default", width=3.0),
-    "reference": lambda h: ReferenceSSS(SKIN),
+    "low_rank_full": lambda h: ops.LowRankSSS(SKIN, rank=9, n=9, extent=3.0),
+    "artist": lambda h: ops.ArtistSSS.preset("production"),
+    "jimenez2012": lambda h: ops.Jimenez2012SSS.preset("shader_default", width=3.0),
+    "reference": lambda h: ops.ReferenceSSS(SKIN),
 }
 #: documented tolerances (docs/numerics.md): normalised kernel on a constant image
 TOL = {torch.float32: 1e-5, torch.float64: 1e-12}
