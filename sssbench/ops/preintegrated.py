@@ -102,6 +102,8 @@ class PreintegratedSSS(SeparableMethod):
         halo_sigma: float | None = None,
     ) -> None:
         super().__init__()
+        if not isinstance(profile, Profile):
+            raise TypeError(f"profile must be a sssbench Profile, got {type(profile).__name__}")
         check_method_options(None, seed)
         check_choice("halo", halo, (None, *HALO_KINDS))
         if halo_sigma is not None:

@@ -110,6 +110,7 @@ CASES = [
         lambda: ops.PreintegratedSSS(SKIN, halo="lab", halo_sigma=1e-300),
         "halo_sigma",
     ),
+    ("preintegrated_profile_none", lambda: ops.PreintegratedSSS(None), "profile"),
     ("preintegrated_seed", lambda: ops.PreintegratedSSS(SKIN, seed=1.5), "seed"),
     ("artist_op_scale", lambda: ops.ArtistSSS(0.1, 0.5, 0.5, 1e300), "scale"),
     ("artist_op_seed", lambda: ops.ArtistSSS(0.1, 0.5, 0.5, 1.0, seed=2**64), "seed"),
