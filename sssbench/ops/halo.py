@@ -113,7 +113,9 @@ def lab_guide(gbuffer: GBuffer, *, source: str = "albedo") -> torch.Tensor:
         d = gbuffer.diffuse
         peak = d.amax(dim=(1, 2, 3), keepdim=True).clamp_min(torch.finfo(d.dtype).tiny)
         rgb = (d / peak).clamp(0.0, 1.0)
-    # kornia's rgb_to_lab expects sRGB-encoded input and linearises it itself
+    # kornia's rgb_to_lab expects sRGB-encoded input and linearises it itself; on contiguous
+    # memory, so the guide does not depend on the layout (channels-last rounds differently)
+    rgb = rgb.contiguous()
     return kornia.color.rgb_to_lab(kornia.color.linear_rgb_to_rgb(rgb))
 
 

@@ -582,7 +582,11 @@ def _profile_case(d) -> tuple[Callable[[], object], tuple[str, ...], dict]:
         def sog(variances, weights):  # numbers become (2,) / (2, 3) float64, others pass as is
             num = (int, float)
             v = torch.tensor([variances, 2.0 * variances]) if type(variances) in num else variances
-            w = torch.full((2, 3), float(weights)) if type(weights) in num else weights
+            w = (
+                torch.full((2, 3), float(weights), dtype=torch.float64)
+                if type(weights) in num
+                else weights
+            )
             return SumOfGaussians(v.double() if isinstance(v, torch.Tensor) else v, w)
 
         return sog, ("variances", "weights"), kw

@@ -36,3 +36,21 @@ def test_a_bool_is_not_a_coefficient(make):
     """``True`` used to be taken as 1.0 mm (a silent wrong answer for a mistyped flag)."""
     with pytest.raises(TypeError, match="must be a number"):
         make(True)
+
+
+@pytest.mark.parametrize("source", ["albedo", "diffuse"])
+def test_lab_guide_does_not_depend_on_memory_layout(source):
+    """kornia's Lab conversion rounds differently on a channels-last float32 tensor, so the
+    halo weights (and every method using ``halo="lab"``) changed with the layout."""
+    from sssbench import GBuffer
+    from sssbench.ops import lab_guide
+
+    gen = torch.Generator().manual_seed(0)
+    a = torch.rand(2, 3, 13, 8, generator=gen)
+
+    def cl(t):
+        return t.contiguous(memory_format=torch.channels_last)
+
+    g = GBuffer(a * 0.5, torch.full((2, 1, 13, 8), 300.0), 0.5, albedo=a)
+    g_cl = GBuffer(cl(a * 0.5), cl(g.depth), 0.5, albedo=cl(a))
+    assert torch.equal(lab_guide(g, source=source), lab_guide(g_cl, source=source))
