@@ -41,6 +41,7 @@ from sssbench.kernels import (
     Kernel1D,
     artist,
     cell_centres,
+    guided,
     jimenez2012,
     kernel_matrix,
     low_rank,
@@ -624,7 +625,9 @@ def test_fuzz_profiles_valid_or_named_error(data):
 
 def _kernel_case(d) -> tuple[Callable[[], Kernel1D], tuple[str, ...], dict, bool]:
     """(builder, scalar names, kwargs, normalised)."""
-    which = d(st.sampled_from(["preintegrated", "artist", "jimenez2012", "low_rank", "taps"]))
+    which = d(
+        st.sampled_from(["preintegrated", "artist", "jimenez2012", "low_rank", "guided", "taps"])
+    )
     prof = PROFILES[d(st.sampled_from(sorted(SOG_PROFILES) + ["burley"]))]
     if which == "preintegrated":
         kw = {
@@ -650,6 +653,14 @@ def _kernel_case(d) -> tuple[Callable[[], Kernel1D], tuple[str, ...], dict, bool
             "samples": d(st.sampled_from([1, 2, 9, 33])),
         }
         return jimenez2012, ("strength", "falloff", "samples"), kw, True
+    if which == "guided":
+        kw = {
+            "k": d(st.sampled_from([0.0, 2.0, 4.0])),
+            "b": d(st.sampled_from([1.0, 50.0])),
+            "extent": 3.0,
+            "n": d(st.sampled_from([3, 9])),
+        }
+        return (lambda **k: guided(prof, **k)), ("k", "b", "extent", "n"), kw, True
     if which == "low_rank":
         kw = {"rank": d(st.integers(1, 3)), "extent": d(st.sampled_from([1.0, 5.0])), "n": 5}
         return ((lambda **k: low_rank(prof, **k).terms[0][0]), ("rank", "extent", "n"), kw, False)
