@@ -107,9 +107,11 @@ def tap_positions(
             if k > 1
             else torch.zeros(1, dtype=torch.float64)
         )
-        t = 0.5 * (t - t.flip(0))  # exactly odd: linspace's middle value is ~1e-16, not 0
         if sampling == "power":
             exponent = check_magnitude("exponent", exponent, "factor")
+            # exactly odd first: linspace's middle value is ~1e-16, not 0, and its |t|^0.5
+            # would put the centre tap 1e-8 of the extent off 0
+            t = 0.5 * (t - t.flip(0))
             t = torch.sign(t) * t.abs() ** exponent
         centres = extent * t
         inner_edges = 0.5 * (centres[1:] + centres[:-1])
