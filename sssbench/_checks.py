@@ -19,6 +19,22 @@ import torch
 
 FLOAT_DTYPES = (torch.float32, torch.float64)
 
+#: Magnitudes accepted for physical scalars, per kind: ``(smallest non-zero, largest, unit)``.
+#: Lengths run from 1 nm to 1 km (every material and scene of the papers lies decades inside),
+#: variances are their squares, coefficients their reciprocals, and dimensionless factors
+#: (multipliers, range σ, gains) span the same twelve decades around 1. The bounds keep every
+#: derived quantity the passes form in float32 — ``x²``, ``1/x²``, ``x · pixels-per-mm``,
+#: ``exp(−d²/2v)`` — inside float32's normal range (1.2e-38 … 3.4e38) instead of overflowing to
+#: inf or underflowing to 0 and turning into NaN downstream (``docs/reliability.md``).
+MAGNITUDES: dict[str, tuple[float, float, str]] = {
+    "length": (1e-6, 1e6, "mm"),
+    "variance": (1e-12, 1e12, "mm²"),
+    "coefficient": (1e-6, 1e6, "mm⁻¹"),
+    "factor": (1e-6, 1e6, ""),
+}
+#: largest rotation / sampling seed (a ``torch.Generator`` seed is a signed 64-bit integer)
+MAX_SEED = 2**63 - 1
+
 
 def check_tensor(
     name: str,
@@ -76,7 +92,8 @@ def check_range(
     """Check that every element of ``value`` lies in the interval [low, high] (or open ends)."""
     if value.numel() == 0:
         return value
-    _check_bounds(name, float(value.min()), float(value.max()), low, high, low_inclusive,
+    v = value.detach()  # a bound is checked on the values, not recorded by autograd
+    _check_bounds(name, float(v.min()), float(v.max()), low, high, low_inclusive,
                   high_inclusive)  # fmt: skip
     return value
 
@@ -157,3 +174,55 @@ def check_choice(name: str, value: object, choices: Sequence[object]) -> object:
     if value not in choices:
         raise ValueError(f"{name} must be one of {list(choices)}, got {value!r}")
     return value
+
+
+def check_magnitude(
+    name: str, value: object, kind: str, *, zero: bool = False
+) -> float | torch.Tensor:
+    """Check a physical scalar (or every element of a tensor) against :data:`MAGNITUDES`.
+
+    Args:
+        name: argument name used in error messages.
+        value: a real number, or a float tensor (checked elementwise).
+        kind: ``"length"`` (mm), ``"variance"`` (mm²), ``"coefficient"`` (mm⁻¹) or
+            ``"factor"`` (dimensionless).
+        zero: accept the whole of ``[0, largest]``: for quantities that may vanish (an
+            absorption coefficient, a gain), which are therefore never divided by, so only
+            the upper bound matters.
+
+    Returns:
+        The value as ``float`` (scalars) or the tensor, unchanged.
+
+    Raises:
+        TypeError: not a real number / float tensor.
+        ValueError: NaN, ±inf, negative, 0 (unless ``zero``), or outside the kind's range; the
+            message names the argument and the allowed range with its unit.
+    """
+    lo, hi, unit = MAGNITUDES[kind]
+    lo = 0.0 if zero else lo
+    allowed = f"in [{lo:g}, {hi:g}]{' ' + unit if unit else ''}"
+    if isinstance(value, torch.Tensor) and value.numel() != 1:
+        t = check_tensor(name, value)
+        bad = (t < lo) | (t > hi) | ((t == 0) & (not zero))
+        if t.numel() and bool(bad.any()):
+            v = float(t[bad][0])
+            raise ValueError(f"{name} must be {allowed}, got {v:g}")
+        return t
+    v = check_scalar(name, value)
+    if not lo <= v <= hi or (v == 0 and not zero):
+        raise ValueError(f"{name} must be {allowed}, got {v:g}")
+    return v
+
+
+def check_seed(name: str, value: object) -> int:
+    """A seed for ``torch.Generator``: an integer in [0, :data:`MAX_SEED`]."""
+    return check_int(name, value, 0, MAX_SEED)
+
+
+def check_method_options(surface_scale: object, seed: object) -> None:
+    """Magnitude checks of the options every separable method shares (on entry, before any
+    kernel is built): ``surface_scale`` a length (scalar or per-channel ``(3,)``) or ``None``,
+    ``seed`` a generator seed."""
+    if surface_scale is not None:
+        check_magnitude("surface_scale", surface_scale, "length")
+    check_seed("seed", seed)

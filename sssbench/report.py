@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sqlite3
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -855,8 +856,65 @@ class ReportCallback(_HydraCallback):
         sys.stdout.flush()
 
 
+_SQLITE_HEADER = b"SQLite format 3\x00"
+_EXPECTED = "expected an sssbench run store (SQLite with a runs table) or a sweep directory"
+
+
+def _check_store_file(path: Path) -> None:
+    """Raise ``ValueError`` unless ``path`` is an SQLite file with the store's tables, reading
+    it only (a report never turns another file into a store)."""
+    if not path.is_file():
+        raise ValueError(f"{path}: no such file; {_EXPECTED}")
+    with open(path, "rb") as f:
+        header = f.read(len(_SQLITE_HEADER))
+    if header != _SQLITE_HEADER:
+        raise ValueError(f"{path}: not an SQLite database; {_EXPECTED}")
+    try:
+        conn = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True)
+        try:
+            names = {r[0] for r in conn.execute("SELECT name FROM sqlite_master")}
+        finally:
+            conn.close()
+    except sqlite3.DatabaseError as exc:
+        raise ValueError(f"{path}: unreadable SQLite database ({exc}); {_EXPECTED}") from exc
+    if not {"runs", "passes"} <= names:
+        raise ValueError(f"{path}: an SQLite database without sssbench's runs table; {_EXPECTED}")
+
+
+def _check_source(source: Path, store: str | None) -> None:
+    """Raise ``ValueError`` naming the path unless ``source`` (and the store it leads to) is
+    what :func:`write_report` reads: a run store, or a sweep directory whose every
+    ``point.json`` is a JSON object with ``config_hash`` and ``store``."""
+    if not source.exists():
+        raise ValueError(f"{source}: no such file or directory; {_EXPECTED}")
+    if not source.is_dir():
+        _check_store_file(source)
+        return
+    stores = [] if store is None else [Path(store)]
+    for p in sorted(source.rglob("point.json")):
+        try:
+            point = json.loads(p.read_text())
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise ValueError(f"{p}: malformed point.json ({exc}); expected a JSON object") from exc
+        if not isinstance(point, dict) or not {"config_hash", "store"} <= point.keys():
+            raise ValueError(
+                f"{p}: malformed point.json; expected a JSON object with config_hash and store"
+            )
+        stores.append(Path(point["store"]))
+    if not stores:
+        if not (source / "sssbench.sqlite").is_file():
+            raise ValueError(f"{source}: no point.json and no sssbench.sqlite; {_EXPECTED}")
+        stores.append(source / "sssbench.sqlite")
+    _check_store_file(stores[0])  # write_report reads the given or the first named store
+
+
 def main(argv: list[str] | None = None) -> int:
-    """``sssbench-report [STORE_OR_SWEEP_DIR] [--out DIR] [--store STORE]``."""
+    """``sssbench-report [STORE_OR_SWEEP_DIR] [--out DIR] [--store STORE]``.
+
+    On a source that is not a run store or a sweep directory (a text or binary file, an SQLite
+    file of something else, a malformed ``point.json``, a missing path) it prints one line on
+    stderr naming the path and what was expected and returns 2, writing nothing.
+    """
     parser = argparse.ArgumentParser(
         prog="sssbench-report",
         description="Summary tables and plots from an sssbench run store or sweep directory.",
@@ -874,9 +932,10 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
     try:
+        _check_source(Path(args.source).expanduser(), args.store)
         report = write_report(args.source, args.out, store=args.store, html=args.html)
-    except (FileNotFoundError, ValueError) as exc:
-        print(f"sssbench-report: {exc}", file=sys.stderr)
+    except (OSError, ValueError, KeyError, sqlite3.DatabaseError) as exc:
+        print(f"sssbench-report: {exc}".replace("\n", " "), file=sys.stderr)
         return 2
     print_report(report)
     return 0

@@ -12,7 +12,14 @@ Safety with parallel writers (joblib workers, SLURM array tasks on one file syst
 * one ``BEGIN IMMEDIATE`` transaction per run write — the run row and all its pass rows commit
   together or not at all, so a crash never leaves a half-written run;
 * a retry with back-off around the whole transaction when the lock stays busy beyond the
-  timeout.
+  timeout;
+* **at most one ``ok`` row per point**: a partial unique index on ``config_hash`` where
+  ``status = 'ok'`` makes the database itself refuse a second one. :meth:`RunStore.record` of an
+  ``ok`` run deletes the point's previous ``ok`` row (and, by cascade, its passes) in the same
+  transaction as its insert, so a forced re-run supersedes, and two sweeps that run the same
+  point at once both finish: the later write is the point's result, nothing is half-written.
+  ``failed`` / ``timeout`` rows are history and are all kept. A store written before the index
+  existed is migrated when opened: of duplicate ``ok`` rows the latest (largest id) is kept.
 
 WAL needs all writers on one host (shared memory); on a network file system shared by several
 nodes use ``journal_mode="delete"`` (the app's ``store_journal=delete``), see ``docs/sweeps.md``.
@@ -80,6 +87,7 @@ CREATE TABLE IF NOT EXISTS runs (
     finished_at  TEXT NOT NULL
 );
 CREATE INDEX IF NOT EXISTS runs_hash_status ON runs (config_hash, status);
+CREATE UNIQUE INDEX IF NOT EXISTS runs_one_ok ON runs (config_hash) WHERE status = 'ok';
 CREATE INDEX IF NOT EXISTS runs_sweep ON runs (sweep_dir, finished_at);
 CREATE TABLE IF NOT EXISTS passes (
     run_id     INTEGER NOT NULL REFERENCES runs (id) ON DELETE CASCADE,
@@ -93,6 +101,14 @@ CREATE TABLE IF NOT EXISTS passes (
     repeats    INTEGER,
     PRIMARY KEY (run_id, idx)
 );
+"""
+
+#: migration of stores written before ``runs_one_ok``: keep the latest ``ok`` row per point
+#: (passes of the others go by ``ON DELETE CASCADE``)
+_DEDUPLICATE_OK = """
+DELETE FROM runs WHERE status = 'ok' AND id NOT IN (
+    SELECT MAX(id) FROM runs WHERE status = 'ok' GROUP BY config_hash
+)
 """
 
 
@@ -235,6 +251,8 @@ class RunStore:
             conn.execute("BEGIN IMMEDIATE")
             try:
                 for statement in _SCHEMA.split(";"):
+                    if "runs_one_ok" in statement:  # migrate older stores before the index
+                        conn.execute(_DEDUPLICATE_OK)
                     if statement.strip():
                         conn.execute(statement)
                 conn.execute("COMMIT")
@@ -245,7 +263,11 @@ class RunStore:
 
     # ------------------------------------------------------------------ writes
     def record(self, run: RunRecord) -> int:
-        """Store one run and its passes in a single transaction; return the run id."""
+        """Store one run and its passes in a single transaction; return the run id.
+
+        An ``ok`` run replaces the point's previous ``ok`` row and its passes (one ``ok`` row
+        per config hash, see the module doc); other statuses are appended.
+        """
         if not isinstance(run, RunRecord):
             raise TypeError(f"run must be a RunRecord, got {type(run).__name__}")
         cfg = run.config
@@ -277,6 +299,11 @@ class RunStore:
             with self._connect() as conn:
                 conn.execute("BEGIN IMMEDIATE")
                 try:
+                    if row["status"] == "ok":  # supersede: one ok row per point (module doc)
+                        conn.execute(
+                            "DELETE FROM runs WHERE config_hash = ? AND status = 'ok'",
+                            (row["config_hash"],),
+                        )
                     cur = conn.execute(f"INSERT INTO runs ({cols}) VALUES ({marks})", row)
                     run_id = int(cur.lastrowid)
                     conn.executemany(

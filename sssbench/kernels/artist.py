@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import torch
 
-from sssbench._checks import check_choice, check_int, check_range, check_scalar, check_tensor
+from sssbench._checks import check_choice, check_int, check_magnitude, check_range, check_tensor
 from sssbench.kernels.kernel1d import Kernel1D
 from sssbench.kernels.sampling import (
     MAX_SAMPLES,
@@ -74,7 +74,7 @@ class ArtistParams:
         near: σ'_n per channel, ``(3,)`` in [0, 1] (a scalar is broadcast).
         far: σ'_f per channel, ``(3,)`` in [0, 1].
         weight: w, the near-Gaussian weight, in [0, 1] (scalar or per channel).
-        scale: s, the global translucency scale in mm, > 0.
+        scale: s, the global translucency scale in mm, in [1e-6, 1e6] (``_checks.MAGNITUDES``).
 
     Example:
         >>> p = ArtistParams.preset("production")
@@ -100,7 +100,7 @@ class ArtistParams:
             _per_channel("near", near),
             _per_channel("far", far),
             _per_channel("weight", weight),
-            check_scalar("scale", scale, 0.0, low_inclusive=False),
+            check_magnitude("scale", scale, "length"),
         )
 
     @classmethod
@@ -155,6 +155,8 @@ class ArtistParams:
         """The taps; see :func:`artist`."""
         k = check_int("samples", samples, 1, MAX_SAMPLES)
         check_choice("sampling", sampling, SAMPLINGS)
+        if extent is not None:
+            extent = check_magnitude("extent", extent, "length")
         sig, mass = self._sigmas_masses()
         if extent is None and sampling != "importance":
             widest = float(sig.max())

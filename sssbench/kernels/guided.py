@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from sssbench._checks import check_choice, check_int, check_scalar
+from sssbench._checks import check_choice, check_int, check_magnitude, check_scalar
 from sssbench.kernels.kernel1d import Kernel1D
 from sssbench.kernels.matrix import MAX_MATRIX_SIZE, cell_centres, kernel_matrix
 from sssbench.kernels.sampling import MAX_SAMPLES, SAMPLINGS, interval_weights, tap_positions
@@ -186,7 +186,7 @@ def guided_factor(
     n = check_int("n", n, 3, MAX_MATRIX_SIZE)
     if extent is None:
         extent = profile.radius()
-    extent = check_scalar("extent", extent, 0.0, low_inclusive=False)
+    extent = check_magnitude("extent", extent, "length")
     mat = kernel_matrix(profile, extent, n)  # (3, n, n) cell masses
     centres = cell_centres(extent, n)
     cell = 2.0 * extent / n

@@ -13,7 +13,7 @@ import math
 
 import torch
 
-from sssbench._checks import check_choice, check_int
+from sssbench._checks import MAGNITUDES, check_choice, check_int
 from sssbench.kernels.artist import _per_channel
 from sssbench.kernels.kernel1d import Kernel1D
 from sssbench.kernels.sampling import (
@@ -102,7 +102,7 @@ def jimenez2012(
 
     Args:
         strength: ``t`` per channel, scalar or ``(3,)`` in [0, 1] (0: no scattering).
-        falloff: ``f`` per channel, scalar or ``(3,)`` >= 0.
+        falloff: ``f`` per channel, scalar or ``(3,)`` in [0, 1e6].
         samples: taps before the delta insertion, in [1, MAX_SAMPLES].
         profile: a :data:`~sssbench.profiles.SOG_TABLES` name or a :class:`SumOfGaussians`
             (its red channel is the base profile).
@@ -120,7 +120,7 @@ def jimenez2012(
         (17, 1.3333, [1.0, 1.0, 1.0])
     """
     t = _per_channel("strength", strength, 0.0, 1.0)
-    f = _per_channel("falloff", falloff, 0.0, None)
+    f = _per_channel("falloff", falloff, 0.0, MAGNITUDES["factor"][1])
     k = check_int("samples", samples, 1, MAX_SAMPLES)
     check_choice("quadrature", quadrature, QUADRATURES)
     var, wr = _base_profile(profile)

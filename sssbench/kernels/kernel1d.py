@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import torch
 
-from sssbench._checks import check_tensor
+from sssbench._checks import check_magnitude, check_tensor
 
 __all__ = ["Kernel1D"]
 
@@ -62,9 +62,9 @@ class Kernel1D:
         return Kernel1D(self.offsets.to(dtype), self.weights.to(dtype))
 
     def scaled(self, factor: float) -> Kernel1D:
-        """The same taps with offsets multiplied by ``factor`` (> 0), e.g. a width in mm."""
-        if not factor > 0:
-            raise ValueError(f"factor must be > 0, got {factor}")
+        """The same taps with offsets multiplied by ``factor`` (in [1e-6, 1e6]), e.g. a width
+        in mm."""
+        factor = check_magnitude("factor", factor, "factor")
         return Kernel1D(self.offsets * factor, self.weights)
 
     def as_dict(self) -> dict[str, list]:

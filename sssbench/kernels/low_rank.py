@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import torch
 
-from sssbench._checks import check_int, check_scalar, check_tensor
+from sssbench._checks import check_int, check_magnitude, check_tensor
 from sssbench.kernels.kernel1d import Kernel1D
 from sssbench.kernels.matrix import MAX_MATRIX_SIZE, cell_centres, kernel_matrix
 from sssbench.profiles.base import Profile
@@ -98,7 +98,7 @@ def low_rank(
     if isinstance(profile_or_matrix, Profile):
         if extent is None:
             extent = profile_or_matrix.radius()
-        extent = check_scalar("extent", extent, 0.0, low_inclusive=False)
+        extent = check_magnitude("extent", extent, "length")
         n = check_int("n", n, 1, MAX_MATRIX_SIZE)
         m = kernel_matrix(profile_or_matrix, extent, n)
     elif isinstance(profile_or_matrix, torch.Tensor):
@@ -107,7 +107,7 @@ def low_rank(
             raise ValueError(f"profile_or_matrix must have shape (3, n, n), got {tuple(m.shape)}")
         if extent is None:
             raise ValueError("extent must be given (mm, > 0) when passing a kernel matrix")
-        extent = check_scalar("extent", extent, 0.0, low_inclusive=False)
+        extent = check_magnitude("extent", extent, "length")
         n = m.shape[1]
         m = m.double()
     else:

@@ -11,13 +11,16 @@ from __future__ import annotations
 
 import torch
 
-from sssbench._checks import check_int, check_scalar
+from sssbench._checks import check_int, check_magnitude
 from sssbench.profiles.base import Profile
 
 __all__ = ["kernel_matrix", "cell_centres", "MAX_MATRIX_SIZE"]
 
 #: largest supported matrix side (memory: 3·n² float64)
 MAX_MATRIX_SIZE = 2049
+#: cells integrated per chunk: a numeric ``cell_integral`` holds 8×8 quadrature nodes × 3
+#: channels per cell (~1.5 kB), so a chunk stays near 100 MB at any ``n``
+_CELLS_PER_CHUNK = 1 << 16
 
 
 def cell_centres(extent: float, n: int) -> torch.Tensor:
@@ -27,7 +30,7 @@ def cell_centres(extent: float, n: int) -> torch.Tensor:
         >>> cell_centres(1.5, 3).tolist()
         [-1.0, 0.0, 1.0]
     """
-    extent = check_scalar("extent", extent, 0.0, low_inclusive=False)
+    extent = check_magnitude("extent", extent, "length")
     n = check_int("n", n, 1, MAX_MATRIX_SIZE)
     h = 2.0 * extent / n
     return -extent + h * (torch.arange(n, dtype=torch.float64) + 0.5)
@@ -57,7 +60,11 @@ def kernel_matrix(profile: Profile, extent: float, n: int) -> torch.Tensor:
     if not isinstance(profile, Profile):
         raise TypeError(f"profile must be a sssbench Profile, got {type(profile).__name__}")
     c = cell_centres(extent, n)
-    half = torch.full((n, n), extent / n, dtype=torch.float64)
-    dy, dx = torch.meshgrid(c, c, indexing="ij")
-    m = profile.cell_integral(dx, dy, torch.zeros_like(dx), half, half)  # (n, n, 3)
-    return m.permute(2, 0, 1).contiguous()
+    rows = max(1, _CELLS_PER_CHUNK // n)  # bounded memory at MAX_MATRIX_SIZE too
+    m = torch.empty(3, n, n, dtype=torch.float64)
+    for r0 in range(0, n, rows):
+        dy, dx = torch.meshgrid(c[r0 : r0 + rows], c, indexing="ij")
+        half = torch.full_like(dx, extent / n)
+        part = profile.cell_integral(dx, dy, torch.zeros_like(dx), half, half)  # (r, n, 3)
+        m[:, r0 : r0 + rows] = part.permute(2, 0, 1)
+    return m

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch
 
-from sssbench._checks import check_choice, check_int, check_scalar
+from sssbench._checks import check_choice, check_int, check_magnitude
 from sssbench.kernels.kernel1d import Kernel1D
 from sssbench.kernels.sampling import MAX_SAMPLES, SAMPLINGS, interval_weights, tap_positions
 from sssbench.profiles.base import Profile
@@ -41,7 +41,7 @@ def profile_taps(
     check_int("samples", samples, 1, MAX_SAMPLES)
     check_choice("sampling", sampling, SAMPLINGS)
     if extent is not None:
-        extent = check_scalar("extent", extent, 0.0, low_inclusive=False)
+        extent = check_magnitude("extent", extent, "length")
     total = profile.total()
     if bool((total <= 0).any()):
         raise ValueError(

@@ -12,7 +12,7 @@ from collections.abc import Callable
 
 import torch
 
-from sssbench._checks import check_choice, check_int, check_scalar
+from sssbench._checks import check_choice, check_int, check_magnitude
 
 __all__ = [
     "SAMPLINGS",
@@ -85,7 +85,7 @@ def tap_positions(
     if sampling in ("uniform", "power") or extent is not None:
         if extent is None:
             raise ValueError(f"extent must be given (mm, > 0) for sampling={sampling!r}")
-        extent = check_scalar("extent", extent, 0.0, low_inclusive=False)
+        extent = check_magnitude("extent", extent, "length")
     if sampling == "importance":
         if cdf is None:
             raise ValueError("cdf must be given for sampling='importance'")
@@ -108,7 +108,10 @@ def tap_positions(
             else torch.zeros(1, dtype=torch.float64)
         )
         if sampling == "power":
-            exponent = check_scalar("exponent", exponent, 0.0, low_inclusive=False)
+            exponent = check_magnitude("exponent", exponent, "factor")
+            # exactly odd first: linspace's middle value is ~1e-16, not 0, and its |t|^0.5
+            # would put the centre tap 1e-8 of the extent off 0
+            t = 0.5 * (t - t.flip(0))
             t = torch.sign(t) * t.abs() ** exponent
         centres = extent * t
         inner_edges = 0.5 * (centres[1:] + centres[:-1])

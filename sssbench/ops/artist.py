@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import torch
 
+from sssbench._checks import check_method_options
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.artist import ArtistParams
 from sssbench.ops.method import SeparableMethod
@@ -77,6 +78,7 @@ class ArtistSSS(SeparableMethod):
         seed: int = 0,
     ) -> None:
         super().__init__()
+        check_method_options(None, seed)
         self.params = ArtistParams.make(near, far, weight, scale)
         #: σ_max of 000 eq. 7 per channel (mm), floored so a zero σ' stays a valid scale
         self.set_options(

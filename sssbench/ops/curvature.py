@@ -28,7 +28,7 @@ import kornia
 import torch
 from torch import nn
 
-from sssbench._checks import check_choice, check_int, check_scalar
+from sssbench._checks import check_choice, check_int, check_magnitude, check_scalar
 from sssbench.gbuffer import GBuffer, pixel_size_mm
 from sssbench.ops.timing import timed_pass
 
@@ -44,6 +44,29 @@ CURVATURE_MODES = ("divergence", "magnitude")
 #: 004 §3.3.3, in its order: increase with curvature; reduce at low curvature; reduce at low
 #: curvature down to a minimum
 CURVATURE_STRATEGIES = ("increase", "reduce", "reduce_min")
+#: largest box-filter side (pixels): the filter allocates ``smooth²`` weights
+MAX_SMOOTH = 1025
+
+
+def _check_curvature_options(mode: str, smooth: int, edge_ratio: float) -> tuple[int, float]:
+    """Validated ``(smooth, edge_ratio)`` of :func:`screen_space_curvature`."""
+    check_choice("mode", mode, CURVATURE_MODES)
+    smooth = check_int("smooth", smooth, 1, MAX_SMOOTH)
+    if smooth % 2 == 0:
+        raise ValueError(f"smooth must be odd (a centred box filter), got {smooth}")
+    return smooth, check_magnitude("edge_ratio", edge_ratio, "factor")
+
+
+def _check_width_options(
+    strategy: str, reference: float, gain: float, minimum: float
+) -> tuple[float, float, float]:
+    """Validated ``(reference, gain, minimum)`` of :func:`curvature_width`."""
+    check_choice("strategy", strategy, CURVATURE_STRATEGIES)
+    return (
+        check_magnitude("reference", reference, "coefficient"),
+        check_magnitude("gain", gain, "factor", zero=True),
+        check_scalar("minimum", minimum, 0.0, 1.0),
+    )
 
 
 def screen_space_curvature(
@@ -60,8 +83,8 @@ def screen_space_curvature(
             uses ``mask``.
         mode: ``"divergence"`` (signed mean curvature) or ``"magnitude"`` (004's magnitude of
             the normal variation, >= 0), see the module docstring.
-        smooth: side of the mean (box) filter in pixels, odd >= 1 (1 = no smoothing); 004
-            smooths to avoid high-frequency discontinuities.
+        smooth: side of the mean (box) filter in pixels, odd, in [1, MAX_SMOOTH] (1 = no
+            smoothing); 004 smooths to avoid high-frequency discontinuities.
         edge_ratio: a neighbour more than ``edge_ratio`` pixel footprints away in depth is
             across a silhouette; the gradient there is set to 0.
 
@@ -82,11 +105,7 @@ def screen_space_curvature(
         raise TypeError(f"gbuffer must be a GBuffer, got {type(gbuffer).__name__}")
     if gbuffer.normal is None:
         raise ValueError("curvature needs gbuffer.normal (B, 3, H, W), got None")
-    check_choice("mode", mode, CURVATURE_MODES)
-    smooth = check_int("smooth", smooth, 1)
-    if smooth % 2 == 0:
-        raise ValueError(f"smooth must be odd (a centred box filter), got {smooth}")
-    edge_ratio = check_scalar("edge_ratio", edge_ratio, 0.0, low_inclusive=False)
+    smooth, edge_ratio = _check_curvature_options(mode, smooth, edge_ratio)
 
     _, h, _ = gbuffer.shape
     foot = pixel_size_mm(gbuffer.depth, gbuffer.fov_y, h)  # mm per pixel
@@ -143,10 +162,7 @@ def curvature_width(
         >>> curvature_width(torch.tensor([0.0, 0.025, 1.0]).view(1, 1, 1, 3)).flatten().tolist()
         [0.5, 0.75, 1.0]
     """
-    check_choice("strategy", strategy, CURVATURE_STRATEGIES)
-    reference = check_scalar("reference", reference, 0.0, low_inclusive=False)
-    gain = check_scalar("gain", gain, 0.0)
-    minimum = check_scalar("minimum", minimum, 0.0, 1.0)
+    reference, gain, minimum = _check_width_options(strategy, reference, gain, minimum)
     c = (curvature.abs() / reference).clamp(0.0, 1.0)
     if strategy == "increase":
         return 1.0 + gain * c
@@ -187,14 +203,12 @@ class CurvatureModulation(nn.Module):
         smooth: int = 5,
     ) -> None:
         super().__init__()
-        check_choice("strategy", strategy, CURVATURE_STRATEGIES)
-        check_choice("mode", mode, CURVATURE_MODES)
+        self.reference, self.gain, self.minimum = _check_width_options(
+            strategy, reference, gain, minimum
+        )
+        self.smooth, _ = _check_curvature_options(mode, smooth, 4.0)
         self.strategy = strategy
-        self.reference = check_scalar("reference", reference, 0.0, low_inclusive=False)
-        self.gain = check_scalar("gain", gain, 0.0)
-        self.minimum = check_scalar("minimum", minimum, 0.0, 1.0)
         self.mode = mode
-        self.smooth = check_int("smooth", smooth, 1)
 
     def forward(self, gbuffer: GBuffer) -> torch.Tensor:
         b, h, w = gbuffer.shape

@@ -36,7 +36,7 @@ from collections.abc import Callable
 import kornia
 import torch
 
-from sssbench._checks import check_choice, check_scalar
+from sssbench._checks import MAGNITUDES, check_choice, check_magnitude, check_scalar
 from sssbench.gbuffer import GBuffer, view_positions
 
 __all__ = [
@@ -61,7 +61,7 @@ def halo_guide(gbuffer: GBuffer, *, min_cos: float = 0.02) -> torch.Tensor:
 
     Args:
         gbuffer: needs ``normal`` (view space, +z toward the camera), ``depth``, ``fov_y``.
-        min_cos: floor of ``cos φ_j`` in (0, 1] (grazing or back-facing normals).
+        min_cos: floor of ``cos φ_j`` in [1e-6, 1] (grazing or back-facing normals).
 
     Returns:
         ``(B, 1, H, W)`` guide: 0 for a surface facing the camera on the view axis, growing as
@@ -77,7 +77,7 @@ def halo_guide(gbuffer: GBuffer, *, min_cos: float = 0.02) -> torch.Tensor:
         raise TypeError(f"gbuffer must be a GBuffer, got {type(gbuffer).__name__}")
     if gbuffer.normal is None:
         raise ValueError("halo reduction (bilateral) needs gbuffer.normal (B, 3, H, W), got None")
-    min_cos = check_scalar("min_cos", min_cos, 0.0, 1.0, low_inclusive=False)
+    min_cos = check_scalar("min_cos", min_cos, MAGNITUDES["factor"][0], 1.0)
     pos = view_positions(gbuffer.depth, gbuffer.fov_y)  # camera at the origin, looking at +z
     dist = pos.norm(dim=1, keepdim=True)
     cos_i = pos[:, 2:3] / dist  # angle between the view axis and the ray
@@ -113,7 +113,9 @@ def lab_guide(gbuffer: GBuffer, *, source: str = "albedo") -> torch.Tensor:
         d = gbuffer.diffuse
         peak = d.amax(dim=(1, 2, 3), keepdim=True).clamp_min(torch.finfo(d.dtype).tiny)
         rgb = (d / peak).clamp(0.0, 1.0)
-    # kornia's rgb_to_lab expects sRGB-encoded input and linearises it itself
+    # kornia's rgb_to_lab expects sRGB-encoded input and linearises it itself; on contiguous
+    # memory, so the guide does not depend on the layout (channels-last rounds differently)
+    rgb = rgb.contiguous()
     return kornia.color.rgb_to_lab(kornia.color.linear_rgb_to_rgb(rgb))
 
 
@@ -132,7 +134,7 @@ def range_weight(sigma: float) -> SampleWeight:
         >>> f(torch.zeros(2, 1), torch.tensor([[0.0], [2.0]])).flatten().tolist()
         [1.0, 0.1353352814912796]
     """
-    sigma = check_scalar("sigma", sigma, 0.0, low_inclusive=False)
+    sigma = check_magnitude("sigma", sigma, "factor")
     inv = 1.0 / (2.0 * sigma * sigma)
 
     def weight(centre: torch.Tensor, sample: torch.Tensor) -> torch.Tensor:

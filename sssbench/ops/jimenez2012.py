@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import torch
 
-from sssbench._checks import check_choice, check_scalar
+from sssbench._checks import check_choice, check_magnitude, check_method_options
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.jimenez2012 import JIMENEZ2012_PRESETS, jimenez2012
 from sssbench.ops.method import SeparableMethod
@@ -37,7 +37,7 @@ class Jimenez2012SSS(SeparableMethod):
     Args:
         strength: ``t`` per channel, scalar or ``(3,)`` in [0, 1].
         falloff: ``f`` per channel, scalar or ``(3,)`` >= 0.
-        width: the global width in mm, > 0.
+        width: the global width in mm, in [1e-6, 1e6] (``_checks.MAGNITUDES``).
         samples: taps per pass (002: 9, 17 or 33; an even count gets a centre tap added).
         follow_surface: apply the shader's depth lerp.
         surface_scale: depth step (mm) of full replacement; default ``width``.
@@ -74,7 +74,8 @@ class Jimenez2012SSS(SeparableMethod):
         seed: int = 0,
     ) -> None:
         super().__init__()
-        self.width = check_scalar("width", width, 0.0, low_inclusive=False)
+        check_method_options(surface_scale, seed)
+        self.width = check_magnitude("width", width, "length")
         if not isinstance(follow_surface, bool):
             raise TypeError(f"follow_surface must be a bool, got {type(follow_surface).__name__}")
         # the 2012 shader's follow-surface is its lerp; fully replaced at a `width` mm step

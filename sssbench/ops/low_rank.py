@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import torch
 
-from sssbench._checks import check_int, check_scalar
+from sssbench._checks import check_int, check_magnitude, check_method_options
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.low_rank import LowRankKernel, low_rank
 from sssbench.kernels.matrix import MAX_MATRIX_SIZE, kernel_matrix
@@ -79,13 +79,15 @@ class LowRankSSS(SeparableMethod):
         super().__init__()
         if not isinstance(profile, Profile):
             raise TypeError(f"profile must be a sssbench Profile, got {type(profile).__name__}")
+        check_method_options(surface_scale, seed)
+        if extent is not None:
+            extent = check_magnitude("extent", extent, "length")
         n = check_int("n", n, 1, MAX_MATRIX_SIZE)
         rank = check_int("rank", rank, 1, n)
         self.set_options(
             follow_surface, surface_scale, rotation, seed, default_scale=profile.length_scales()[1]
         )
-        extent = profile.radius() if extent is None else extent
-        extent = check_scalar("extent", extent, 0.0, low_inclusive=False)
+        extent = check_magnitude("extent", profile.radius() if extent is None else extent, "length")
         m = kernel_matrix(profile, extent, n)
         m = m / m.sum((1, 2), keepdim=True)  # 000 §4: normalised to one
         self.profile = profile

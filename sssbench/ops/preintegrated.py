@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch
 
-from sssbench._checks import check_choice
+from sssbench._checks import check_choice, check_magnitude, check_method_options
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.kernel1d import Kernel1D
 from sssbench.kernels.preintegrated import preintegrated
@@ -112,7 +112,12 @@ class PreintegratedSSS(SeparableMethod):
         halo_sigma: float | None = None,
     ) -> None:
         super().__init__()
+        if not isinstance(profile, Profile):
+            raise TypeError(f"profile must be a sssbench Profile, got {type(profile).__name__}")
+        check_method_options(None, seed)
         check_choice("halo", halo, (None, *HALO_KINDS))
+        if halo_sigma is not None:
+            halo_sigma = check_magnitude("halo_sigma", halo_sigma, "factor")
         #: σ_max of 000 eq. 7 / the lerp's full-replacement depth step: the profile's widest
         #: length scale (mm), a property of the material, not of where the taps sit
         self.set_options(

@@ -6,7 +6,7 @@ import math
 
 import torch
 
-from sssbench._checks import check_int, check_scalar
+from sssbench._checks import check_scalar, check_seed
 from sssbench.gbuffer import GBuffer
 from sssbench.ops.gather import Rotation
 
@@ -36,7 +36,7 @@ def random_rotation(
         A :class:`~sssbench.ops.gather.Rotation` with angles ``(B, 1, H, W)``.
     """
     radius = check_scalar("radius", radius, 0.0, 1.0)
-    seed = check_int("seed", seed, 0)
+    seed = check_seed("seed", seed)
     gen = torch.Generator(device="cpu").manual_seed(seed)
     b, h, w = gbuffer.shape
     angles = torch.rand(b, 1, h, w, generator=gen, dtype=torch.float64) * math.pi

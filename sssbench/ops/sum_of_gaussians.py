@@ -10,7 +10,13 @@ from dataclasses import dataclass
 
 import torch
 
-from sssbench._checks import check_choice, check_int, check_scalar, check_tensor
+from sssbench._checks import (
+    check_choice,
+    check_int,
+    check_magnitude,
+    check_method_options,
+    check_tensor,
+)
 from sssbench._memo import memoised
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.kernel1d import Kernel1D
@@ -41,6 +47,8 @@ LISTING_EXTENT_SIGMAS = 3.0
 #: 003 §7.3.1 calibration: a head 1.0 units tall, fov 20°, 720 px viewport
 _JG10_FOV = math.radians(20.0)
 _JG10_HEIGHT = 720
+#: largest image height :func:`jg10_stretch` accepts (pixels)
+MAX_HEIGHT = 1 << 20
 
 
 def blend_weights(weights: torch.Tensor) -> torch.Tensor:
@@ -145,11 +153,11 @@ def jg10_stretch(
         >>> round(s.ssslevel, 3), s.correction, round(s.maxdd, 3)
         (1.183, 800.0, 0.23)
     """
-    height = check_int("height", height, 1)
-    check_scalar("ssslevel", ssslevel, 0.0)
-    check_scalar("correction", correction, 0.0)
-    check_scalar("maxdd", maxdd, 0.0, low_inclusive=False)
-    check_scalar("head_mm", head_mm, 0.0, low_inclusive=False)
+    height = check_int("height", height, 1, MAX_HEIGHT)
+    check_magnitude("ssslevel", ssslevel, "factor", zero=True)
+    check_magnitude("correction", correction, "factor", zero=True)
+    check_magnitude("maxdd", maxdd, "factor")  # head units per pixel
+    check_magnitude("head_mm", head_mm, "length")
     ratio = 2.0 * math.tan(_JG10_FOV / 2.0) * head_mm / (LISTING_EXTENT_SIGMAS * _JG10_HEIGHT)
     return Stretch(
         ssslevel=ssslevel * ratio,
@@ -268,12 +276,13 @@ class SumOfGaussiansSSS(SeparableMethod):
         super().__init__()
         if not isinstance(profile, SumOfGaussians):
             raise TypeError(f"profile must be a SumOfGaussians, got {type(profile).__name__}")
+        check_method_options(surface_scale, seed)
         check_int("samples", samples, 1, MAX_SAMPLES)
         check_choice("sampling", sampling, SAMPLINGS)
         if stretch is not None and not isinstance(stretch, Stretch):
             raise TypeError(f"stretch must be a Stretch or None, got {type(stretch).__name__}")
-        self.lod_threshold = check_scalar("lod_threshold", lod_threshold, 0.0)
-        extent_sigmas = check_scalar("extent_sigmas", extent_sigmas, 0.0, low_inclusive=False)
+        self.lod_threshold = check_magnitude("lod_threshold", lod_threshold, "factor", zero=True)
+        extent_sigmas = check_magnitude("extent_sigmas", extent_sigmas, "factor")
         self.set_options(
             follow_surface, surface_scale, rotation, seed, default_scale=profile.length_scales()[1]
         )
@@ -326,8 +335,23 @@ class SumOfGaussiansSSS(SeparableMethod):
         tag = ("sog_lod", sigma, level, focal_px, self.lod_threshold)
         return memoised((gbuffer.depth, gbuffer.mask), tag, compute)
 
+    def _axis_options(self, gbuffer: GBuffer, options: dict[str, object]) -> dict[str, dict]:
+        """Per pass axis, the pass options with the stretch (003 §7.3.1).
+
+        Small images: along an axis of length 1 (a 1×N, N×1 or 1×1 image) the depth
+        derivative is 0 — there is no neighbour to difference with — so the stretch factor
+        is just ``ssslevel``; and every tap of a pass along that axis clamps onto its one
+        pixel whatever the scale, so the pass is exact without the stretch. It is run without
+        it (the central difference, ``torch.gradient``, needs two samples per axis).
+        """
+        _, h, w = gbuffer.shape
+        return {
+            axis: dict(options, stretch=self.stretch if length > 1 else None)
+            for axis, length in (("x", w), ("y", h))
+        }
+
     def scatter(self, gbuffer: GBuffer, options: dict[str, object]) -> torch.Tensor:
-        options = dict(options, stretch=self.stretch)  # 003 §7.3.1
+        per_axis = self._axis_options(gbuffer, options)  # 003 §7.3.1
         dtype = gbuffer.dtype
         rt1 = gbuffer.diffuse  # the widest Gaussian so far (003 Fig. 7.6: RT1)
         rtf = gbuffer.diffuse  # the blended result (RTF)
@@ -346,10 +370,10 @@ class SumOfGaussiansSSS(SeparableMethod):
             # render targets owned by this call are overwritten (no full-image copy per pass)
             owned = rt1 is not gbuffer.diffuse
             tmp = separable_pass(
-                rt1, step.kernel, "x", g, name=f"{name}.x", inplace=owned, **options
+                rt1, step.kernel, "x", g, name=f"{name}.x", inplace=owned, **per_axis["x"]
             )
             rt1 = separable_pass(
-                tmp, step.kernel, "y", g, name=f"{name}.y", inplace=True, **options
+                tmp, step.kernel, "y", g, name=f"{name}.y", inplace=True, **per_axis["y"]
             )
             if rtf is gbuffer.diffuse:
                 rtf = rtf.clone(memory_format=torch.contiguous_format)

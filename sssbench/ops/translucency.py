@@ -29,7 +29,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from sssbench._checks import check_choice, check_scalar
+from sssbench._checks import check_choice, check_magnitude, check_scalar
 from sssbench.gbuffer import GBuffer
 from sssbench.ops._stencil import active_pixels, apply_on_active
 from sssbench.ops.timing import timed_pass
@@ -74,6 +74,20 @@ def transmittance(s: torch.Tensor, profile: str | SumOfGaussians) -> torch.Tenso
     v = prof.variances.to(s)
     w = prof.weights.to(s)
     return torch.exp(-(s[..., None] ** 2) / v) @ w  # 004 eq. 3.10
+
+
+def _check_options(
+    form: str, translucency: float, width: float, intensity: float, apply_albedo: bool
+) -> tuple[float, float, float]:
+    """Validated ``(translucency, width, intensity)`` of :func:`translucency`."""
+    check_choice("form", form, TRANSLUCENCY_FORMS)
+    if not isinstance(apply_albedo, bool):
+        raise TypeError(f"apply_albedo must be a bool, got {type(apply_albedo).__name__}")
+    return (
+        check_scalar("translucency", translucency, 0.0, 1.0, high_inclusive=False),
+        check_magnitude("width", width, "length"),
+        check_magnitude("intensity", intensity, "factor", zero=True),
+    )
 
 
 def _required(gbuffer: GBuffer) -> None:
@@ -144,14 +158,11 @@ def translucency(
         >>> t.shape, bool(t.max() > 0)
         (torch.Size([1, 3, 16, 16]), True)
     """
+    translucency, width, intensity = _check_options(
+        form, translucency, width, intensity, apply_albedo
+    )
     _required(gbuffer)
     prof = _as_profile(profile)
-    check_choice("form", form, TRANSLUCENCY_FORMS)
-    translucency = check_scalar("translucency", translucency, 0.0, 1.0, high_inclusive=False)
-    width = check_scalar("width", width, 0.0, low_inclusive=False)
-    intensity = check_scalar("intensity", intensity, 0.0)
-    if not isinstance(apply_albedo, bool):
-        raise TypeError(f"apply_albedo must be a bool, got {type(apply_albedo).__name__}")
 
     albedo = gbuffer.albedo if apply_albedo else None
     inputs = [gbuffer.thickness, back_light(gbuffer)]
@@ -209,14 +220,11 @@ class Translucency(nn.Module):
         apply_albedo: bool = True,
     ) -> None:
         super().__init__()
-        self.profile = _as_profile(profile)
-        check_choice("form", form, TRANSLUCENCY_FORMS)
-        self.translucency = check_scalar(
-            "translucency", translucency, 0.0, 1.0, high_inclusive=False
+        self.translucency, self.width, self.intensity = _check_options(
+            form, translucency, width, intensity, apply_albedo
         )
-        self.width = check_scalar("width", width, 0.0, low_inclusive=False)
+        self.profile = _as_profile(profile)
         self.form = form
-        self.intensity = check_scalar("intensity", intensity, 0.0)
         self.apply_albedo = apply_albedo
 
     def forward(self, gbuffer: GBuffer, add_to: torch.Tensor | None = None) -> torch.Tensor:

@@ -19,7 +19,7 @@ import scipy.optimize
 import scipy.special
 import torch
 
-from sssbench._checks import check_choice, check_range, check_scalar
+from sssbench._checks import check_choice, check_magnitude, check_range, check_scalar
 from sssbench.profiles.base import Profile, as_r
 from sssbench.profiles.dipole import _rgb
 
@@ -68,7 +68,7 @@ class BurleyNormalized(Profile):
     """``R(r) = A (e^{−r/d} + e^{−r/(3d)}) / (8π d r)`` (Christensen & Burley 2015).
 
     Args:
-        d: shape parameter in mm, ``(3,)`` or scalar, > 0.
+        d: shape parameter in mm, ``(3,)`` or scalar, in [1e-6, 1e6] (``_checks.MAGNITUDES``).
         albedo: total reflectance ``A`` per channel, ``(3,)`` or scalar, in [0, 1].
 
     Choice at r = 0: ``R`` diverges like ``A/(4π d r)``. :meth:`evaluate` clamps ``r`` to
@@ -97,7 +97,7 @@ class BurleyNormalized(Profile):
     ) -> None:
         dt = _rgb("d", d)
         at = _rgb("albedo", albedo)
-        check_range("d", dt, 0.0, None, low_inclusive=False)
+        check_magnitude("d", dt, "length")
         check_range("albedo", at, 0.0, 1.0)
         self.d = dt
         self.albedo = at

@@ -21,7 +21,7 @@ import scipy.optimize
 import scipy.special
 import torch
 
-from sssbench._checks import check_range, check_scalar, check_tensor
+from sssbench._checks import check_magnitude, check_scalar, check_tensor
 from sssbench.profiles.base import Profile, as_r
 
 __all__ = ["Dipole", "MATERIALS"]
@@ -45,6 +45,10 @@ MATERIALS: dict[str, tuple[tuple[float, float, float], tuple[float, float, float
 
 def _rgb(name: str, value: object) -> torch.Tensor:
     """A per-channel coefficient as a ``(3,)`` float64 tensor (scalars broadcast)."""
+    if isinstance(value, bool) or (
+        isinstance(value, (list, tuple)) and any(isinstance(v, bool) for v in value)
+    ):
+        raise TypeError(f"{name} must be a number or a (3,) sequence/tensor of floats, got a bool")
     if isinstance(value, torch.Tensor):
         t = value
     else:
@@ -88,8 +92,10 @@ class Dipole(Profile):
     """The classical dipole of Jensen et al. 2001 (``reference/materials.md``), per RGB channel.
 
     Args:
-        sigma_s_prime: reduced scattering coefficient σs' in mm^-1, ``(3,)`` or scalar, > 0.
-        sigma_a: absorption coefficient σa in mm^-1, ``(3,)`` or scalar, >= 0 (0 = Spectralon:
+        sigma_s_prime: reduced scattering coefficient σs' in mm^-1, ``(3,)`` or scalar, in
+            [1e-6, 1e6] (``_checks.MAGNITUDES``).
+        sigma_a: absorption coefficient σa in mm^-1, ``(3,)`` or scalar, in [0, 1e6]
+            (0 = Spectralon:
             σ_tr = 0 and the profile decays as the power law ``(z_r + z_v)/(4π r³)``).
         eta: relative index of refraction in [1, 3] (the ``F_dr`` polynomial of JMLH01 is a fit
             for η >= 1).
@@ -132,8 +138,8 @@ class Dipole(Profile):
     ) -> None:
         ss = _rgb("sigma_s_prime", sigma_s_prime)
         sa = _rgb("sigma_a", sigma_a)
-        check_range("sigma_s_prime", ss, 0.0, None, low_inclusive=False)
-        check_range("sigma_a", sa, 0.0, None)
+        check_magnitude("sigma_s_prime", ss, "coefficient")
+        check_magnitude("sigma_a", sa, "coefficient", zero=True)
         eta = check_scalar("eta", eta, 1.0, 3.0)
         self.sigma_s_prime = ss
         self.sigma_a = sa

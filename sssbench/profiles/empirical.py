@@ -40,7 +40,7 @@ import math
 import numpy as np
 import torch
 
-from sssbench._checks import check_range
+from sssbench._checks import check_magnitude
 from sssbench.profiles.base import Profile
 from sssbench.profiles.dipole import Dipole, _rgb
 from sssbench.profiles.sum_of_gaussians import SumOfGaussians
@@ -62,6 +62,15 @@ def _one_minus_exp_over_x(a: float, x: torch.Tensor) -> torch.Tensor:
     safe = torch.where(x > 0, x, torch.ones_like(x))
     val = -torch.expm1(-a * safe) / safe
     return torch.where(x > 0, val, torch.full_like(x, a))
+
+
+def _pole_args(sigma_tr: object, z: object) -> tuple[torch.Tensor, torch.Tensor]:
+    """Validated ``(σ_tr (3,), z (3,))``: σ_tr 0 or a coefficient, z a length (mm)."""
+    s = _rgb("sigma_tr", sigma_tr)
+    zt = _rgb("z", z)
+    check_magnitude("sigma_tr", s, "coefficient", zero=True)
+    check_magnitude("z", zt, "length")
+    return s, zt
 
 
 def c_curves(x: torch.Tensor | float) -> torch.Tensor:
@@ -136,10 +145,7 @@ def empirical_pole_fit(
         if all channels are equal, else 12 with one channel each. Its total is
         ``P_d · Σ C_i(σz)`` (≈ ``2π P_d``, the pole's ``∫ 2πr P dr``).
     """
-    s = _rgb("sigma_tr", sigma_tr)
-    zt = _rgb("z", z)
-    check_range("sigma_tr", s, 0.0, None)
-    check_range("z", zt, 0.0, None, low_inclusive=False)
+    s, zt = _pole_args(sigma_tr, z)
     v, w = _pole_gaussians(s, zt)
     return _block_sog(v, w)
 
@@ -206,8 +212,5 @@ def pole_fit_error(sigma_tr: torch.Tensor | float, z: torch.Tensor | float) -> t
     """
     from sssbench.profiles.fit import rel_rms_power
 
-    s = _rgb("sigma_tr", sigma_tr)
-    zt = _rgb("z", z)
-    check_range("sigma_tr", s, 0.0, None)
-    check_range("z", zt, 0.0, None, low_inclusive=False)
+    s, zt = _pole_args(sigma_tr, z)
     return rel_rms_power(_Pole(s, zt), empirical_pole_fit(s, zt))

@@ -27,7 +27,7 @@ import numpy as np
 import torch
 from scipy import optimize
 
-from sssbench._checks import check_int, check_scalar, check_tensor
+from sssbench._checks import check_int, check_magnitude, check_scalar, check_tensor
 from sssbench.profiles.base import Profile
 from sssbench.profiles.fit import _gauss_matrix, _radial_nodes
 from sssbench.profiles.sum_of_gaussians import SumOfGaussians
@@ -68,7 +68,7 @@ class Layer:
     def __post_init__(self) -> None:
         for n in ("r_plus", "r_minus", "t_plus", "t_minus"):
             setattr(self, n, _check_poly(n, getattr(self, n)))
-        self.v = check_scalar("v", self.v, 0.0, None, low_inclusive=False)
+        self.v = check_magnitude("v", self.v, "variance")
 
     def profile(self, which: str = "r_plus") -> SumOfGaussians:
         """One of the four profiles as a :class:`SumOfGaussians` (``δ`` terms are dropped)."""
@@ -97,7 +97,7 @@ def poly_to_sog(coeffs: torch.Tensor, v: float) -> SumOfGaussians:
     """``Σ_{k>=1} a_k G(kv)`` as a :class:`SumOfGaussians` (001 eq. 15); the δ term (k = 0)
     has no Gaussian form and must be zero."""
     coeffs = _check_poly("coeffs", coeffs)
-    v = check_scalar("v", v, 0.0, None, low_inclusive=False)
+    v = check_magnitude("v", v, "variance")
     if bool((coeffs[0] != 0).any()):
         raise ValueError(
             f"coeffs[0] (the δ term) must be 0 to form a SumOfGaussians, got {coeffs[0].tolist()}"
@@ -122,7 +122,7 @@ def fit_powers_of_gaussian(profile: Profile, v: float, degree: int) -> torch.Ten
     """
     if not isinstance(profile, Profile):
         raise TypeError(f"profile must be a sssbench Profile, got {type(profile).__name__}")
-    v = check_scalar("v", v, 0.0, None, low_inclusive=False)
+    v = check_magnitude("v", v, "variance")
     degree = check_int("degree", degree, 1, 4096)
     lo, hi = profile.length_scales()
     r, w = _radial_nodes(min(lo, math.sqrt(v)), max(hi, math.sqrt(degree * v)), 80, 12)

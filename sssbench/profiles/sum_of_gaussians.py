@@ -11,12 +11,15 @@ import math
 
 import torch
 
-from sssbench._checks import check_tensor
+from sssbench._checks import check_magnitude, check_range, check_tensor
 from sssbench.profiles.base import Profile, _gauss_legendre, as_r
 
 __all__ = ["SumOfGaussians", "SOG_TABLES", "interval_mass"]
 
 _SQRT2 = math.sqrt(2.0)
+#: largest |weight| accepted (dimensionless; a pole fit at the smallest depth, 1e-6 mm, has
+#: weights near 1e7): larger ones overflow float32 when a kernel is cast for a pass
+MAX_WEIGHT = 1e12
 
 #: Published tables: name -> (variances mm², weights rows (R, G, B) per Gaussian).
 SOG_TABLES: dict[str, tuple[list[float], list[list[float]]]] = {
@@ -75,13 +78,23 @@ def interval_mass(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return upper
 
 
+def _as_tensor(name: str, value: object, expected: str) -> torch.Tensor:
+    """``value`` as a tensor, or a ``TypeError`` naming the argument (``None``, strings ...)."""
+    if isinstance(value, torch.Tensor):
+        return value
+    try:
+        return torch.as_tensor(value, dtype=torch.float64)
+    except (TypeError, ValueError, RuntimeError) as exc:
+        raise TypeError(f"{name} must be {expected}, got {type(value).__name__}") from exc
+
+
 class SumOfGaussians(Profile):
     """``R(r) = Σ_i w_i exp(-r²/2v_i) / (2π v_i)`` (001 eq. 6–7).
 
     Args:
-        variances: ``(N,)`` variances in mm², > 0.
+        variances: ``(N,)`` variances in mm², in [1e-12, 1e12] (``_checks.MAGNITUDES``).
         weights: ``(N, 3)`` per-channel weights (dimensionless; their sum is the total
-            diffuse reflectance of each channel).
+            diffuse reflectance of each channel), ``|w| <= MAX_WEIGHT``.
 
     Shape:
         ``__call__(r)``: ``(...,) -> (..., 3)``.
@@ -95,8 +108,8 @@ class SumOfGaussians(Profile):
     name = "sum_of_gaussians"
 
     def __init__(self, variances: torch.Tensor, weights: torch.Tensor) -> None:
-        variances = torch.as_tensor(variances)
-        weights = torch.as_tensor(weights)
+        variances = _as_tensor("variances", variances, "(N,) variances in mm²")
+        weights = _as_tensor("weights", weights, "(N, 3) per-channel weights")
         if not variances.is_floating_point():
             variances = variances.double()
         if not weights.is_floating_point():
@@ -111,8 +124,8 @@ class SumOfGaussians(Profile):
                 f"weights must have shape ({n}, 3) to match variances {tuple(variances.shape)}, "
                 f"got {tuple(weights.shape)}"
             )
-        if bool((variances <= 0).any()):
-            raise ValueError(f"variances must be > 0 mm², got min {float(variances.min()):g}")
+        check_magnitude("variances", variances, "variance")
+        check_range("weights", weights, -MAX_WEIGHT, MAX_WEIGHT)
         self.variances = variances.double()
         self.weights = weights.double()
 
