@@ -27,7 +27,7 @@ from __future__ import annotations
 import contextlib
 import math
 import os
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import pytest
@@ -36,7 +36,7 @@ from hypothesis import assume, given, note, settings
 from hypothesis import strategies as st
 
 import sssbench
-from sssbench import GBuffer, ops
+from sssbench import GBuffer
 from sssbench.kernels import (
     Kernel1D,
     artist,
@@ -76,19 +76,9 @@ def fuzz(weight: float = 1.0) -> settings:
     return settings(FUZZ, max_examples=max(2, round(FUZZ.max_examples * weight)))
 
 
-@contextlib.contextmanager
-def _set_backend(name: str) -> Iterator[None]:
-    previous = ops.get_backend()
-    ops.set_backend(name)
-    try:
-        yield
-    finally:
-        ops.set_backend(previous)
-
-
 def backend(name: str) -> contextlib.AbstractContextManager:
-    """The gather backend as a context (``sssbench.backend`` once the gather branch lands)."""
-    return getattr(sssbench, "backend", _set_backend)(name)
+    """The gather backend as a context (:func:`sssbench.backend`)."""
+    return sssbench.backend(name)
 
 
 torch.set_num_threads(1)
@@ -523,7 +513,6 @@ def test_fuzz_inplace_matches_copy(data, g, how):
     check_inplace(data, g, how)
 
 
-@pytest.mark.xfail(reason="fixed on the gather branch", strict=False)
 @fuzz(1.0)
 @given(data=st.data(), g=scenes(), how=st.sampled_from(["broadcast", "aliased"]))
 def test_fuzz_inplace_on_aliased_or_broadcast_fields(data, g, how):
