@@ -8,6 +8,7 @@ import torch
 from sssbench._checks import check_method_options
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.artist import ArtistParams
+from sssbench.ops.functional import functional
 from sssbench.ops.method import SeparableMethod
 from sssbench.ops.preintegrated import two_pass
 
@@ -110,21 +111,5 @@ class ArtistSSS(SeparableMethod):
         return two_pass(gbuffer.diffuse, self.kernel, gbuffer, name="artist", **options)
 
 
-def artist_sss(
-    gbuffer: GBuffer,
-    near: object,
-    far: object,
-    weight: object,
-    scale: float,
-    samples: int = 7,
-    sampling: str = "importance",
-    **options: object,
-) -> torch.Tensor:
-    """Functional twin of :class:`ArtistSSS` (``options``: its keyword arguments).
-
-    Example:
-        >>> g = GBuffer(torch.ones(1, 3, 8, 8), torch.full((1, 1, 8, 8), 500.0), 0.4)
-        >>> artist_sss(g, 0.1, 0.5, 0.5, 10.0).shape
-        torch.Size([1, 3, 8, 8])
-    """
-    return ArtistSSS(near, far, weight, scale, samples, sampling, **options)(gbuffer)
+#: the functional twin: every argument of :class:`ArtistSSS`, kernels reused
+artist_sss = functional(ArtistSSS, "artist_sss")

@@ -30,6 +30,7 @@ from torch import nn
 
 from sssbench._checks import check_choice, check_int, check_magnitude, check_scalar
 from sssbench.gbuffer import GBuffer, pixel_size_mm
+from sssbench.ops._repr import options_repr
 from sssbench.ops.timing import timed_pass
 
 __all__ = [
@@ -189,6 +190,8 @@ class CurvatureModulation(nn.Module):
         >>> CurvatureModulation("reduce_min")(g).shape
         torch.Size([1, 1, 32, 32])
     """
+
+    extra_repr = options_repr
 
     needs = ("normal", "mask")
 

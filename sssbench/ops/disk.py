@@ -91,7 +91,9 @@ from sssbench.gbuffer import GBuffer, pixel_size_mm, view_positions
 from sssbench.ops._disk_noise import blue_noise_mask
 from sssbench.ops._disk_radial import RadialSampler, radial_sampler
 from sssbench.ops._gather_torch import _bilinear_corners
+from sssbench.ops._repr import options_repr
 from sssbench.ops._stencil import active_pixels
+from sssbench.ops.functional import functional
 from sssbench.ops.timing import timed_pass
 from sssbench.profiles.base import Profile
 
@@ -202,6 +204,8 @@ class DiskSSS(nn.Module):
         >>> bool(torch.allclose(out, g.diffuse))
         True
     """
+
+    extra_repr = options_repr
 
     needs: tuple[str, ...] = ("mask",)
 
@@ -488,6 +492,5 @@ class _Pixels:
         return rgb / safe[:, None], z, ok
 
 
-def disk_sss(gbuffer: GBuffer, profile: Profile, samples: int = 32, **options) -> torch.Tensor:
-    """Functional twin of :class:`DiskSSS`: ``DiskSSS(profile, samples, **options)(gbuffer)``."""
-    return DiskSSS(profile, samples, **options)(gbuffer)
+#: the functional twin: every argument of :class:`DiskSSS`, kernels reused
+disk_sss = functional(DiskSSS, "disk_sss")

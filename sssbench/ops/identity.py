@@ -12,6 +12,7 @@ import torch
 from torch import nn
 
 from sssbench.gbuffer import GBuffer
+from sssbench.ops._repr import options_repr
 from sssbench.profiles.base import Profile
 
 __all__ = ["IdentitySSS"]
@@ -40,6 +41,8 @@ class IdentitySSS(nn.Module):
         >>> IdentitySSS()(g) is g.diffuse
         True
     """
+
+    extra_repr = options_repr
 
     #: G-buffer fields the operator reads (none beyond diffuse)
     needs: tuple[str, ...] = ()

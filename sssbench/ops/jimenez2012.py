@@ -8,6 +8,7 @@ import torch
 from sssbench._checks import check_choice, check_magnitude, check_method_options
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.jimenez2012 import JIMENEZ2012_PRESETS, jimenez2012
+from sssbench.ops.functional import functional
 from sssbench.ops.method import SeparableMethod
 from sssbench.ops.preintegrated import two_pass
 from sssbench.profiles.sum_of_gaussians import SumOfGaussians
@@ -117,19 +118,5 @@ class Jimenez2012SSS(SeparableMethod):
         return two_pass(gbuffer.diffuse, self.kernel, gbuffer, name="jimenez2012", **options)
 
 
-def jimenez2012_sss(
-    gbuffer: GBuffer,
-    strength: object,
-    falloff: object,
-    width: float,
-    samples: int = 17,
-    **options: object,
-) -> torch.Tensor:
-    """Functional twin of :class:`Jimenez2012SSS` (``options``: its keyword arguments).
-
-    Example:
-        >>> g = GBuffer(torch.ones(1, 3, 8, 8), torch.full((1, 1, 8, 8), 200.0), 0.4)
-        >>> jimenez2012_sss(g, (0.48, 0.41, 0.28), (1.0, 0.37, 0.3), 3.0).shape
-        torch.Size([1, 3, 8, 8])
-    """
-    return Jimenez2012SSS(strength, falloff, width, samples, **options)(gbuffer)
+#: the functional twin: every argument of :class:`Jimenez2012SSS`, kernels reused
+jimenez2012_sss = functional(Jimenez2012SSS, "jimenez2012_sss")

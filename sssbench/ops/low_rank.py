@@ -9,6 +9,7 @@ from sssbench._checks import check_int, check_magnitude, check_method_options
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.low_rank import LowRankKernel, low_rank
 from sssbench.kernels.matrix import MAX_MATRIX_SIZE, kernel_matrix
+from sssbench.ops.functional import functional
 from sssbench.ops.gather import separable_pass
 from sssbench.ops.method import SeparableMethod
 from sssbench.profiles.base import Profile
@@ -126,16 +127,5 @@ class LowRankSSS(SeparableMethod):
         return torch.where(active, out, image)
 
 
-def low_rank_sss(
-    gbuffer: GBuffer, profile: Profile, rank: int = 3, n: int = 31, **options: object
-) -> torch.Tensor:
-    """Functional twin of :class:`LowRankSSS` (``options``: its keyword arguments).
-
-    Example:
-        >>> from sssbench.profiles import SumOfGaussians
-        >>> g = GBuffer(torch.ones(1, 3, 8, 8), torch.full((1, 1, 8, 8), 100.0), 0.4)
-        >>> out = low_rank_sss(g, SumOfGaussians.from_table("skin_jg10"), rank=21, n=21)
-        >>> bool(torch.allclose(out, g.diffuse))
-        True
-    """
-    return LowRankSSS(profile, rank, n, **options)(gbuffer)
+#: the functional twin: every argument of :class:`LowRankSSS`, kernels reused
+low_rank_sss = functional(LowRankSSS, "low_rank_sss")

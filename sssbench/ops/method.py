@@ -15,6 +15,7 @@ from torch import nn
 from sssbench._checks import check_choice, check_scalar
 from sssbench._memo import memo_scope
 from sssbench.gbuffer import GBuffer
+from sssbench.ops._repr import options_repr
 from sssbench.ops.gather import FOLLOW_SURFACE, SampleWeight, check_writable
 from sssbench.ops.rotation import random_rotation
 
@@ -37,6 +38,8 @@ class SeparableMethod(nn.Module):
         rotation: stochastic rotation radius fraction, or ``None``.
         seed: rotation seed.
     """
+
+    extra_repr = options_repr
 
     needs: tuple[str, ...] = ("mask",)
     scatters_in_place: bool = False

@@ -8,6 +8,7 @@ from sssbench._checks import check_choice, check_magnitude, check_method_options
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.kernel1d import Kernel1D
 from sssbench.kernels.preintegrated import preintegrated
+from sssbench.ops.functional import functional
 from sssbench.ops.gather import separable_pass
 from sssbench.ops.halo import HALO_KINDS, halo_weight
 from sssbench.ops.method import SeparableMethod
@@ -31,36 +32,6 @@ def two_pass(
     tmp = separable_pass(image, kernel, "x", gbuffer, name=f"{name}.x", inplace=inplace, **options)
     # tmp is this function's own (or image, in place): the second pass overwrites it
     return separable_pass(tmp, kernel, "y", gbuffer, name=f"{name}.y", inplace=True, **options)
-
-
-def preintegrated_sss(
-    gbuffer: GBuffer,
-    profile: Profile,
-    samples: int = 7,
-    sampling: str = "importance",
-    follow_surface: str | None = "lerp",
-) -> torch.Tensor:
-    """Scatter ``gbuffer.diffuse`` with the pre-integrated kernel of ``profile``.
-
-    Args:
-        gbuffer: needs ``diffuse``, ``depth``, ``fov_y``; uses ``mask`` as stencil/strength.
-        profile: radial diffusion profile (mm).
-        samples: taps per pass.
-        sampling: ``"importance"`` (000 §7), ``"uniform"`` or ``"power"``.
-        follow_surface: ``"lerp"`` (default, see :class:`PreintegratedSSS`), ``"gaussian"`` or
-            ``None`` (see :func:`separable_pass`).
-
-    Returns:
-        ``(B, 3, H, W)`` scattered diffuse.
-
-    Example:
-        >>> from sssbench.profiles import SumOfGaussians
-        >>> g = GBuffer(torch.ones(1, 3, 8, 8), torch.full((1, 1, 8, 8), 300.0), 0.4)
-        >>> out = preintegrated_sss(g, SumOfGaussians.from_table("skin_jg10"))
-        >>> bool(torch.allclose(out, g.diffuse))
-        True
-    """
-    return PreintegratedSSS(profile, samples, sampling, follow_surface)(gbuffer)
 
 
 class PreintegratedSSS(SeparableMethod):
@@ -143,3 +114,7 @@ class PreintegratedSSS(SeparableMethod):
 
     def scatter(self, gbuffer: GBuffer, options: dict[str, object]) -> torch.Tensor:
         return two_pass(gbuffer.diffuse, self.kernel, gbuffer, name="preintegrated", **options)
+
+
+#: the functional twin: every argument of :class:`PreintegratedSSS`, kernels reused
+preintegrated_sss = functional(PreintegratedSSS, "preintegrated_sss")

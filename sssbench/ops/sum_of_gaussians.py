@@ -23,6 +23,7 @@ from sssbench.kernels.kernel1d import Kernel1D
 from sssbench.kernels.preintegrated import preintegrated
 from sssbench.kernels.sampling import MAX_SAMPLES, SAMPLINGS
 from sssbench.ops._stencil import image_stencils
+from sssbench.ops.functional import functional
 from sssbench.ops.gather import Stretch, blend_on_stencil, separable_pass
 from sssbench.ops.method import SeparableMethod
 from sssbench.ops.timing import PassRecord, add_record
@@ -383,19 +384,5 @@ class SumOfGaussiansSSS(SeparableMethod):
         return rtf
 
 
-def sum_of_gaussians_sss(
-    gbuffer: GBuffer,
-    profile: SumOfGaussians,
-    samples: int = 7,
-    sampling: str = "uniform",
-    **options: object,
-) -> torch.Tensor:
-    """Functional twin of :class:`SumOfGaussiansSSS` (``options`` are its keyword arguments).
-
-    Example:
-        >>> g = GBuffer(torch.ones(1, 3, 8, 8), torch.full((1, 1, 8, 8), 30.0), 0.4)
-        >>> out = sum_of_gaussians_sss(g, SumOfGaussians.from_table("marble_jg10"))
-        >>> out.shape
-        torch.Size([1, 3, 8, 8])
-    """
-    return SumOfGaussiansSSS(profile, samples, sampling, **options)(gbuffer)
+#: the functional twin: every argument of :class:`SumOfGaussiansSSS`, kernels reused
+sum_of_gaussians_sss = functional(SumOfGaussiansSSS, "sum_of_gaussians_sss")

@@ -23,6 +23,7 @@ from torch import nn
 
 from sssbench._checks import check_choice, check_tensor
 from sssbench.gbuffer import GBuffer
+from sssbench.ops._repr import options_repr
 from sssbench.ops._stencil import active_pixels, apply_on_active
 from sssbench.ops.timing import timed_pass
 
@@ -125,6 +126,8 @@ class Texturing(nn.Module):
         >>> t.after(t.before(g.diffuse, g), g)[0, 0, 0, 0].item()
         0.25
     """
+
+    extra_repr = options_repr
 
     needs = ("albedo", "mask")
 

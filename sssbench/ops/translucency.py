@@ -31,6 +31,7 @@ from torch import nn
 
 from sssbench._checks import check_choice, check_magnitude, check_scalar
 from sssbench.gbuffer import GBuffer
+from sssbench.ops._repr import options_repr
 from sssbench.ops._stencil import active_pixels, apply_on_active
 from sssbench.ops.timing import timed_pass
 from sssbench.profiles.sum_of_gaussians import SumOfGaussians
@@ -206,6 +207,8 @@ class Translucency(nn.Module):
         >>> Translucency("skin_deon6", 0.5, 8.0)(g).shape
         torch.Size([1, 3, 16, 16])
     """
+
+    extra_repr = options_repr
 
     needs = ("thickness", "normal", "mask")
 
