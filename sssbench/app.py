@@ -112,9 +112,10 @@ def spec_from_cfg(cfg: Any, overridden: tuple[str, ...] = ()) -> RunSpec:
 
     Args:
         cfg: the composed config.
-        overridden: top-level keys given on the command line; an option the method does not
-            take (``samples`` for the exact reference, ``sampling`` for the low-rank method)
-            is refused when it was given explicitly, rather than silently merged into one point.
+        overridden: top-level keys given on the command line (or by a sweep); an option the
+            method does not take (``samples`` for the baseline, ``sampling`` for the low-rank
+            method) that was given explicitly is kept in the point as ``ignored``, so distinct
+            requests are stored distinctly rather than silently merged into one point.
     """
     from omegaconf import OmegaConf
 
@@ -126,16 +127,17 @@ def spec_from_cfg(cfg: Any, overridden: tuple[str, ...] = ()) -> RunSpec:
     method = c["method"]["name"]
     registry.method_class(method)  # a clear error for an unknown method
     samples = c.get("samples")
+    ignored: dict[str, Any] = {}
     if not registry.method_takes(method, "samples"):
         if "samples" in overridden and samples is not None:
-            raise ValueError(f"method {method!r} has no tap count: drop samples= for it")
+            ignored["samples"] = samples  # stored distinctly, never merged into one point
         samples = None
     sampling = c["sampling"]["name"]
     if sampling == "default":  # the method's own default placement, recorded as such
         sampling = registry.default_option(method, "sampling")
     if not registry.method_takes(method, "sampling"):
         if "sampling" in overridden and c["sampling"]["name"] != "default":
-            raise ValueError(f"method {method!r} has no sampling option: drop sampling= for it")
+            ignored["sampling"] = c["sampling"]["name"]
         sampling = None
     res = c["resolution"]
     if isinstance(res, int) and not isinstance(res, bool):
@@ -182,6 +184,7 @@ def spec_from_cfg(cfg: Any, overridden: tuple[str, ...] = ()) -> RunSpec:
         sampling=sampling,
         samples=samples,
         stages=stages,
+        ignored=ignored,
         reference_params=dict(c.get("reference") or {}),
         budget=bool(c.get("budget", True)),
         resolution=(int(res[0]), int(res[1])),

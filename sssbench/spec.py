@@ -31,6 +31,9 @@ class RunSpec:
         samples: taps per pass, ``None`` for methods without a tap count.
         stages: pipeline stage name -> its parameters (``None`` = off); see
             :data:`sssbench.registry.STAGES`.
+        ignored: options given explicitly that the method does not take (e.g. ``samples``
+            for the baseline in a samples sweep): not passed to the method, but part of the
+            point, so two such requests are never merged.
         resolution: ``(H, W)`` pixels.
         reference_params: options of the exact reference (``tol``, ``reconstruction``).
         budget: compute the error budget (model / taps / screen space) of the run.
@@ -51,6 +54,7 @@ class RunSpec:
     profile_kind: str = "sum_of_gaussians_table"
     profile_params: dict[str, Any] = field(default_factory=dict)
     stages: dict[str, dict[str, Any] | None] = field(default_factory=dict)
+    ignored: dict[str, Any] = field(default_factory=dict)
     reference_params: dict[str, Any] = field(default_factory=dict)
     budget: bool = True
     repeats: int = 5
@@ -82,6 +86,7 @@ class RunSpec:
             "sampling": self.sampling,
             "samples": self.samples,
             "stages": {k: v for k, v in sorted(self.stages.items()) if v is not None},
+            **({"ignored": self.ignored} if self.ignored else {}),
             "reference_params": self.reference_params,
             "resolution": list(self.resolution),
             "seed": self.seed,

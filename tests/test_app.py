@@ -287,11 +287,16 @@ def test_every_swept_option_is_used_or_refused():
     a = app.spec_from_cfg(_compose("method=low_rank", "samples=15"), ("method", "samples"))
     b = app.spec_from_cfg(_compose("method=low_rank", "samples=31"), ("method", "samples"))
     assert config_hash(a.point()) != config_hash(b.point())
-    # an option the method does not take is refused when given explicitly
-    with pytest.raises(ValueError, match="no sampling option"):
-        app.spec_from_cfg(_compose("method=low_rank", "sampling=uniform"), ("sampling",))
-    with pytest.raises(ValueError, match="no tap count"):
-        app.spec_from_cfg(_compose("method=reference", "samples=13"), ("samples",))
+    # an option the method does not take, given explicitly, is not passed to the method but
+    # keeps the points distinct (a sweep never merges two requests into one stored point)
+    a, b = (
+        app.spec_from_cfg(_compose("method=low_rank", f"sampling={s}"), ("sampling",))
+        for s in ("uniform", "importance")
+    )
+    assert a.sampling is None and a.ignored == {"sampling": "uniform"}
+    assert config_hash(a.point()) != config_hash(b.point())
+    ref = app.spec_from_cfg(_compose("method=identity", "samples=13"), ("samples",))
+    assert ref.samples is None and ref.point()["ignored"] == {"samples": 13}
     # and an unknown method option is refused when the method is built
     with pytest.raises(ValueError, match="has no option"):
         registry.build_method("preintegrated", None, params={"taps": 3})
