@@ -155,7 +155,9 @@ def _check_scale(g: GBuffer, profile: Profile) -> None:
     mask = g.mask_or_ones()
     depth = g.depth[mask > 0] if bool((mask > 0).any()) else g.depth.flatten()
     zlo, zhi = float(depth.min()), float(depth.max())
-    plo, phi = (float(pixel_size_mm(torch.tensor(z), g.fov_y, h)) for z in (zlo, zhi))
+    plo, phi = (
+        float(pixel_size_mm(torch.tensor(z, dtype=torch.float64), g.fov_y, h)) for z in (zlo, zhi)
+    )
     lo, hi = profile.length_scales()
     ok = 1e-100 <= min(plo, zlo) and max(phi, zhi) <= 1e100
     ok = ok and hi / plo <= 1e100 and phi / lo <= 1e100
