@@ -356,17 +356,15 @@ def cell_nodes(
     return torch.cat(pts), torch.cat(mass)
 
 
-def _window_px(s: Surface, v: float, tol: float, zmin: float) -> float:
-    """Half-size in pixels of the window holding every cell within ``R = σ √(2 ln(1/tol))``
-    in 3D of a target at depth ≥ ``zmin`` (the 2D Gaussian holds ``exp(−R²/2v) = tol`` of its
-    mass beyond ``R``).
+def _window_px(s: Surface, reach: float, zmin: float) -> float:
+    """Half-size in pixels of the window holding every cell within ``reach`` in 3D of a target
+    at depth ≥ ``zmin``.
 
     A cell ``d`` pixels away laterally at depth ``z_b`` has ``Δx = d · foot · z_b + u_t Δz``
     (``u_t = x_t / z_t``), and ``|Δx|² + Δz² ≤ R²`` needs ``d · foot · z_b ≤ R √(1 + u_t²)``
     (Cauchy–Schwarz), with ``z_b ≥ z_t − R``.
     """
     hp, wp = s.z.shape
-    reach = math.sqrt(v) * math.sqrt(2 * math.log(1 / tol))
     if zmin - reach > 0:
         return reach * math.sqrt(1 + s.u_max**2) / (s.foot * (zmin - reach)) + 1
     return float(max(hp, wp))
@@ -396,7 +394,7 @@ def gather(
     rows: torch.Tensor,
     cols: torch.Tensor,
     variances: list[float],
-    tol: float,
+    tols: list[float],
     reconstruction: str,
     ratio: float | None,
     tile: int = 16,
@@ -409,7 +407,8 @@ def gather(
     points on the cells too large to expand (steep or wide against σ). Without (Gaussians
     narrower than a pixel): graded Gauss–Legendre points on every cell
     (:func:`_graded_rule`). Sources are taken from the window of :func:`_window_px` around
-    each tile of ``tile²`` targets.
+    each tile of ``tile²`` targets: the cells within ``R_g = σ_g √(2 ln(1/tols_g))`` in 3D
+    (the 2D Gaussian holds ``exp(−R²/2v) = tol_g`` of its mass beyond ``R``).
     """
     out = torch.zeros(len(variances), rows.numel(), s.q.shape[0], dtype=s.z.dtype)
     if rows.numel() == 0:
@@ -437,7 +436,8 @@ def gather(
         x = tgt[sel]
         zmin = float(x[:, 2].min())
         for gi, v in enumerate(variances):
-            rpx = _window_px(s, v, tol, zmin)
+            reach = math.sqrt(v) * math.sqrt(2 * math.log(1 / tols[gi]))
+            rpx = _window_px(s, reach, zmin)
             ra, rb = max(0, int(r0 - rpx)), min(hp, int(r0 + tile + rpx) + 1)
             ca, cb = max(0, int(c0 - rpx)), min(wp, int(c0 + tile + rpx) + 1)
             fw, qw = fields[:, ra : rb + 2, ca : cb + 2], q[:, ra : rb + 2, ca : cb + 2]
@@ -448,7 +448,7 @@ def gather(
                     res += point_field(x, pts, mass, v)
             else:
                 cut, n_gl = cuts[gi]
-                res += _blocks(pyr, cut, x, v, ra, rb, ca, cb)
+                res += _blocks(pyr, cut, x, v, reach, (ra, rb, ca, cb))
                 nw = n_gl[ra:rb, ca:cb]
                 for n in torch.unique(nw[nw > 0]).tolist():
                     pts, mass = cell_nodes(fw, qw, nw == n, *_gl01(n), reconstruction)
@@ -460,10 +460,18 @@ def gather(
 
 
 def _blocks(
-    pyr: Pyramid, cut: list[torch.Tensor], x: torch.Tensor, v: float, ra, rb, ca, cb
+    pyr: Pyramid,
+    cut: list[torch.Tensor],
+    x: torch.Tensor,
+    v: float,
+    reach: float,
+    window: tuple[int, int, int, int],
 ) -> torch.Tensor:
-    """:func:`far_field` of the cut blocks overlapping pixel rows ``ra:rb``, cols ``ca:cb``."""
-    pos, mom = [], []
+    """:func:`far_field` of the cut blocks overlapping the pixel window ``(ra, rb, ca, cb)``
+    (rows ``ra:rb``, cols ``ca:cb``) whose ball comes within ``reach`` of the 3D bounding box
+    of the targets ``x`` (the others hold less than the tolerance of the Gaussian)."""
+    ra, rb, ca, cb = window
+    pos, mom, rad = [], [], []
     for lev, c in enumerate(cut):
         b = 1 << lev
         r1, r2, c1, c2 = (
@@ -476,9 +484,14 @@ def _blocks(
         if bool(m.any()):
             pos.append(pyr.pos[lev][:, r1:r2, c1:c2][:, m])
             mom.append(pyr.mom[lev][:, :, r1:r2, c1:c2][:, :, m])
+            rad.append(pyr.rad[lev][r1:r2, c1:c2][m])
     if not pos:
         return x.new_zeros(x.shape[0], pyr.mom[0].shape[0])
-    return far_field(x, torch.cat(pos, 1).t(), torch.cat(mom, 2).permute(2, 0, 1), v)
+    p = torch.cat(pos, 1).t()
+    lo, hi = x.amin(0), x.amax(0)
+    gap = (p - hi).clamp_min(0) + (lo - p).clamp_min(0)
+    keep = (gap * gap).sum(1) <= (reach + torch.cat(rad)) ** 2
+    return far_field(x, p[keep], torch.cat(mom, 2).permute(2, 0, 1)[keep], v)
 
 
 def _levels(v_max: float, ratio: float, hp: int, wp: int) -> int:
