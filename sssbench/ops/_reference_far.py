@@ -198,6 +198,24 @@ def _monomials(x: torch.Tensor) -> torch.Tensor:
     return torch.cat([one, x, quad], 1)
 
 
+def _gaussian_matrix(
+    targets: torch.Tensor, sources: torch.Tensor, v: float
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Targets and sources relative to the targets' mean, and ``exp(−|p − x|²/2v)`` ``(T, S)``.
+
+    The exponent is one product ``[x, 1] · [p/v, −|p|²/2v]ᵀ − |x|²/2v`` (both relative to
+    the origin, so the cancellation is of the window's size, not of the view distance).
+    """
+    origin = targets.mean(0)
+    x = targets - origin
+    p = sources - origin
+    lhs = torch.cat([x, torch.ones_like(x[:, :1])], 1)
+    rhs = torch.cat([p / v, (-(p * p).sum(1) / (2 * v))[:, None]], 1)
+    expo = lhs @ rhs.t()
+    expo -= ((x * x).sum(1) / (2 * v))[:, None]
+    return x, p, torch.exp_(expo.clamp_max_(0.0))
+
+
 def far_field(
     targets: torch.Tensor,
     sources: torch.Tensor,
@@ -212,15 +230,7 @@ def far_field(
         mom: ``(S, C, 10)`` moments about them.
         v: variance of the Gaussian (same length unit).
     """
-    origin = targets.mean(0)
-    x = targets - origin
-    p = sources - origin
-    # exponent −|p − x|²/2v as one product: [x, 1] · [p/v, −|p|²/2v] − |x|²/2v
-    lhs = torch.cat([x, torch.ones_like(x[:, :1])], 1)
-    rhs = torch.cat([p / v, (-(p * p).sum(1) / (2 * v))[:, None]], 1)
-    expo = lhs @ rhs.t()
-    expo -= ((x * x).sum(1) / (2 * v))[:, None]
-    g = torch.exp_(expo.clamp_max_(0.0))
+    x, p, g = _gaussian_matrix(targets, sources, v)
     cols = _coefficients(p, mom, v)  # (S, C·10)
     res = (g @ cols).view(x.shape[0], mom.shape[1], _NMOM)
     return (res * _monomials(x)[:, None]).sum(-1) / (2 * math.pi * v)
@@ -291,14 +301,7 @@ def point_field(
     targets: torch.Tensor, sources: torch.Tensor, mass: torch.Tensor, v: float
 ) -> torch.Tensor:
     """``Σ_S mass_S G(v, |p_S − x|)`` ``(T, C)`` for point masses ``(S, C)``."""
-    origin = targets.mean(0)
-    x = targets - origin
-    p = sources - origin
-    lhs = torch.cat([x, torch.ones_like(x[:, :1])], 1)
-    rhs = torch.cat([p / v, (-(p * p).sum(1) / (2 * v))[:, None]], 1)
-    expo = lhs @ rhs.t()
-    expo -= ((x * x).sum(1) / (2 * v))[:, None]
-    return (torch.exp_(expo.clamp_max_(0.0)) @ mass) / (2 * math.pi * v)
+    return (_gaussian_matrix(targets, sources, v)[2] @ mass) / (2 * math.pi * v)
 
 
 def _gl01(order: int) -> tuple[torch.Tensor, torch.Tensor]:
