@@ -87,10 +87,10 @@ def cell_moments(
     area_el = torch.sqrt(1 + sx * sx + sy * sy)
     txx, tyy, txy = _tangent_products(sx, sy)
     if reconstruction == "box":
-        m = q * (4 * half * half * area_el)
-        d = torch.zeros(q.shape[0], 3, *q.shape[1:], dtype=q.dtype)
-        quad = m[:, None] * ((half * half / 3.0) * (txx + tyy))[None]
-        return torch.cat([m[:, None], d, quad], 1)
+        out = torch.zeros(q.shape[0], _NMOM, *q.shape[1:], dtype=q.dtype)
+        torch.mul(q, 4 * half * half * area_el, out=out[:, 0])
+        torch.mul(out[:, :1], ((half * half / 3.0) * (txx + tyy))[None], out=out[:, 4:])
+        return out
     h, w = half.shape
     inner = (slice(1, h - 1), slice(1, w - 1))
     hh, ae = half[inner], area_el[inner]
