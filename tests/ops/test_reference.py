@@ -169,3 +169,20 @@ def test_gauss_legendre_block_equals_the_per_gaussian_rule(order):
         for i, vi in enumerate(var)
     )
     torch.testing.assert_close(got, want, rtol=1e-12, atol=1e-300)
+
+
+@pytest.mark.parametrize("name", ["reference.py", "_reference_far.py", "_reference_flat.py"])
+def test_code_digest_covers_every_reference_module(name, monkeypatch):
+    # caches of references are keyed by the digest: editing any module that computes them
+    # must change it
+    import pathlib
+
+    base = reference.reference_code_digest()
+    read = pathlib.Path.read_text
+
+    def edited(self, *args, **kwargs):
+        text = read(self, *args, **kwargs)
+        return text + "\n# edited" if self.name == name else text
+
+    monkeypatch.setattr(pathlib.Path, "read_text", edited)
+    assert reference.reference_code_digest() != base
