@@ -230,6 +230,8 @@ def far_field(
         mom: ``(S, C, 10)`` moments about them.
         v: variance of the Gaussian (same length unit).
     """
+    if sources.shape[0] == 0:
+        return targets.new_zeros(targets.shape[0], mom.shape[1])
     x, p, g = _gaussian_matrix(targets, sources, v)
     cols = _coefficients(p, mom, v)  # (S, C·10)
     res = (g @ cols).view(x.shape[0], mom.shape[1], _NMOM)

@@ -68,3 +68,12 @@ def test_cell_gather_matches_the_brute_force_surface_integral(setup):
     want = brute_force_reference(g, PROFILE, tg, k, "box")
     got = reference_sss(g, PROFILE, method="gather")[0][:, tg[:, 0], tg[:, 1]].numpy().T
     assert _rel_rms(got, want) < 1e-5
+
+
+def test_a_tile_whose_window_blocks_are_all_out_of_reach_gets_zero():
+    # e.g. its own cells are too steep to expand and every block around lies at another depth
+    from sssbench.ops._reference_far import far_field
+
+    x = torch.rand(5, 3, dtype=torch.float64)
+    out = far_field(x, x.new_zeros(0, 3), x.new_zeros(0, 4, 10), 1.0)
+    assert out.shape == (5, 4) and not bool(out.any())
