@@ -139,7 +139,7 @@ def test_earlier_skip_of_far_gauss_legendre_cells_stays_within_its_bound(scene, 
 
     p = SumOfGaussians.from_table("skin_deon6")
     g = make_scene(scene, (res, res), dtype=torch.float64)
-    fast = reference_sss(g, p)
+    fast = reference_sss(g, p, method="gather")
     loop = reference_sss(g, _as_loop(p))  # cell_integral's skip radius
     bound = 2 * float(g.diffuse.abs().max()) * 4.5e-10 / 0.1
     assert float((fast - loop).abs().max()) < bound
@@ -169,3 +169,20 @@ def test_gauss_legendre_block_equals_the_per_gaussian_rule(order):
         for i, vi in enumerate(var)
     )
     torch.testing.assert_close(got, want, rtol=1e-12, atol=1e-300)
+
+
+@pytest.mark.parametrize("name", ["reference.py", "_reference_far.py", "_reference_flat.py"])
+def test_code_digest_covers_every_reference_module(name, monkeypatch):
+    # caches of references are keyed by the digest: editing any module that computes them
+    # must change it
+    import pathlib
+
+    base = reference.reference_code_digest()
+    read = pathlib.Path.read_text
+
+    def edited(self, *args, **kwargs):
+        text = read(self, *args, **kwargs)
+        return text + "\n# edited" if self.name == name else text
+
+    monkeypatch.setattr(pathlib.Path, "read_text", edited)
+    assert reference.reference_code_digest() != base

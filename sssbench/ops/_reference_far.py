@@ -1,0 +1,507 @@
+"""Multipole evaluation of the exact reference for Gaussians wider than a pixel.
+
+The reference sums, for every target pixel ``i`` and every Gaussian ``g`` of a sum of
+Gaussians (001 eq. 6–7), ``F_g(p_i) = ∫ q(p) G(v_g, |p − p_i|) dA`` over the visible surface,
+``q`` the reconstructed irradiance (per channel) or the stencil. This module evaluates it from
+the *moments* of ``q dA`` instead of cell by cell:
+
+- Level 0: every surface cell (the planar patch of :func:`reference_sss`) is summarised by its
+  mass ``M = ∫ q dA``, dipole ``D = ∫ q (p − c) dA`` and quadrupole ``Q = ∫ q (p − c)(p − c)ᵀ
+  dA`` about its centre ``c``, in closed form for the box and the bilinear reconstruction.
+- Level ℓ: 2×2 blocks of level ℓ−1 merged exactly (moments shifted to the area-weighted
+  centroid of the block); each block carries the radius of a ball holding all its patches.
+- Gaussian ``g`` is evaluated from the coarsest blocks whose ball radius is at most
+  ``σ_g / ratio`` (a block is split into its children otherwise: a block across a depth
+  step is never used), by the second-order Taylor expansion of the Gaussian about the block
+  centre: ``M G + ∇G·D + ½ H:Q`` with ``∇G = −Δ G / v`` and ``H = (Δ Δᵀ / v² − I / v) G``,
+  ``Δ = P − p_i``. The first neglected term is third order in ``radius / σ``; for a smooth
+  ``q`` the sum is moreover a midpoint rule of a smooth integrand, whose error decays like
+  ``exp(−2π² σ² / b²)`` (Poisson summation), so the error sits at discontinuities of ``q``
+  (measured in the tests against a brute-force surface integral).
+- Per tile of targets the window of blocks is dense: the exponents of all (target, block)
+  pairs are one matrix product, the Taylor terms a second one (the polynomial in the target
+  position is expanded about a tile origin, so both products are small matrices).
+
+All lengths are divided by a unit ``L`` (a pixel footprint) first, so the weights
+``area · G`` are dimensionless and the same at every scale of the scene.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from sssbench.profiles.base import _gauss_legendre
+
+__all__ = ["Pyramid", "build_pyramid", "cell_moments", "far_field"]
+
+#: per-channel moment layout: M, D (x, y, z), Q (xx, yy, zz, xy, xz, yz)
+_NMOM = 10
+#: quadrupole components (k, l) in the order of the layout
+_QPAIRS = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
+
+
+def _tangent_products(sx: torch.Tensor, sy: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    """``t_x t_xᵀ``, ``t_y t_yᵀ`` and ``t_x t_yᵀ + t_y t_xᵀ`` of the patch tangents
+    ``t_x = (1, 0, s_x)``, ``t_y = (0, 1, s_y)`` in the Q layout, each ``(6, ...)``."""
+    one, zero = torch.ones_like(sx), torch.zeros_like(sx)
+    txx = torch.stack([one, zero, sx * sx, zero, sx, zero])
+    tyy = torch.stack([zero, one, sy * sy, zero, zero, sy])
+    txy = torch.stack([zero, zero, 2 * sx * sy, one, sy, sx])
+    return txx, tyy, txy
+
+
+def _hat_moments(h: torch.Tensor, a: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``∫_{−h}^{h} w_a(s) s^k ds`` for k = 0, 1, 2: the weight of the neighbour at offset
+    ``a ∈ {−1, 0, 1}`` (in pixels) of the bilinear interpolation across one cell of half-size
+    ``h``: ``w_0 = 1 − |s|/2h``, ``w_{±1} = max(0, ±s/2h)``."""
+    if a == 0:
+        return 1.5 * h, torch.zeros_like(h), (5.0 / 12.0) * h**3
+    return 0.25 * h, (a / 6.0) * h * h, 0.125 * h**3
+
+
+def cell_moments(
+    half: torch.Tensor,
+    sx: torch.Tensor,
+    sy: torch.Tensor,
+    q: torch.Tensor,
+    reconstruction: str,
+) -> torch.Tensor:
+    """Moments of ``q dA`` over every cell patch about its centre, ``(C, 10, H, W)``.
+
+    Args:
+        half: ``(H, W)`` half-size of each cell's lateral square (0 off the surface).
+        sx, sy: ``(H, W)`` depth slopes of the patch.
+        q: ``(C, H, W)`` values at the pixel centres (zero off the surface).
+        reconstruction: ``"box"`` (``q`` constant over the cell) or ``"bilinear"`` (``q``
+            interpolated between the centres of the cell and its neighbours, which needs a
+            one-pixel border: the result then is ``(C, 10, H − 2, W − 2)`` of the interior).
+
+    The patch is ``c + s t_x + t t_y`` with ``|s|, |t| ≤ h``, area element
+    ``A = √(1 + s_x² + s_y²)``, so ``∫ f dA = A ∫∫ f ds dt`` and every moment is a product of
+    one-dimensional integrals (:func:`_hat_moments` for the bilinear weights).
+    """
+    area_el = torch.sqrt(1 + sx * sx + sy * sy)
+    txx, tyy, txy = _tangent_products(sx, sy)
+    if reconstruction == "box":
+        out = torch.zeros(q.shape[0], _NMOM, *q.shape[1:], dtype=q.dtype)
+        torch.mul(q, 4 * half * half * area_el, out=out[:, 0])
+        torch.mul(out[:, :1], ((half * half / 3.0) * (txx + tyy))[None], out=out[:, 4:])
+        return out
+    h, w = half.shape
+    inner = (slice(1, h - 1), slice(1, w - 1))
+    hh, ae = half[inner], area_el[inner]
+    txx, tyy, txy = (
+        txx[(slice(None), *inner)],
+        tyy[(slice(None), *inner)],
+        txy[(slice(None),) + inner],
+    )
+    out = torch.zeros(q.shape[0], _NMOM, h - 2, w - 2, dtype=q.dtype)
+    # s runs along +x (columns), t along +y (rows upward): the t-neighbour a is row −a
+    for a in (-1, 0, 1):
+        i0a, i1a, i2a = _hat_moments(hh, a)
+        for b in (-1, 0, 1):
+            i0b, i1b, i2b = _hat_moments(hh, b)
+            qn = q[:, 1 - b : h - 1 - b, 1 + a : w - 1 + a] * ae
+            out[:, 0] += qn * (i0a * i0b)
+            out[:, 1] += qn * (i1a * i0b)  # D = A ∫∫ q (s t_x + t t_y)
+            out[:, 2] += qn * (i0a * i1b)
+            out[:, 3] += qn * (i1a * i0b * sx[inner] + i0a * i1b * sy[inner])
+            quad = i2a * i0b * txx + i0a * i2b * tyy + i1a * i1b * txy
+            out[:, 4:] += qn[:, None] * quad[None]
+    return out
+
+
+def cell_radius(half: torch.Tensor, sx: torch.Tensor, sy: torch.Tensor) -> torch.Tensor:
+    """Distance from a patch's centre to its farthest corner, ``h √(2 + (|s_x| + |s_y|)²)``."""
+    return half * torch.sqrt(2 + (sx.abs() + sy.abs()) ** 2)
+
+
+@dataclass
+class Pyramid:
+    """Block moments per level: ``pos[l]`` ``(3, H_l, W_l)`` expansion centres, ``mom[l]``
+    ``(C, 10, H_l, W_l)`` moments about them, ``rad[l]`` ``(H_l, W_l)`` bounding radii (0 for an
+    empty block); level ``l`` blocks are ``2^l`` pixels wide."""
+
+    pos: list[torch.Tensor]
+    mom: list[torch.Tensor]
+    rad: list[torch.Tensor]
+
+
+def _merge(pos: torch.Tensor, mom: torch.Tensor, rad: torch.Tensor):
+    """One level up: 2×2 children -> parent, moments shifted to the area centroid (the last
+    channel of ``mom`` is the stencil's area) (parallel-axis theorem)."""
+    c, _, h, w = mom.shape
+    ch = mom.view(c, _NMOM, h // 2, 2, w // 2, 2)
+    p = pos.view(3, h // 2, 2, w // 2, 2)
+    r = rad.view(h // 2, 2, w // 2, 2)
+    area = ch[-1, 0]
+    mass = area.sum((1, 3))
+    mean = p.mean((2, 4))  # centre of an empty block: the mean of the children
+    cen = torch.where(
+        mass > 0, (p * area).sum((2, 4)) / torch.where(mass > 0, mass, 1.0), mean
+    )  # (3, h/2, w/2)
+    delta = p - cen[:, :, None, :, None]  # (3, h/2, 2, w/2, 2)
+    m = ch[:, 0]
+    d = ch[:, 1:4]
+    out = torch.empty(c, _NMOM, h // 2, w // 2, dtype=mom.dtype)
+    out[:, 0] = m.sum((2, 4))
+    out[:, 1:4] = (d + m[:, None] * delta[None]).sum((3, 5))
+    for j, (k, l) in enumerate(_QPAIRS):
+        t = ch[:, 4 + j] + d[:, k] * delta[l] + d[:, l] * delta[k] + m * delta[k] * delta[l]
+        out[:, 4 + j] = t.sum((2, 4))
+    dist = torch.sqrt((delta * delta).sum(0)) + r
+    radius = torch.where(r > 0, dist, 0.0).amax((1, 3))
+    return cen, out, radius
+
+
+def build_pyramid(pos: torch.Tensor, mom: torch.Tensor, rad: torch.Tensor, levels: int) -> Pyramid:
+    """Levels 0..``levels`` of block moments; H and W must be multiples of ``2^levels``."""
+    pyr = Pyramid([pos], [mom], [rad])
+    for _ in range(levels):
+        cen, m, r = _merge(pyr.pos[-1], pyr.mom[-1], pyr.rad[-1])
+        pyr.pos.append(cen)
+        pyr.mom.append(m)
+        pyr.rad.append(r)
+    return pyr
+
+
+def _coefficients(p: torch.Tensor, mom: torch.Tensor, v: float) -> torch.Tensor:
+    """Columns of the Taylor expansion for sources at ``p`` ``(S, 3)`` (relative to the tile
+    origin) with moments ``mom`` ``(S, C, 10)``: ``(S, C · 10)`` such that the expansion at a
+    target ``x`` is ``Σ_S G · [α + x·β + Σ_kl x_k x_l γ_kl]`` (see module docstring)."""
+    m = mom[:, :, 0]
+    d = mom[:, :, 1:4]
+    qv = mom[:, :, 4:]
+    # Q P and Pᵀ Q P from the 6 components
+    qx = qv[..., 0] * p[:, None, 0] + qv[..., 3] * p[:, None, 1] + qv[..., 4] * p[:, None, 2]
+    qy = qv[..., 3] * p[:, None, 0] + qv[..., 1] * p[:, None, 1] + qv[..., 5] * p[:, None, 2]
+    qz = qv[..., 4] * p[:, None, 0] + qv[..., 5] * p[:, None, 1] + qv[..., 2] * p[:, None, 2]
+    qp = torch.stack([qx, qy, qz], -1)  # (S, C, 3)
+    pqp = (qp * p[:, None]).sum(-1)
+    trq = qv[..., 0] + qv[..., 1] + qv[..., 2]
+    pd = (d * p[:, None]).sum(-1)
+    alpha = m - pd / v + pqp / (2 * v * v) - trq / (2 * v)
+    beta = d / v - qp / (v * v)
+    gamma = qv / (2 * v * v)
+    gamma = torch.cat([gamma[..., :3], 2 * gamma[..., 3:]], -1)  # off-diagonals twice
+    return torch.cat([alpha[..., None], beta, gamma], -1).reshape(p.shape[0], -1)
+
+
+def _monomials(x: torch.Tensor) -> torch.Tensor:
+    """``(T, 10)``: 1, x, y, z, x², y², z², xy, xz, yz."""
+    one = torch.ones_like(x[:, :1])
+    quad = torch.stack([x[:, k] * x[:, l] for k, l in _QPAIRS], 1)
+    return torch.cat([one, x, quad], 1)
+
+
+def _gaussian_matrix(
+    targets: torch.Tensor, sources: torch.Tensor, v: float
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Targets and sources relative to the targets' mean, and ``exp(−|p − x|²/2v)`` ``(T, S)``.
+
+    The exponent is one product ``[x, 1] · [p/v, −|p|²/2v]ᵀ − |x|²/2v`` (both relative to
+    the origin, so the cancellation is of the window's size, not of the view distance).
+    """
+    origin = targets.mean(0)
+    x = targets - origin
+    p = sources - origin
+    lhs = torch.cat([x, torch.ones_like(x[:, :1])], 1)
+    rhs = torch.cat([p / v, (-(p * p).sum(1) / (2 * v))[:, None]], 1)
+    expo = lhs @ rhs.t()
+    expo -= ((x * x).sum(1) / (2 * v))[:, None]
+    return x, p, torch.exp_(expo.clamp_max_(0.0))
+
+
+def far_field(
+    targets: torch.Tensor,
+    sources: torch.Tensor,
+    mom: torch.Tensor,
+    v: float,
+) -> torch.Tensor:
+    """``Σ_S ∫ q G(v, |p − x|) dA`` by the second-order expansion, ``(T, C)``.
+
+    Args:
+        targets: ``(T, 3)`` target positions.
+        sources: ``(S, 3)`` expansion centres.
+        mom: ``(S, C, 10)`` moments about them.
+        v: variance of the Gaussian (same length unit).
+    """
+    if sources.shape[0] == 0:
+        return targets.new_zeros(targets.shape[0], mom.shape[1])
+    x, p, g = _gaussian_matrix(targets, sources, v)
+    cols = _coefficients(p, mom, v)  # (S, C·10)
+    res = (g @ cols).view(x.shape[0], mom.shape[1], _NMOM)
+    return (res * _monomials(x)[:, None]).sum(-1) / (2 * math.pi * v)
+
+
+@dataclass(frozen=True)
+class Surface:
+    """The padded surface of one image, in the scaled length unit.
+
+    ``x, y, z, half, sx, sy`` are ``(Hp, Wp)`` (cell centre, half-size — 0 off the surface —
+    and depth slopes), ``q`` is ``(C, Hp, Wp)`` (irradiance channels times stencil, then the
+    stencil), ``pad`` the padding in pixels, ``foot`` the footprint of a pixel per unit depth
+    (``2 tan(fov_y/2) / H``) and ``u_max`` the largest ``|x| / z`` of a target.
+    """
+
+    x: torch.Tensor
+    y: torch.Tensor
+    z: torch.Tensor
+    half: torch.Tensor
+    sx: torch.Tensor
+    sy: torch.Tensor
+    q: torch.Tensor
+    pad: int
+    foot: float
+    u_max: float
+
+
+def _pad_to(t: torch.Tensor, mult: int) -> torch.Tensor:
+    """Zero-pad the last two dims up to multiples of ``mult``."""
+    h, w = t.shape[-2:]
+    return torch.nn.functional.pad(t, (0, (-w) % mult, 0, (-h) % mult))
+
+
+def surface_pyramid(s: Surface, reconstruction: str, levels: int) -> Pyramid:
+    """:func:`cell_moments` of the surface merged up to ``levels``."""
+    if reconstruction == "bilinear":
+        fields = torch.stack([s.half, s.sx, s.sy])
+        fields = torch.nn.functional.pad(fields[None], (1, 1, 1, 1), mode="replicate")[0]
+        q = torch.nn.functional.pad(s.q[None], (1, 1, 1, 1), mode="replicate")[0]
+        mom = cell_moments(fields[0], fields[1], fields[2], q, "bilinear")
+    else:
+        mom = cell_moments(s.half, s.sx, s.sy, s.q, "box")
+    mult = 1 << levels
+    pos = _pad_to(torch.stack([s.x, s.y, s.z]), mult)
+    rad = _pad_to(cell_radius(s.half, s.sx, s.sy), mult)
+    return build_pyramid(pos, _pad_to(mom, mult), rad, levels)
+
+
+def _graded_rule(ratio: float, order: int = 6) -> tuple[torch.Tensor, torch.Tensor]:
+    """Gauss–Legendre nodes and weights on ``[0, 1]``, panels graded geometrically toward 0
+    (``0, 1/r, 2/r, 4/r, …, 1``) for a Gaussian ``1/r`` of the interval wide centred at 0:
+    every panel is at most as wide as its distance from 0 (or σ), where the integrand is
+    smooth on the panel's scale."""
+    x, w = _gauss_legendre(order)
+    edges = [0.0, 1.0]
+    if ratio > 1:
+        n = math.ceil(math.log2(ratio))
+        edges = [0.0] + [min(1.0, 2.0**j / ratio) for j in range(n + 1)]
+    nodes, wts = [], []
+    for a, b in zip(edges[:-1], edges[1:], strict=False):
+        if b > a:
+            nodes.append((a + b) / 2 + (b - a) / 2 * x)
+            wts.append((b - a) / 2 * w)
+    return torch.from_numpy(np.concatenate(nodes)), torch.from_numpy(np.concatenate(wts))
+
+
+def point_field(
+    targets: torch.Tensor, sources: torch.Tensor, mass: torch.Tensor, v: float
+) -> torch.Tensor:
+    """``Σ_S mass_S G(v, |p_S − x|)`` ``(T, C)`` for point masses ``(S, C)``."""
+    return (_gaussian_matrix(targets, sources, v)[2] @ mass) / (2 * math.pi * v)
+
+
+def _gl01(order: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Gauss–Legendre nodes and weights on ``[0, 1]``."""
+    x, w = _gauss_legendre(order)
+    return torch.from_numpy((x + 1) / 2), torch.from_numpy(w / 2)
+
+
+def cell_nodes(
+    f: torch.Tensor,
+    q: torch.Tensor,
+    select: torch.Tensor,
+    u: torch.Tensor,
+    wu: torch.Tensor,
+    reconstruction: str,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Quadrature points of the reconstructed field over selected cells of a window.
+
+    ``f`` ``(6, h, w)`` = x, y, z, half, slope_x, slope_y and ``q`` ``(C, h, w)`` of a window
+    with a one-pixel border, ``select`` ``(h − 2, w − 2)`` the interior cells to integrate.
+    Each cell is split into its four quadrants (where the bilinear weights are bilinear) and
+    each quadrant gets the tensor rule ``(u, wu)`` on ``[0, 1]²`` scaled by the half-size.
+    Returns points ``(S, 3)`` and masses ``(S, C)`` (reconstructed ``q`` × area element ×
+    weights).
+    """
+    h, w = f.shape[-2:]
+    cen = f[:, 1 : h - 1, 1 : w - 1]
+    if not bool(select.any()):
+        return f.new_zeros(0, 3), q.new_zeros(0, q.shape[0])
+    x, y, z, hh, sx, sy = (t[select] for t in cen)  # (N,)
+    area = torch.sqrt(1 + sx * sx + sy * sy) * hh * hh
+    n = u.numel()
+
+    def nb(a: int, b: int) -> torch.Tensor:  # q of the neighbour at column +a, row −b
+        return q[:, 1 - b : h - 1 - b, 1 + a : w - 1 + a][:, select][:, :, None, None]
+
+    fa = u / 2 if reconstruction == "bilinear" else torch.zeros_like(u)
+    a_s, a_t = fa[:, None], fa[None, :]  # weight of the neighbour across each edge
+    ws = (wu[:, None] * wu[None, :]).reshape(-1)  # (n²,)
+    pts, mass = [], []
+    for qs in (-1, 1):
+        for qt in (-1, 1):
+            s = qs * hh[:, None, None] * u[None, :, None]  # (N, n, 1)
+            t = qt * hh[:, None, None] * u[None, None, :]  # (N, 1, n)
+            px = (x[:, None, None] + s).expand(-1, -1, n)
+            py = (y[:, None, None] + t).expand(-1, n, -1)
+            pz = z[:, None, None] + sx[:, None, None] * s + sy[:, None, None] * t
+            pts.append(torch.stack([px, py, pz], -1).reshape(-1, 3))
+            val = ((1 - a_s) * (1 - a_t)) * nb(0, 0)
+            if reconstruction == "bilinear":
+                val = val + (a_s * (1 - a_t)) * nb(qs, 0) + ((1 - a_s) * a_t) * nb(0, qt)
+                val = val + (a_s * a_t) * nb(qs, qt)
+            val = val.reshape(q.shape[0], -1, n * n) * (area[:, None] * ws[None, :])
+            mass.append(val.reshape(q.shape[0], -1).t())
+    return torch.cat(pts), torch.cat(mass)
+
+
+def _window_px(s: Surface, reach: float, zmin: float) -> float:
+    """Half-size in pixels of the window holding every cell within ``reach`` in 3D of a target
+    at depth ≥ ``zmin``.
+
+    A cell ``d`` pixels away laterally at depth ``z_b`` has ``Δx = d · foot · z_b + u_t Δz``
+    (``u_t = x_t / z_t``), and ``|Δx|² + Δz² ≤ R²`` needs ``d · foot · z_b ≤ R √(1 + u_t²)``
+    (Cauchy–Schwarz), with ``z_b ≥ z_t − R``.
+    """
+    hp, wp = s.z.shape
+    if zmin - reach > 0:
+        return reach * math.sqrt(1 + s.u_max**2) / (s.foot * (zmin - reach)) + 1
+    return float(max(hp, wp))
+
+
+def _cuts(pyr: Pyramid, v: float, ratio: float) -> tuple[list[torch.Tensor], torch.Tensor]:
+    """The blocks that evaluate a Gaussian of variance ``v``: per level, the non-empty blocks
+    of radius ≤ ``σ / ratio`` whose parent is larger; and per cell the Gauss–Legendre order per
+    quadrant of the cells too large to be expanded (0 elsewhere), ``2 + ⌈2 radius / σ⌉``."""
+    sigma = math.sqrt(v)
+    limit = sigma / ratio
+    usable = [(r <= limit) & (m[-1, 0] > 0) for r, m in zip(pyr.rad, pyr.mom, strict=True)]
+    top = max([lev for lev, u in enumerate(usable) if bool(u.any())] or [0])
+    cut = []
+    for lev in range(top + 1):
+        c = usable[lev]
+        if lev < top:
+            c = c & ~usable[lev + 1].repeat_interleave(2, 0).repeat_interleave(2, 1)
+        cut.append(c)
+    big = (pyr.rad[0] > limit) & (pyr.mom[0][-1, 0] > 0)
+    order = torch.where(big, 2 + torch.ceil(2 * pyr.rad[0] / sigma), 0).to(torch.int64)
+    return cut, order.clamp_max(24)
+
+
+def gather(
+    s: Surface,
+    rows: torch.Tensor,
+    cols: torch.Tensor,
+    variances: list[float],
+    tols: list[float],
+    reconstruction: str,
+    ratio: float | None,
+    tile: int = 16,
+    progress: object = None,
+) -> torch.Tensor:
+    """``∫ q G(v_g, |p − p_i|) dA`` at the targets (padded ``rows, cols``) for every Gaussian
+    ``g``, per channel of ``q``: ``(G, T, C)``.
+
+    With ``ratio``: the moment expansion of the blocks of :func:`_cuts` plus Gauss–Legendre
+    points on the cells too large to expand (steep or wide against σ). Without (Gaussians
+    narrower than a pixel): graded Gauss–Legendre points on every cell
+    (:func:`_graded_rule`). Sources are taken from the window of :func:`_window_px` around
+    each tile of ``tile²`` targets: the cells within ``R_g = σ_g √(2 ln(1/tols_g))`` in 3D
+    (the 2D Gaussian holds ``exp(−R²/2v) = tol_g`` of its mass beyond ``R``).
+    """
+    out = torch.zeros(len(variances), rows.numel(), s.q.shape[0], dtype=s.z.dtype)
+    if rows.numel() == 0:
+        return out
+    hp, wp = s.z.shape
+    geo = torch.stack([s.x, s.y, s.z, s.half, s.sx, s.sy])
+    fields = torch.nn.functional.pad(geo[None], (1, 1, 1, 1), mode="replicate")[0]
+    q = torch.nn.functional.pad(s.q[None], (1, 1, 1, 1), mode="replicate")[0]
+    if ratio is not None:
+        levels = _levels(max(variances), ratio, hp, wp)
+        pyr = surface_pyramid(s, reconstruction, levels)
+        cuts = [_cuts(pyr, v, ratio) for v in variances]
+    else:
+        h_max = float(s.half.max())
+        rules = [_graded_rule(h_max / math.sqrt(v)) for v in variances]
+    tgt = torch.stack([s.x[rows, cols], s.y[rows, cols], s.z[rows, cols]], 1)
+    ntc = (wp + tile - 1) // tile
+    tid = (rows // tile) * ntc + cols // tile
+    order = torch.argsort(tid, stable=True)
+    uniq, counts = torch.unique_consecutive(tid[order], return_counts=True)
+    starts = torch.cumsum(counts, 0) - counts
+    for t_idx, st, cnt in zip(uniq.tolist(), starts.tolist(), counts.tolist(), strict=True):
+        sel = order[st : st + cnt]
+        r0, c0 = (t_idx // ntc) * tile, (t_idx % ntc) * tile
+        x = tgt[sel]
+        zmin = float(x[:, 2].min())
+        for gi, v in enumerate(variances):
+            reach = math.sqrt(v) * math.sqrt(2 * math.log(1 / tols[gi]))
+            rpx = _window_px(s, reach, zmin)
+            ra, rb = max(0, int(r0 - rpx)), min(hp, int(r0 + tile + rpx) + 1)
+            ca, cb = max(0, int(c0 - rpx)), min(wp, int(c0 + tile + rpx) + 1)
+            fw, qw = fields[:, ra : rb + 2, ca : cb + 2], q[:, ra : rb + 2, ca : cb + 2]
+            res = out.new_zeros(cnt, s.q.shape[0])
+            if ratio is None:
+                pts, mass = cell_nodes(fw, qw, fw[3, 1:-1, 1:-1] > 0, *rules[gi], reconstruction)
+                if pts.shape[0]:
+                    res += point_field(x, pts, mass, v)
+            else:
+                cut, n_gl = cuts[gi]
+                res += _blocks(pyr, cut, x, v, reach, (ra, rb, ca, cb))
+                nw = n_gl[ra:rb, ca:cb]
+                for n in torch.unique(nw[nw > 0]).tolist():
+                    pts, mass = cell_nodes(fw, qw, nw == n, *_gl01(n), reconstruction)
+                    res += point_field(x, pts, mass, v)
+            out[gi, sel] = res
+        if progress is not None:
+            progress.update(cnt)
+    return out
+
+
+def _blocks(
+    pyr: Pyramid,
+    cut: list[torch.Tensor],
+    x: torch.Tensor,
+    v: float,
+    reach: float,
+    window: tuple[int, int, int, int],
+) -> torch.Tensor:
+    """:func:`far_field` of the cut blocks overlapping the pixel window ``(ra, rb, ca, cb)``
+    (rows ``ra:rb``, cols ``ca:cb``) whose ball comes within ``reach`` of the 3D bounding box
+    of the targets ``x`` (the others hold less than the tolerance of the Gaussian)."""
+    ra, rb, ca, cb = window
+    pos, mom, rad = [], [], []
+    for lev, c in enumerate(cut):
+        b = 1 << lev
+        r1, r2, c1, c2 = (
+            ra // b,
+            min(c.shape[0], (rb - 1) // b + 1),
+            ca // b,
+            min(c.shape[1], (cb - 1) // b + 1),
+        )
+        m = c[r1:r2, c1:c2]
+        if bool(m.any()):
+            pos.append(pyr.pos[lev][:, r1:r2, c1:c2][:, m])
+            mom.append(pyr.mom[lev][:, :, r1:r2, c1:c2][:, :, m])
+            rad.append(pyr.rad[lev][r1:r2, c1:c2][m])
+    if not pos:
+        return x.new_zeros(x.shape[0], pyr.mom[0].shape[0])
+    p = torch.cat(pos, 1).t()
+    lo, hi = x.amin(0), x.amax(0)
+    gap = (p - hi).clamp_min(0) + (lo - p).clamp_min(0)
+    keep = (gap * gap).sum(1) <= (reach + torch.cat(rad)) ** 2
+    return far_field(x, p[keep], torch.cat(mom, 2).permute(2, 0, 1)[keep], v)
+
+
+def _levels(v_max: float, ratio: float, hp: int, wp: int) -> int:
+    """Pyramid levels worth building: a level-``l`` block is at least ``2^l / √2`` footprints
+    in radius (in the unit of the smallest footprint), so none is usable (radius ≤
+    ``σ / ratio``) beyond this."""
+    lev = math.floor(math.log2(max(1.0, math.sqrt(2 * v_max) / ratio)))
+    return max(0, min(lev, int(math.log2(max(1, min(hp, wp)))) - 1))
