@@ -10,6 +10,7 @@ The cached module is never handed out, so nobody can change it behind the cache'
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import inspect
 from collections import OrderedDict
@@ -32,6 +33,9 @@ def _key(value: Any) -> Any:
 
     if isinstance(value, Profile):
         return ("profile", profile_digest(value))
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        fields = dataclasses.fields(value)
+        return (type(value).__name__, tuple((f.name, _key(getattr(value, f.name))) for f in fields))
     if isinstance(value, torch.Tensor):
         t = value.detach().cpu().contiguous()
         return (

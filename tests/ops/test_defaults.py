@@ -1,6 +1,7 @@
 """Every method's default configuration beats doing nothing where SSS is visible.
 
-The benchmark scenes (step_edge, light_dot, head_close; skin_jg10) are scored like the app:
+The benchmark scenes (step_edge, light_dot and the procedural face at its portrait scale;
+head_close at 256², where its cheek shows visible SSS; skin_jg10) are scored like the app:
 rel RMS against the exact reference over the mask; skill = 1 − err / err(identity)
 (:mod:`sssbench.verdict`). The bar is skill > 0.3. The artist model's default (000 Table 2,
 multi-layer close fit) misses it on every scene: its far Gaussian is 3.4× wider than the
@@ -9,7 +10,6 @@ known failure, with the numbers, so a fix shows up.
 """
 
 import inspect
-import os
 from pathlib import Path
 
 import pytest
@@ -24,7 +24,7 @@ from sssbench.verdict import VISIBLE_FLIP, skill, sss_visibility
 
 SKIN = SumOfGaussians.from_table("skin_jg10")
 CONF = Path(__file__).resolve().parents[2] / "sssbench" / "conf" / "method"
-SCENES = ("step_edge", "light_dot", "head_close")
+SCENES = ("step_edge", "light_dot", "face")
 BAR = 0.3
 
 #: the app's defaults: constructor defaults plus the parameters a yaml must give
@@ -43,7 +43,6 @@ CLASSES = {
     "artist": ops.ArtistSSS,
     "identity": ops.IdentitySSS,
 }
-SLOW = os.environ.get("SSSBENCH_SLOW") == "1"
 
 
 @pytest.fixture(scope="module")
@@ -78,16 +77,17 @@ def test_default_beats_doing_nothing_128(scored, name, scene):
     assert _skill(scored, name, scene, 128) > BAR
 
 
-@pytest.mark.parametrize("scene", ["step_edge", "light_dot"])
+@pytest.mark.parametrize("scene", ["step_edge", "light_dot", "face", "head_close"])
 @pytest.mark.parametrize("name", _GOOD)
-def test_default_beats_doing_nothing_256_planes(scored, name, scene):
+def test_default_beats_doing_nothing_256(scored, name, scene):
     assert _skill(scored, name, scene, 256) > BAR
 
 
-@pytest.mark.skipif(not SLOW, reason="head_close reference at 256² takes ~40-80 s; SSSBENCH_SLOW=1")
-@pytest.mark.parametrize("name", _GOOD)
-def test_default_beats_doing_nothing_256_head(scored, name):
-    assert _skill(scored, name, "head_close", 256) > BAR
+def test_head_close_at_128_is_not_visible_and_so_not_ranked(scored):
+    """At 128² and 0.3 mm/px head_close frames a smooth cheek: the reference differs from
+    the input by less than the visibility bar, so the report does not rank it."""
+    g, ref, _ = scored("head_close", 128)
+    assert sss_visibility(ref, g.diffuse, g.mask) < VISIBLE_FLIP
 
 
 @pytest.mark.parametrize("scene", ["step_edge", "light_dot"])
