@@ -212,7 +212,10 @@ def _scale(pixel_mm: Any) -> str:
 def _candidates(group: pd.DataFrame) -> pd.DataFrame:
     """Screen-space points of a group that may be ranked: ok, SSS visible, not the reference."""
     ok = group[(group["status"] == "ok") & (group["method"] != REFERENCE)]
-    return ok[ok["visible"].map(lambda v: v is not False and not pd.isna(v))]
+    if ok.empty:
+        return ok
+    keep = ok["visible"].map(lambda v: v is not False and not pd.isna(v)).astype(bool)
+    return ok[keep]
 
 
 def annotate(table: pd.DataFrame) -> pd.DataFrame:
