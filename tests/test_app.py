@@ -132,7 +132,7 @@ def test_backend_is_part_of_the_point_and_defaults_to_native():
 def test_benchmark_preset_sets_the_grid():
     cfg = _compose("+experiment=benchmark", hydra=True)
     params = cfg.hydra.sweeper.params
-    assert params.scene == "step_edge,light_dot,head_close" and params.method.startswith("glob(")
+    assert params.scene == "step_edge,light_dot,face_portrait" and params.method.startswith("glob(")
     assert cfg.hydra.callbacks.report._target_ == "sssbench.report.ReportCallback"
 
 
