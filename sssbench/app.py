@@ -447,22 +447,15 @@ def _sweep_mirror(config: Any) -> Any:
 
 
 def _sweep_size(config: Any) -> int:
-    """Number of jobs of a basic-sweeper grid (0 when unknown)."""
+    """Number of jobs of a basic-sweeper grid (0 when unknown): the preset's sweeper params
+    and the command line's swept overrides (``a,b``, ``glob(...)``)."""
     try:
-        from hydra.core.override_parser.overrides_parser import OverridesParser
-
-        params = dict(config.hydra.sweeper.get("params") or {})
-        overrides = [f"{k}={v}" for k, v in params.items()] + list(config.hydra.overrides.task)
-        parsed = OverridesParser.create().parse_overrides(overrides)
-        n = 1
-        seen: dict[str, int] = {}
-        for o in parsed:
-            seen[o.key_or_group] = (
-                len(list(o.sweep_string_iterator())) if o.is_sweep_override() else 1
-            )
-        for v in seen.values():
-            n *= v
-        return n
+        params = {str(k): str(v) for k, v in dict(config.hydra.sweeper.get("params") or {}).items()}
+        for o in config.hydra.overrides.task:
+            key, _, value = str(o).partition("=")
+            if "," in value or value.startswith("glob("):
+                params[key] = value
+        return len(expand_grid(params))
     except Exception:
         return 0
 
