@@ -417,7 +417,10 @@ def _budget(
     error is bias plus noise, not taps), for methods without a tap count and
     when a stage changes the light (the budget's flat-plane model has no stages). The method
     converged in taps and the bilinear-reconstruction reference are cached
-    (:mod:`sssbench.refcache`): they do not depend on the run's tap count."""
+    (:mod:`sssbench.refcache`): they do not depend on the run's tap count. ``err_recon`` is
+    computed on fronto-parallel planes only (the bilinear reference's FFT path); on curved
+    surfaces the bilinear reference costs minutes per image, so ``err_recon`` is NaN there
+    and the convention's share stays inside ``err_screen`` (docs/error_budget.md)."""
     from sssbench import budget
     from sssbench.ops import ReferenceSSS
 
@@ -467,7 +470,8 @@ def _budget(
     packed = packed.double()
     limit = (packed[:-2].reshape(g64.diffuse.shape), int(packed[-2]), float(packed[-1]))
     bil = None
-    if "reconstruction" in inspect.signature(ReferenceSSS.__init__).parameters:
+    flat = bool(gbuffer.depth.min() == gbuffer.depth.max())
+    if flat and "reconstruction" in inspect.signature(ReferenceSSS.__init__).parameters:
         bil_key = {
             **key,
             "reference_params": {**spec.reference_params, "reconstruction": "bilinear"},
