@@ -29,6 +29,7 @@ ORDER = [
     "extensions",
     "benchmark",
     "stability",
+    "mc_profiles",
 ]
 
 HEADER = """# sssbench — reproduction report

@@ -32,6 +32,7 @@ EXPERIMENTS = {
     "benchmark": "experiments.benchmark",
     "perf": "experiments.perf",
     "stability": "experiments.stability",
+    "mc_profiles": "experiments.mc_profiles",
 }
 
 

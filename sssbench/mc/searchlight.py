@@ -12,8 +12,11 @@ absorption σa, ``σt′ = σs′ + σa``, single-scattering albedo ``α′ = σ
 dielectric boundary of relative index η (1.3 for the table of
 :data:`sssbench.profiles.dipole.MATERIALS`). Lengths in mean free paths are converted to mm
 by ``1/σt′``. Russian roulette starts at the largest radius (photons wandering further are
-kept with probability 1/4 per doubling of their distance, unbiased), so lossless media
-(Spectralon) finish.
+kept with probability 1/4 per doubling of their distance, unbiased) and photons farther than
+twice the largest radius from the entry point are terminated (biased; their fraction is
+reported as ``escaped`` and bounds the bias: such a photon must travel at least the largest
+radius back to reach any annulus). Without that cut lossless media (Spectralon) need
+~(2 r_max σt′)² serial flights to drain.
 
 Results are cached on disk (``$SSSBENCH_CACHE_DIR/mc`` else ``~/.cache/sssbench/mc``), keyed
 by the coefficients, η, radii, photons, seed, batch and the SHA-256 of every source file of
@@ -65,6 +68,7 @@ class SearchlightResult:
         fraction, fraction_stderr: ``(K, 3)`` fraction of the entering flux that leaves
             through each annulus (``∫ 2πr R dr`` over it) and its standard error.
         total, total_stderr: ``(3,)`` total diffuse reflectance (all radii) and its error.
+        escaped: ``(3,)`` weight fraction terminated beyond ``2·radii[-1]`` (module doc).
         photons: photons per channel.
         interactions: collisions simulated over the three channels.
         seconds: wall time of the three walks of the run that produced it (a cache hit
@@ -76,6 +80,7 @@ class SearchlightResult:
     fraction_stderr: torch.Tensor
     total: torch.Tensor
     total_stderr: torch.Tensor
+    escaped: torch.Tensor
     photons: int
     interactions: int
     seconds: float
@@ -175,7 +180,7 @@ def searchlight_result(
         except Exception:  # noqa: BLE001 - a corrupt entry is recomputed
             pass
     st = ss + sa
-    frac, frac_se, tot, tot_se = [], [], [], []
+    frac, frac_se, tot, tot_se, esc = [], [], [], [], []
     inter, secs = 0, 0.0
     for c in range(3):
         t = walk(
@@ -185,6 +190,7 @@ def searchlight_result(
             seed=seed * 3 + c,
             radial_edges=radii * st[c],
             roulette_radius=float(radii[-1] * st[c]),
+            kill_radius=float(2 * radii[-1] * st[c]),
             batch=batch,
             progress=progress,
         )
@@ -194,6 +200,7 @@ def searchlight_result(
         m, e = mean_stderr(t.top[0], t.top[1], photons)
         tot.append(m)
         tot_se.append(e)
+        esc.append(t.escaped[0] / photons)
         inter += t.interactions
         secs += t.seconds
     result = {
@@ -201,6 +208,7 @@ def searchlight_result(
         "fraction_stderr": torch.stack(frac_se, 1),
         "total": torch.stack(tot),
         "total_stderr": torch.stack(tot_se),
+        "escaped": torch.stack(esc),
         "photons": photons,
         "interactions": inter,
         "seconds": secs,
