@@ -64,6 +64,8 @@ _F64 = torch.float64
 #: photon state (positions, directions, weights) is float32: positions stay below ~1e4 mfp,
 #: where float32 resolves 1e-3 mfp, far below any bin; tallies are float64 sums
 _F32 = torch.float32
+#: photon fates, tally codes 1..5 (0 = still walking)
+_FATES = ("top", "bottom", "absorbed", "roulette", "escaped")
 
 
 def mean_stderr(s1: torch.Tensor, s2: torch.Tensor, n: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -230,20 +232,12 @@ def walk(
 
     pos, dirn, w, thr2 = fresh(min(batch, photons))
     launched = pos.shape[1]
-    sums = {
-        k: torch.zeros(2, dtype=_F64)
-        for k in ("top", "bottom", "absorbed", "roulette", "escaped")
-    }
-    counts = dict.fromkeys(sums, 0)
     nbins = 0 if edges is None else edges.numel() - 1
-    radial = torch.zeros(2, nbins, dtype=_F64)
+    edges32 = None if edges is None else edges.to(_F32)
+    # per-step tallies in one bincount: code 0 = alive, 1.. = _FATES, 6 + k = top exit in bin k
+    acc = torch.zeros(3, len(_FATES) + 1 + nbins, dtype=_F64)  # Σw, Σw², count
     inter = torch.zeros((), dtype=torch.int64)
     bar = _progress(photons, progress)
-
-    def score(key: str, mask: torch.Tensor) -> None:
-        ww = w[mask].double()
-        counts[key] += ww.numel()
-        sums[key] += torch.stack([ww.sum(), (ww * ww).sum()])
 
     t0 = time.perf_counter()
     while pos.shape[1] > 0:
@@ -271,32 +265,29 @@ def walk(
         scatter = coll & ~absorb
         inter += coll.sum()
         dirn = torch.where(scatter, _new_directions(dirn, xi[2], xi[3], g), dirn)
-        top = leave & at_top
-        score("top", top)
-        score("bottom", leave & ~at_top)
-        score("absorbed", absorb)
-        if nbins:
-            wt = w[top].double()
-            rho = torch.hypot(pos[0][top], pos[1][top]).double()
-            k = torch.bucketize(rho, edges, right=True) - 1
-            ok = (k >= 0) & (k < nbins)
-            radial[0] += torch.bincount(k[ok], weights=wt[ok], minlength=nbins)
-            radial[1] += torch.bincount(k[ok], weights=(wt * wt)[ok], minlength=nbins)
-        dead = leave | absorb
+        fate = torch.where(leave, torch.where(at_top, 1, 2), torch.where(absorb, 3, 0))
         if roul or math.isfinite(kill2):
             d2 = (pos * pos).sum(0)
         if math.isfinite(kill2):
-            far = ~dead & (d2 >= kill2)
-            score("escaped", far)
-            dead = dead | far
+            fate = torch.where((fate == 0) & (d2 >= kill2), 5, fate)
         if roul:
-            cross = ~dead & (d2 >= thr2)
+            cross = (fate == 0) & (d2 >= thr2)
             survive = xi[4] < 0.25
-            killed = cross & ~survive
-            score("roulette", killed)
+            fate = torch.where(cross & ~survive, 4, fate)  # scored with its weight before
             w = torch.where(cross & survive, 4 * w, w)
             thr2 = torch.where(cross, 4 * thr2, thr2)  # next doubling of the distance
-            dead = dead | killed
+        if nbins:
+            k = torch.bucketize(torch.hypot(pos[0], pos[1]), edges32, right=True) - 1
+            binned = (fate == 1) & (k >= 0) & (k < nbins)
+            fate_idx = torch.where(binned, len(_FATES) + 1 + k, fate)
+        else:
+            fate_idx = fate
+        dead = fate > 0
+        wd = w.double()
+        m = acc.shape[1]
+        acc[0] += torch.bincount(fate_idx, weights=wd, minlength=m)
+        acc[1] += torch.bincount(fate_idx, weights=wd * wd, minlength=m)
+        acc[2] += torch.bincount(fate_idx, minlength=m)
         n_dead = int(dead.sum())
         bar.update(n_dead)
         if n_dead == 0:
@@ -312,11 +303,17 @@ def walk(
             keep = torch.nonzero(~dead).flatten()
             pos, dirn, w, thr2 = pos[:, keep], dirn[:, keep], w[keep], thr2[keep]
     bar.close()
+    seconds = time.perf_counter() - t0
+    radial = acc[:, len(_FATES) + 1 :]
+    sums = {f: acc[:2, i + 1].clone() for i, f in enumerate(_FATES)}
+    sums["top"] += radial[:2].sum(1)
+    counts = {f: int(acc[2, i + 1]) for i, f in enumerate(_FATES)}
+    counts["top"] += int(radial[2].sum())
     return WalkTally(
         photons=photons,
         interactions=int(inter),
-        seconds=time.perf_counter() - t0,
-        radial=radial if nbins else None,
+        seconds=seconds,
+        radial=radial[:2].clone() if nbins else None,
         counts=counts,
         **sums,
     )
