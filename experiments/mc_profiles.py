@@ -112,9 +112,13 @@ def run(ctx: Context) -> Section:
             ident = dip.total() if (lo == 0.0) else torch.zeros(3, dtype=torch.float64)
             err["identity"][i, b] = ((ident - mc) / mc).numpy()
         rows.append(
-            [name, f"{r_max:.3g}", " / ".join(f"{v:.4f}" for v in res.total.tolist()),
-             " / ".join(f"{v:.4f}" for v in dip.total().tolist()),
-             f"{float(res.escaped.max()):.2g}"]  # fmt: skip
+            [
+                name,
+                f"{r_max:.3g}",
+                " / ".join(f"{v:.4f}" for v in res.total.tolist()),
+                " / ".join(f"{v:.4f}" for v in dip.total().tolist()),
+                f"{float(res.escaped.max()):.2g}",
+            ]
         )
         curves[name] = (res, models)
 
@@ -148,9 +152,15 @@ def run(ctx: Context) -> Section:
             if np.isnan(mc_se[i, b]).all():
                 continue
             detail.append(
-                [name, band, " / ".join(f"{100 * v:.2g}" for v in mc_se[i, b]),
-                 *[" / ".join("–" if np.isnan(v) else f"{100 * v:+.3g}" for v in err[k][i, b])
-                   for k in MODELS]]  # fmt: skip
+                [
+                    name,
+                    band,
+                    " / ".join(f"{100 * v:.2g}" for v in mc_se[i, b]),
+                    *[
+                        " / ".join("–" if np.isnan(v) else f"{100 * v:+.3g}" for v in err[k][i, b])
+                        for k in MODELS
+                    ],
+                ]
             )
     detail_table = md_table(
         detail, ["material", "band", "MC rel. s.e. % (R/G/B)", *[f"{k} % (R/G/B)" for k in MODELS]]
@@ -219,7 +229,8 @@ def run(ctx: Context) -> Section:
         + detail_table
         + "\n\nBands the walk did not resolve (energy within 3 standard errors of 0) are "
         "shown as –. The totals of dipole, Burley, 4 Gaussians and identity coincide by "
-        "construction (all carry the dipole's R_d).\n\nLossless media (σa = 0) are simulated only to "
+        "construction (all carry the dipole's R_d).\n\nLossless media (σa = 0) are simulated "
+        "only to "
         f"{LOSSLESS_MFP:g} mean free paths of their densest channel (their walk length is "
         "unbounded); their wider bands are not measured. Burley: A = dipole R_d, d = ℓ_d/s with "
         "ℓ_d = 1/σ_tr and s = 1.85 − A + 7|A − 0.8|³ (Christensen & Burley 2015)."

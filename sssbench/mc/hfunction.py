@@ -18,8 +18,8 @@ Two independent evaluations are provided so each can check the other:
 :func:`h_function` iterates the first equation on Gauss–Legendre nodes (the "alternative
 form" above converges in a few dozen iterations even at ``a = 1``, where the plain form
 ``H = 1/(1 − (a/2) μ ∫ H/(μ+μ'))`` creeps; we iterate the geometric mean of H and its
-image, which converges to 1e-10 in ~30 iterations for every ``a``); :func:`h_function_integral` evaluates the
-integral representation with adaptive quadrature (scipy).
+image, which converges to 1e-10 in ~30 iterations for every ``a``);
+:func:`h_function_integral` evaluates the integral representation with adaptive quadrature (scipy).
 """
 
 from __future__ import annotations

@@ -50,13 +50,22 @@ def mc_cache_dir() -> Path:
     return (Path(root) if root else Path.home() / ".cache" / "sssbench") / "mc"
 
 
-def mc_digest() -> str:
-    """SHA-256 of every ``*.py`` of :mod:`sssbench.mc` (and of the Fresnel/HG code in it)."""
+def _source_digest() -> str:
     h = hashlib.sha256()
     for path in sorted(Path(__file__).resolve().parent.glob("*.py")):
         h.update(path.name.encode())
         h.update(path.read_bytes())
     return h.hexdigest()[:24]
+
+
+#: digest of the source as imported (read once: an edit on disk after import must not label
+#: results of the code still running in this process as the edited code's)
+_SOURCE_DIGEST = _source_digest()
+
+
+def mc_digest() -> str:
+    """SHA-256 (24 hex digits) of every ``*.py`` of :mod:`sssbench.mc`, as imported."""
+    return _SOURCE_DIGEST
 
 
 @dataclass
@@ -128,7 +137,9 @@ def _coefficients(material: object) -> tuple[torch.Tensor, torch.Tensor, float]:
 def _radii(radii: object) -> torch.Tensor:
     r = torch.as_tensor(radii, dtype=_F64)
     if r.ndim != 1 or r.numel() < 2:
-        raise ValueError(f"radii_mm must be a 1D sequence of >= 2 edges, got shape {tuple(r.shape)}")
+        raise ValueError(
+            f"radii_mm must be a 1D sequence of >= 2 edges, got shape {tuple(r.shape)}"
+        )
     if not bool(torch.isfinite(r).all()) or bool(r[0] < 0) or not bool((r[1:] > r[:-1]).all()):
         raise ValueError(f"radii_mm must be finite, >= 0 and strictly increasing, got {r.tolist()}")
     return r

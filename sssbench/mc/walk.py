@@ -198,7 +198,9 @@ def walk(
     if not isinstance(thickness, (int, float)) or isinstance(thickness, bool):
         raise TypeError(f"thickness must be a number of mean free paths, got {thickness!r}")
     if not thickness > 0:
-        raise ValueError(f"thickness must be > 0 mean free paths (inf = half-space), got {thickness}")
+        raise ValueError(
+            f"thickness must be > 0 mean free paths (inf = half-space), got {thickness}"
+        )
     if not roulette_radius > 0:
         raise ValueError(f"roulette_radius must be > 0 mean free paths, got {roulette_radius}")
     if not kill_radius > 0:
