@@ -8,9 +8,10 @@ smooth dielectric boundary) and compared, as relative error of the radial energy
 * the classical dipole (:class:`sssbench.profiles.Dipole`, JMLH01);
 * Burley's normalized diffusion (:class:`sssbench.profiles.BurleyNormalized`) with the
   dipole's total ``A = R_d`` and ``d = ℓ_d/s``, ``ℓ_d = 1/σ_tr`` the dipole's diffuse mean free
-  path and ``s = 1.85 − A + 7|A − 0.8|³`` (Christensen & Burley 2015, searchlight fit to Monte
-  Carlo; sssbench.profiles.burley has no albedo mapping of its own). Undefined for σ_tr = 0
-  (Spectralon): shown as "–";
+  path and ``s = 3.5 + 100 (A − 0.33)⁴``, Christensen & Burley's (2015) scaling for the diffuse
+  mean free path (their eq. 8; their ``s = 1.85 − A + 7|A − 0.8|³``, eq. 5, scales the volume
+  mean free path — the pairing production renderers use, e.g. appleseed). sssbench.profiles
+  .burley has no albedo mapping of its own. Undefined for σ_tr = 0 (Spectralon): shown as "–";
 * the project's 4-Gaussian fit of the dipole (:func:`sssbench.profiles.fit_sum_of_gaussians`,
   001 eq. 6 with the eq. 9 energy constraint);
 * the do-nothing baseline ``identity``: no transport, all of the dipole's ``R_d`` at r = 0.
@@ -48,7 +49,7 @@ def burley_from_dipole(dip: Dipole) -> BurleyNormalized | None:
     if not bool((dip.sigma_tr > 0).all()):
         return None
     a = dip.total()
-    s = 1.85 - a + 7 * (a - 0.8).abs() ** 3  # Christensen & Burley 2015, searchlight
+    s = 3.5 + 100 * (a - 0.33) ** 4  # Christensen & Burley 2015 eq. 8 (dmfp parameterisation)
     return BurleyNormalized(1 / dip.sigma_tr / s, a)
 
 
@@ -155,7 +156,7 @@ def run(ctx: Context) -> Section:
                 [
                     name,
                     band,
-                    " / ".join(f"{100 * v:.2g}" for v in mc_se[i, b]),
+                    " / ".join("–" if np.isnan(v) else f"{100 * v:.2g}" for v in mc_se[i, b]),
                     *[
                         " / ".join("–" if np.isnan(v) else f"{100 * v:+.3g}" for v in err[k][i, b])
                         for k in MODELS
@@ -186,6 +187,8 @@ def run(ctx: Context) -> Section:
                         label=key if c == 0 else None)  # fmt: skip
     ax.set_xscale("log")
     ax.set_yscale("log", nonpositive="mask")
+    shown = (mid[:, None] * res.R)[res.R > 0]
+    ax.set_ylim(0.3 * float(shown.min()), 3 * float(shown.max()))  # the MC's range
     ax.set_xlabel("r (mm)")
     ax.set_ylabel("r R(r) (mm⁻¹)")
     ax.set_title(f"{show}: searchlight, MC vs models")
@@ -233,7 +236,7 @@ def run(ctx: Context) -> Section:
         "only to "
         f"{LOSSLESS_MFP:g} mean free paths of their densest channel (their walk length is "
         "unbounded); their wider bands are not measured. Burley: A = dipole R_d, d = ℓ_d/s with "
-        "ℓ_d = 1/σ_tr and s = 1.85 − A + 7|A − 0.8|³ (Christensen & Burley 2015)."
+        "ℓ_d = 1/σ_tr and s = 3.5 + 100 (A − 0.33)⁴ (Christensen & Burley 2015, eq. 8)."
     )
     return Section(
         TITLE,
