@@ -117,3 +117,13 @@ def test_bad_inputs(kwargs, match):
     a = kwargs.pop("albedo")
     with pytest.raises(ValueError, match=match):
         walk(a, **kwargs)
+
+
+def test_walk_restores_the_callers_thread_count():
+    saved = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        walk(0.5, photons=100, threads=1, progress=False)
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(saved)
