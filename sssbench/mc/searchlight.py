@@ -15,8 +15,8 @@ by ``1/σt′``. Russian roulette starts at the largest radius (photons wanderin
 kept with probability 1/4 per doubling of their distance, unbiased) and photons farther than
 twice the largest radius from the entry point (at least 200 mean free paths in absorbing
 channels) are terminated (biased; their fraction is reported as ``escaped`` and bounds the
-bias: such a photon must travel at least the largest radius back to reach any annulus). Without that cut lossless media (Spectralon) need
-~(2 r_max σt′)² serial flights to drain.
+bias: such a photon must travel at least the largest radius back to reach any annulus).
+Without that cut lossless media (Spectralon) need ~(2 r_max σt′)² serial flights to drain.
 
 Results are cached on disk (``$SSSBENCH_CACHE_DIR/mc`` else ``~/.cache/sssbench/mc``), keyed
 by the coefficients, η, radii, photons, seed, batch and the SHA-256 of every source file of

@@ -192,9 +192,9 @@ def walk(
         batch: photons advanced together.
         progress: tqdm bar: None = only if the run takes more than ~3 s.
         threads: torch intra-op threads during the walk (restored after); None = leave as
-            is. Default 1: on the 2-core test machine the walk's elementwise ops on ~1e5
-            photons ran ~10× *slower* on 2 threads than on 1 (11.7 vs 1.2 M interactions/s,
-            measured under load from other processes).
+            is. Default 1: on the shared 2-core development machine the walk ran ~10× *slower*
+            on 2 threads than on 1 while other jobs loaded it (1.2 vs 11.7 M interactions/s)
+            and equally fast when it was quiet (12.6 vs 12.7 M/s).
     """
     a = check_scalar("albedo", albedo, 0.0, 1.0)
     photons = check_int("photons", photons, 2)
