@@ -30,6 +30,7 @@ ORDER = [
     "benchmark",
     "stability",
     "disk",
+    "mc_profiles",
 ]
 
 HEADER = """# sssbench — reproduction report

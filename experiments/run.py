@@ -33,6 +33,7 @@ EXPERIMENTS = {
     "perf": "experiments.perf",
     "stability": "experiments.stability",
     "disk": "experiments.disk",
+    "mc_profiles": "experiments.mc_profiles",
 }
 
 

@@ -1,0 +1,253 @@
+"""Searchlight profiles of the measured materials by Monte Carlo (ground truth for R(r)).
+
+A pencil beam enters a semi-infinite medium at normal incidence; the light leaving the
+surface is binned by the distance ``r`` of its exit point from the entry point into annuli
+``[radii[k], radii[k+1])`` and divided by the annulus area, giving the radial exitance ``R(r)``
+in mm⁻² per unit flux *entering* the medium — the quantity the dipole's ``R(r)`` and every
+profile of :mod:`sssbench.profiles` model (their ``total()`` is ``R_d``).
+
+Model: the walk of :mod:`sssbench.mc.walk` per RGB channel with isotropic scattering of
+coefficient σs′ (the similarity relation σs′ = σs(1 − g) that the dipole also rests on),
+absorption σa, ``σt′ = σs′ + σa``, single-scattering albedo ``α′ = σs′/σt′`` and the smooth
+dielectric boundary of relative index η (1.3 for the table of
+:data:`sssbench.profiles.dipole.MATERIALS`). Lengths in mean free paths are converted to mm
+by ``1/σt′``. Russian roulette starts at the largest radius (photons wandering further are
+kept with probability 1/4 per doubling of their distance, unbiased) and photons farther than
+twice the largest radius from the entry point (at least 200 mean free paths in absorbing
+channels) are terminated (biased; their fraction is reported as ``escaped`` and bounds the
+bias: such a photon must travel at least the largest radius back to reach any annulus).
+Without that cut lossless media (Spectralon) need ~(2 r_max σt′)² serial flights to drain.
+
+Results are cached on disk (``$SSSBENCH_CACHE_DIR/mc`` else ``~/.cache/sssbench/mc``), keyed
+by the coefficients, η, radii, photons, seed, batch and the SHA-256 of every source file of
+this package, so an edited walk never serves an old profile.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+
+from sssbench._checks import check_int, check_scalar
+from sssbench.mc.walk import mean_stderr, walk
+from sssbench.profiles.dipole import MATERIALS
+
+__all__ = ["SearchlightResult", "searchlight", "searchlight_result", "mc_cache_dir", "mc_digest"]
+
+_F64 = torch.float64
+
+
+def mc_cache_dir() -> Path:
+    """``$SSSBENCH_CACHE_DIR/mc``, else ``~/.cache/sssbench/mc``."""
+    root = os.environ.get("SSSBENCH_CACHE_DIR")
+    return (Path(root) if root else Path.home() / ".cache" / "sssbench") / "mc"
+
+
+def _source_digest() -> str:
+    h = hashlib.sha256()
+    for path in sorted(Path(__file__).resolve().parent.glob("*.py")):
+        h.update(path.name.encode())
+        h.update(path.read_bytes())
+    return h.hexdigest()[:24]
+
+
+#: digest of the source as imported (read once: an edit on disk after import must not label
+#: results of the code still running in this process as the edited code's)
+_SOURCE_DIGEST = _source_digest()
+
+
+def mc_digest() -> str:
+    """SHA-256 (24 hex digits) of every ``*.py`` of :mod:`sssbench.mc`, as imported."""
+    return _SOURCE_DIGEST
+
+
+@dataclass
+class SearchlightResult:
+    """Radial exitance of a pencil beam, per RGB channel.
+
+    Attributes:
+        radii: ``(K+1,)`` annulus edges in mm.
+        fraction, fraction_stderr: ``(K, 3)`` fraction of the entering flux that leaves
+            through each annulus (``∫ 2πr R dr`` over it) and its standard error.
+        total, total_stderr: ``(3,)`` total diffuse reflectance (all radii) and its error.
+        escaped: ``(3,)`` weight fraction terminated beyond ``2·radii[-1]`` (module doc).
+        photons: photons per channel.
+        interactions: collisions simulated over the three channels.
+        seconds: wall time of the three walks of the run that produced it (a cache hit
+            keeps the original run's time).
+    """
+
+    radii: torch.Tensor
+    fraction: torch.Tensor
+    fraction_stderr: torch.Tensor
+    total: torch.Tensor
+    total_stderr: torch.Tensor
+    escaped: torch.Tensor
+    photons: int
+    interactions: int
+    seconds: float
+
+    @property
+    def area(self) -> torch.Tensor:
+        """``(K, 1)`` annulus areas, mm²."""
+        return (math.pi * (self.radii[1:] ** 2 - self.radii[:-1] ** 2))[:, None]
+
+    @property
+    def R(self) -> torch.Tensor:  # noqa: N802 - the physics symbol
+        """``(K, 3)`` radial exitance per annulus, mm⁻²."""
+        return self.fraction / self.area
+
+    @property
+    def R_stderr(self) -> torch.Tensor:  # noqa: N802
+        return self.fraction_stderr / self.area
+
+
+#: absorbing channels are cut no closer than this many mean free paths (their walks end by
+#: absorption anyway; a cut at twice a radius of a few mean free paths — Chicken1 red: 25 mm
+#: are 4 — would lose ~5 % of R_d)
+KILL_MFP_MIN = 200.0
+
+
+def _kill_radius(r_max_mfp: float, sigma_a: float) -> float:
+    """Truncation distance (mfp): ``2 r_max``, and at least :data:`KILL_MFP_MIN` when the
+    channel absorbs (module doc)."""
+    return max(2 * r_max_mfp, KILL_MFP_MIN) if sigma_a > 0 else 2 * r_max_mfp
+
+
+def _coefficients(material: object) -> tuple[torch.Tensor, torch.Tensor, float]:
+    """``(σs′ (3,), σa (3,), η)`` of a material name or a ``(σs′, σa[, η])`` tuple."""
+    if isinstance(material, str):
+        key = material.strip().lower()
+        if key not in MATERIALS:
+            raise ValueError(f"material must be one of {sorted(MATERIALS)}, got {material!r}")
+        ss, sa = MATERIALS[key]
+        eta = 1.3
+    elif isinstance(material, (tuple, list)) and len(material) in (2, 3):
+        ss, sa = material[0], material[1]
+        eta = check_scalar("eta", material[2] if len(material) == 3 else 1.3, 1.0, 3.0)
+    else:
+        raise TypeError(
+            "material must be a name of sssbench.profiles.MATERIALS or a (sigma_s_prime, "
+            f"sigma_a[, eta]) tuple in mm^-1, got {type(material).__name__}"
+        )
+    ss_t = torch.as_tensor(ss, dtype=_F64).expand(3).clone()
+    sa_t = torch.as_tensor(sa, dtype=_F64).expand(3).clone()
+    if not bool((ss_t > 0).all()) or not bool(torch.isfinite(ss_t).all()):
+        raise ValueError(f"sigma_s_prime must be finite and > 0 mm^-1, got {ss_t.tolist()}")
+    if not bool((sa_t >= 0).all()) or not bool(torch.isfinite(sa_t).all()):
+        raise ValueError(f"sigma_a must be finite and >= 0 mm^-1, got {sa_t.tolist()}")
+    return ss_t, sa_t, eta
+
+
+def _radii(radii: object) -> torch.Tensor:
+    r = torch.as_tensor(radii, dtype=_F64)
+    if r.ndim != 1 or r.numel() < 2:
+        raise ValueError(
+            f"radii_mm must be a 1D sequence of >= 2 edges, got shape {tuple(r.shape)}"
+        )
+    if not bool(torch.isfinite(r).all()) or bool(r[0] < 0) or not bool((r[1:] > r[:-1]).all()):
+        raise ValueError(f"radii_mm must be finite, >= 0 and strictly increasing, got {r.tolist()}")
+    return r
+
+
+def searchlight_result(
+    material: object,
+    radii_mm: object,
+    photons: int = 200_000,
+    seed: int = 0,
+    *,
+    batch: int = 1 << 17,
+    cache: bool = True,
+    progress: bool | None = None,
+) -> SearchlightResult:
+    """The searchlight profile of ``material`` (module doc), from the cache or a new walk.
+
+    Args:
+        material: a name of :data:`sssbench.profiles.MATERIALS` (η = 1.3) or a tuple
+            ``(σs′, σa[, η])`` of scalars or RGB triples in mm⁻¹.
+        radii_mm: annulus edges in mm, ``(K+1,)``, finite, >= 0, increasing.
+        photons: photons per channel.
+        seed: base seed (channel c uses ``seed·3 + c``).
+        batch: photons advanced together (part of the cache key: it orders the draws).
+        cache: read and write the disk cache.
+        progress: tqdm bars (None = only for runs longer than ~3 s).
+    """
+    ss, sa, eta = _coefficients(material)
+    radii = _radii(radii_mm)
+    photons = check_int("photons", photons, 2)
+    seed = check_int("seed", seed, 0)
+    key = {
+        "sigma_s_prime": ss.tolist(),
+        "sigma_a": sa.tolist(),
+        "eta": eta,
+        "radii": radii.tolist(),
+        "photons": photons,
+        "seed": seed,
+        "batch": batch,
+        "code": mc_digest(),
+    }
+    blob = json.dumps(key, sort_keys=True)
+    path = mc_cache_dir() / f"searchlight_{hashlib.sha256(blob.encode()).hexdigest()[:32]}.pt"
+    if cache and path.is_file():
+        try:
+            entry = torch.load(path, weights_only=True)
+            if entry["key"] == blob:
+                return SearchlightResult(radii=radii, **entry["result"])
+        except Exception:  # noqa: BLE001 - a corrupt entry is recomputed
+            pass
+    st = ss + sa
+    frac, frac_se, tot, tot_se, esc = [], [], [], [], []
+    inter, secs = 0, 0.0
+    for c in range(3):
+        t = walk(
+            float(ss[c] / st[c]),
+            photons=photons,
+            eta=eta,
+            seed=seed * 3 + c,
+            radial_edges=radii * st[c],
+            roulette_radius=float(radii[-1] * st[c]),
+            kill_radius=_kill_radius(float(radii[-1] * st[c]), float(sa[c])),
+            batch=batch,
+            progress=progress,
+        )
+        m, e = mean_stderr(t.radial[0], t.radial[1], photons)
+        frac.append(m)
+        frac_se.append(e)
+        m, e = mean_stderr(t.top[0], t.top[1], photons)
+        tot.append(m)
+        tot_se.append(e)
+        esc.append(t.escaped[0] / photons)
+        inter += t.interactions
+        secs += t.seconds
+    result = {
+        "fraction": torch.stack(frac, 1),
+        "fraction_stderr": torch.stack(frac_se, 1),
+        "total": torch.stack(tot),
+        "total_stderr": torch.stack(tot_se),
+        "escaped": torch.stack(esc),
+        "photons": photons,
+        "interactions": inter,
+        "seconds": secs,
+    }
+    if cache:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f"{path.name}.{os.getpid()}.{threading.get_ident()}.tmp")
+        torch.save({"key": blob, "result": result}, tmp)
+        os.replace(tmp, path)
+    return SearchlightResult(radii=radii, **result)
+
+
+def searchlight(
+    material: object, radii_mm: object, photons: int = 200_000, seed: int = 0
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(R, stderr)``: radial exitance per annulus and channel, ``(K, 3)`` in mm⁻² (module
+    doc; cached). See :func:`searchlight_result` for the totals and the cost."""
+    res = searchlight_result(material, radii_mm, photons, seed)
+    return res.R, res.R_stderr
