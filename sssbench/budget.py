@@ -433,6 +433,7 @@ def error_budget(
     reference_bilinear: torch.Tensor | None = None,
     tol: float = CONVERGED_TOL,
     limit: tuple[torch.Tensor, int, float] | None = None,
+    recon: bool = True,
 ) -> Budget:
     """Split a method's error on ``gbuffer`` into taps, model, reconstruction and screen.
 
@@ -448,6 +449,8 @@ def error_budget(
         tol: convergence tolerance of :func:`converged`.
         limit: the method converged in taps, as :func:`converged` returns it, when the caller
             has it already (the runner caches it: it does not depend on ``samples``).
+        recon: split off the reconstruction convention; ``False`` leaves ``recon`` NaN (its
+            image stays in screen) without computing the bilinear reference.
 
     Returns:
         A :class:`Budget`.
@@ -472,7 +475,7 @@ def error_budget(
         p = footprint_mm(g)
         truth = flat_convolution(g, profile_kernel(profile), p)
         model = flat_convolution(g, method_kernel(method), p)
-        if reference_bilinear is None:
+        if reference_bilinear is None and recon:
             op = reference_with(profile, "bilinear")
             reference_bilinear = None if op is None else op(g)
     parts = {"taps": m_n - m_inf, "model": model - truth}

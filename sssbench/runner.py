@@ -492,6 +492,7 @@ def _budget(
         reference=reference,
         reference_bilinear=bil,
         limit=limit,
+        recon=bil is not None,
     ).as_dict()
     return {
         k: float(result[k])
