@@ -32,7 +32,7 @@ def run_preset(preset: str, store: Path, run_root: Path, *overrides: str) -> pd.
     """Run every job of ``+experiment=<preset>`` through the app's runner (progress and ETA
     on stdout); return the report's summary table of those points. ``overrides`` with a comma
     replace a sweep axis of the preset; the others apply to every job."""
-    sweeps = [o for o in overrides if "," in o.split("=", 1)[1]]
+    sweeps = [o for o in overrides if "," in (v := o.split("=", 1)[1]) and not v.startswith("[")]
     fixed = [o for o in overrides if o not in sweeps]
     jobs = preset_grid(preset, *sweeps)
     hashes = []
