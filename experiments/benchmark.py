@@ -97,6 +97,26 @@ def run(ctx: Context) -> Section:
         + (", ".join(f"{m} ×{n}" for m, n in sorted(counts.items())) or "none")
         + "."
     )
+    # methods whose configurations mostly fail the bar: which part of the budget dominates
+    why = []
+    for method, grp in visible.groupby("method"):
+        if not len(grp) or float(grp["skill"].median()) > 0.3:
+            continue
+        parts = {p: float(grp[p].median()) for p in report.BUDGET_PARTS if grp[p].notna().any()}
+        if parts:
+            top = max(parts, key=parts.get)
+            why.append(
+                f"{method} (median skill {float(grp['skill'].median()):+.2f}): its largest "
+                f"budget part is {top} ({parts[top]:.3g} median rel RMS"
+                + (
+                    ", the kernel itself: more taps or depth awareness cannot fix it"
+                    if top == "err_model"
+                    else ""
+                )
+                + ")"
+            )
+    if why:
+        measured += " Below the skill bar of 0.3: " + "; ".join(why) + "."
     rec_rows = [
         [r["scene"], r["scale"], r["resolution"], r["recommended"], r["best"], r["verdict"]]
         for _, r in recs.iterrows()

@@ -76,14 +76,17 @@ def run(ctx: Context) -> Section:
         "(figure)."
     )
     close_nolod = ratios_nolod.get(("head_close", n7), float("nan"))
-    in_range = 4.0 <= close <= 8.0 or 4.0 <= close_nolod <= 8.0
+    # "about 6×": within 20 % of 6, for what renders (with LOD) and for the convolution count
+    # (no LOD); one of the two only is a partial reproduction
+    near = [4.8 <= r <= 7.2 for r in (close, close_nolod)]
+    in_range = all(near)
     return Section(
         TITLE,
         "Cost is about the number of convolutions (000 §8): the 12-pass sum of Gaussians "
         "against a 2-pass separable kernel, about 6× (000 §8, 002 Table 2); 004 Table 5.2 / "
         "Fig. 5.1 report 5.2× at close-up and time growing with samples per pass.",
         measured,
-        "reproduced" if in_range else "partly reproduced",
+        "reproduced" if in_range else "partly reproduced" if any(near) else "not reproduced",
         f"Close-up at {n7} taps: {close:.2g}× with level of detail, {close_nolod:.2g}× without "
         "— the paper's ~6× (5.2× close-up) is the count of convolutions, which the no-LOD "
         "ratio measures; LOD lowers it as the head recedes (narrow Gaussians drop out)."

@@ -137,7 +137,8 @@ def run(ctx: Context) -> Section:
             + "."
         )
         ok = decreasing and rank1_poor
-        near80 = any(0.7 < x < 0.9 for x in [*sk, *sk_lin])
+        # "~80 %" holds under both readings of "energy" (s1/Σs and s1²/Σs²) or only one
+        near80 = all(0.7 < x < 0.9 for x in [*sk, *sk_lin])
         verdict = "reproduced" if ok and near80 else "partly reproduced"
         reason = (
             "Qualitatively as claimed: energy concentrates in the first singular value, rank 1 "

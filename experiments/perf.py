@@ -368,7 +368,7 @@ def run(ctx: Context) -> Section:
         f"G-buffer tensors = {worst['vs_gbuffer']:.1f}× (target < 10×)."
     )
     met.append(worst["vs_gbuffer"] < 10)
-    verdict = "reproduced" if all(met) else "partly reproduced" if any(met) else "not reproduced"
+    verdict = "target met" if all(met) else "target not met"
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6, 3))

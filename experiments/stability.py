@@ -508,7 +508,7 @@ def run(ctx: Context) -> Section:
             "default, so both must agree to a stated tolerance at any parameter a user can pass."
         ),
         measured=measured,
-        verdict="reproduced" if not failed else "not reproduced",
+        verdict="target met" if not failed else "target not met",
         reason=(
             "Every case finite and within tolerance."
             if not failed
