@@ -28,6 +28,7 @@ ORDER = [
     "layers",
     "extensions",
     "benchmark",
+    "plan",
     "stability",
     "disk",
     "mc_profiles",

@@ -30,6 +30,7 @@ EXPERIMENTS = {
     "layers": "experiments.layers",
     "extensions": "experiments.extensions",
     "benchmark": "experiments.benchmark",
+    "plan": "experiments.plan",
     "perf": "experiments.perf",
     "stability": "experiments.stability",
     "disk": "experiments.disk",

@@ -285,6 +285,7 @@ def build_pipeline(
     stages: Mapping[str, Mapping[str, Any] | None] | None = None,
     *,
     for_reference: bool = False,
+    auto: bool = True,
 ) -> Any:
     """``Pipeline(method, **stage options)`` for the switched-on ``stages``.
 
@@ -294,6 +295,7 @@ def build_pipeline(
         stages: stage name -> its parameters (``None`` or missing = off).
         for_reference: build the reference's pipeline: only the stages that change the light
             being scattered (see :data:`STAGES`).
+        auto: the pipeline's automatic plan (leave out stages the scene does not need).
     """
     from sssbench.pipeline import Pipeline
 
@@ -311,4 +313,4 @@ def build_pipeline(
                 kwargs[key] = [*kwargs.get(key, []), *value]
             else:
                 kwargs[key] = value
-    return Pipeline(method, **kwargs)
+    return Pipeline(method, auto=auto, **kwargs)
