@@ -43,6 +43,7 @@ from typing import Any
 import torch
 
 from sssbench import registry
+from sssbench.metrics import METRICS
 from sssbench.refcache import cached_reference, reference_key
 from sssbench.spec import RunSpec
 from sssbench.tracking import PassStats, RunRecord, RunStore, config_hash, utc_now
@@ -57,18 +58,13 @@ __all__ = [
     "pass_stats",
     "time_limit",
     "versions",
-    "write_previews",
     "METRIC_KEYS",
 ]
 
-#: per-run numbers copied into the store's metrics (besides the image metrics)
+#: per-run numbers copied into the store's metrics: the image metrics
+#: (:data:`sssbench.metrics.METRICS`), then these
 METRIC_KEYS = (
-    "rmse",
-    "rel_rms",
-    "psnr",
-    "ssim",
-    "delta_e",
-    "flip",
+    *METRICS,
     "rel_rms_identity",
     "flip_identity",
     "skill",
@@ -192,27 +188,6 @@ def versions() -> dict[str, str]:
     return out
 
 
-def write_previews(
-    run_dir: Path,
-    result: torch.Tensor,
-    reference: torch.Tensor,
-    *,
-    error_scale: float | None = None,
-    title: str = "",
-) -> list[str]:
-    """``preview.png`` (a labelled strip result | reference | |error| with a colour bar, the
-    error relative to the reference's peak on the scale ``error_scale``), and
-    ``result.png`` / ``reference.png`` / ``error.png`` at native resolution.
-
-    Args:
-        error_scale: top of the error colour scale (relative error); ``None`` uses the run's
-            own maximum. A report passes one scale per scene so error maps compare.
-    """
-    from sssbench.previews import preview_strip
-
-    return preview_strip(run_dir, result, reference, error_scale=error_scale, title=title)
-
-
 # ----------------------------------------------------------------------------- one run
 @dataclass
 class RunOutcome:
@@ -229,15 +204,8 @@ def _reference(
 ) -> tuple[torch.Tensor, bool, float]:
     from sssbench.ops import ReferenceSSS
 
-    key = reference_key(
-        scene=spec.scene,
-        scene_params=spec.scene_params,
-        profile=profile,
-        resolution=spec.resolution,
-        seed=spec.seed,
-        dtype=spec.dtype,
-        reference_params=spec.reference_params,
-        stages=_reference_stages(spec),
+    key = _scene_key(
+        spec, profile, reference_params=spec.reference_params, stages=_reference_stages(spec)
     )
     pipeline = registry.build_pipeline(
         ReferenceSSS(profile, **spec.reference_params), profile, spec.stages, for_reference=True
@@ -246,6 +214,19 @@ def _reference(
         key, lambda: pipeline.run(gbuffer).image, cache_dir, shape=tuple(gbuffer.diffuse.shape)
     )
     return image.to(gbuffer.dtype), hit, ms
+
+
+def _scene_key(spec: RunSpec, profile: Any, **extra: Any) -> dict[str, Any]:
+    """The cache key of an image computed from the run's scene and profile (plus ``extra``)."""
+    return reference_key(
+        scene=spec.scene,
+        scene_params=spec.scene_params,
+        profile=profile,
+        resolution=spec.resolution,
+        seed=spec.seed,
+        dtype=spec.dtype,
+        **extra,
+    )
 
 
 def _reference_stages(spec: RunSpec) -> dict[str, Any]:
@@ -369,8 +350,9 @@ def measure(spec: RunSpec, run_dir: Path) -> tuple[dict[str, Any], list[PassStat
     }
     if spec.previews:
         from sssbench.io import write_image_exr
+        from sssbench.previews import preview_strip
 
-        payload["previews"] = write_previews(
+        payload["previews"] = preview_strip(
             run_dir, result, reference, title=f"{spec.scene} · {spec.method}"
         )
         for name, image in (("result", result), ("reference", reference)):
@@ -443,14 +425,7 @@ def _budget(
             params=spec.method_params,
         )
 
-    key = reference_key(
-        scene=spec.scene,
-        scene_params=spec.scene_params,
-        profile=profile,
-        resolution=spec.resolution,
-        seed=spec.seed,
-        dtype=spec.dtype,
-    )
+    key = _scene_key(spec, profile)
     g64 = gbuffer.to(torch.float64)
     scale = float(reference.double().pow(2).mean().sqrt()) or 1.0
     limit_key = {
