@@ -127,7 +127,7 @@ class GBuffer:
             check_range("depth", value, 0.0, low_inclusive=False)
             # the passes step 1 / pixel size pixels per mm: it must be finite in the dtype, i.e.
             # the nearest pixel's footprint a normal float (float32, fov_y = 1e-40: 0 · inf)
-            nearest = 2.0 * float(value.min()) * math.tan(self.fov_y / 2.0) / h
+            nearest = 2.0 * float(value.detach().min()) * math.tan(self.fov_y / 2.0) / h
             tiny = torch.finfo(value.dtype).tiny
             if not nearest >= tiny:
                 raise ValueError(

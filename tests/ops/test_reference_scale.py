@@ -40,9 +40,11 @@ def test_a_profile_far_narrower_than_a_pixel_leaves_the_image_unchanged(z):
         torch.testing.assert_close(ReferenceSSS(SKIN)(g), img, rtol=1e-12, atol=0)
 
 
-@pytest.mark.parametrize("scale", [1e-20, 1e20])
+@pytest.mark.parametrize("scale", [1e-5, 1e5])
 def test_scaling_scene_and_profile_together_changes_nothing(scale):
-    # the reference is dimensionless: depths ×s and profile widths ×s give the same image
+    # the reference is dimensionless: depths ×s and profile widths ×s give the same image.
+    # The scale spans the whole range a profile may take (variances 1e-12 .. 1e12 mm² are
+    # validated on entry, docs/reliability.md): 0.02 mm² × 1e-10 and 1.5 mm² × 1e10
     gen = torch.Generator().manual_seed(3)
     h = w = 24
     img = torch.rand(1, 3, h, w, generator=gen, dtype=torch.float64)
