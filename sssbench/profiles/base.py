@@ -165,22 +165,36 @@ class Profile:
         dz: torch.Tensor,
         half_x: torch.Tensor,
         half_y: torch.Tensor,
+        slope_x: torch.Tensor | None = None,
+        slope_y: torch.Tensor | None = None,
     ) -> torch.Tensor:
-        """∫∫ R(√(x²+y²+dz²)) over the cell ``[dx±half_x] × [dy±half_y]`` (mm), ``(..., 3)``.
+        """∫∫ R(|p|) dA over the cell ``[dx±half_x] × [dy±half_y]`` (mm), ``(..., 3)``.
 
-        The exact reference weights each neighbour by this integral (issue 2 item 8): a
-        profile narrower than a pixel keeps its full weight instead of being point-sampled.
-        The default uses an 8×8 Gauss–Legendre rule per cell; closed forms override it.
+        Fronto-parallel cell (no slopes): ``p = (x, y, dz)``. Tilted cell: the planar patch
+        ``p = (dx+s, dy+t, dz + slope_x s + slope_y t)`` with its area element
+        ``√(1 + slope_x² + slope_y²)`` — the same surface :class:`SumOfGaussians` integrates
+        in closed form. The exact reference weights each neighbour by this integral: a profile
+        narrower than a pixel keeps its full weight instead of being point-sampled. The default
+        uses an 8×8 Gauss–Legendre rule per cell; closed forms override it.
         """
         x, w = _gauss_legendre(8)
         xt = torch.from_numpy(x).to(dx)
         wt = torch.from_numpy(w).to(dx)
-        px = dx[..., None] + half_x[..., None] * xt  # (..., 8)
-        py = dy[..., None] + half_y[..., None] * xt
-        rr = torch.sqrt(px[..., :, None] ** 2 + py[..., None, :] ** 2 + dz[..., None, None] ** 2)
+        s = half_x[..., None] * xt  # (..., 8) offsets along x within the cell
+        t = half_y[..., None] * xt
+        px = dx[..., None] + s
+        py = dy[..., None] + t
+        pz = dz[..., None, None].expand(*px.shape, 8).clone()
+        area = torch.ones_like(dx)
+        if slope_x is not None or slope_y is not None:
+            sx = torch.zeros_like(dx) if slope_x is None else slope_x.to(dx)
+            sy = torch.zeros_like(dx) if slope_y is None else slope_y.to(dx)
+            pz = pz + sx[..., None, None] * s[..., :, None] + sy[..., None, None] * t[..., None, :]
+            area = torch.sqrt(1.0 + sx * sx + sy * sy)
+        rr = torch.sqrt(px[..., :, None] ** 2 + py[..., None, :] ** 2 + pz**2)
         vals = self.evaluate(rr.double()).to(dx)  # (..., 8, 8, 3)
         ww = (wt[:, None] * wt[None, :])[..., None]
-        return (vals * ww).sum((-3, -2)) * (half_x * half_y)[..., None]
+        return (vals * ww).sum((-3, -2)) * (half_x * half_y * area)[..., None]
 
     def radius(self, tol: float = 1e-4) -> float:
         """Support radius (mm) beyond which the profile can be neglected.

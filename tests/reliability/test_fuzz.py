@@ -344,11 +344,6 @@ def test_fuzz_methods_valid_or_named_error(data, g):
         check_output(out, g, spec)
 
 
-@pytest.mark.xfail(
-    reason="reference.py calls Profile.cell_integral with surface slopes that profiles/base.py "
-    "does not take yet (owned by the reference / profiles-base branches)",
-    strict=False,
-)
 @fuzz(0.5)
 @given(data=st.data(), g=scenes(max_side=8))
 def test_fuzz_reference_with_numeric_profiles(data, g):
