@@ -10,7 +10,11 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-DOCS = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]
+DOCS = [
+    REPO / "README.md",
+    REPO / "experiments" / "README.md",
+    *sorted((REPO / "docs").glob("*.md")),
+]
 
 
 def _python_blocks(path: Path) -> list[str]:
