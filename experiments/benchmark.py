@@ -87,9 +87,11 @@ def run(ctx: Context) -> Section:
     counts = wins.value_counts().to_dict()
     failed = int((table["status"] != "ok").sum())
     resolutions = ", ".join(sorted(set(table["resolution"].dropna())))
+    # the requested scales (the measured footprint at the median depth differs by a few %)
+    n_scales = table["pixel_mm"].dropna().map(lambda v: f"{v:.1g}").nunique()
     measured = (
         f"{len(table)} points ({table['method'].nunique()} methods incl. the baseline × "
-        f"{table['scene'].nunique()} scenes × {table['scale'].nunique()} scales, "
+        f"{table['scene'].nunique()} scenes × {n_scales} scales, "
         f"{resolutions}), {failed} failed. {len(hidden_groups)} of {n_groups} scene/scale "
         "groups show no visible SSS and are not ranked. Of the "
         f"{len(visible)} ranked screen-space configurations, {len(worse)} are worse than "
