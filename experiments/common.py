@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import datetime as _dt
 import math
+import os
 import platform
 import statistics
 import time
@@ -105,7 +106,9 @@ class Section:
         if self.verdict not in VERDICTS:
             raise ValueError(f"verdict must be one of {VERDICTS}, got {self.verdict!r}")
 
-    def markdown(self, name: str, command: str, seconds: float, quick: bool) -> str:
+    def markdown(
+        self, name: str, command: str, seconds: float, quick: bool, threads: int | None = None
+    ) -> str:
         parts = [
             f'<a id="{name}"></a>',
             f"## {self.title}",
@@ -122,7 +125,9 @@ class Section:
             parts += [self.body.strip(), ""]
         stamp = _dt.datetime.now().strftime("%Y-%m-%d %H:%M")
         parts.append(
-            f"<sub>`{command}` — {seconds:.1f} s, torch threads {torch.get_num_threads()}, "
+            f"<sub>`{command}` — {seconds:.1f} s, torch threads "
+            f"{threads if threads is not None else torch.get_num_threads()}, "
+            f"{os.cpu_count()} cores, "
             f"{platform.machine()}, {'QUICK (tiny sizes, not the result)' if quick else 'full'}"
             f", {stamp}</sub>"
         )
@@ -217,7 +222,7 @@ def execute(name: str, run: Callable[[Context], Section], ctx: Context) -> Path:
     command = f"python -m experiments.run {name}" + (" --quick" if ctx.quick else "")
     command += f" --threads {ctx.threads}" if ctx.threads != 1 else ""
     path = ctx.sections / f"{name}.md"
-    path.write_text(section.markdown(name, command, seconds, ctx.quick))
+    path.write_text(section.markdown(name, command, seconds, ctx.quick, ctx.threads))
     print(f"{name}: {section.verdict} ({seconds:.1f} s) -> {path}")
     return path
 
