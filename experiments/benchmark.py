@@ -21,7 +21,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from experiments.common import Context, Section, main, md_table
+from experiments.common import Context, Section, main, md_table, shrink_png
 from sssbench import report, runner
 from sssbench.app import compose_spec, preset_grid
 
@@ -69,9 +69,11 @@ def run(ctx: Context) -> Section:
     ctx.figures.mkdir(parents=True, exist_ok=True)
     figures = []
     if report._plot_error_vs_time(table, fig_path) is not None:
+        shrink_png(fig_path)
         figures.append(f"figures/{fig_path.name}")
     budget_path = ctx.figures / "benchmark_budget.png"
     if report._plot_budget(table, budget_path) is not None:
+        shrink_png(budget_path)
         figures.append(f"figures/{budget_path.name}")
 
     screen = ok[~ok["method"].isin((report.BASELINE, report.REFERENCE))]

@@ -134,6 +134,21 @@ class Section:
         return "\n".join(parts) + "\n"
 
 
+def shrink_png(path: Path, max_bytes: int = MAX_PNG_BYTES) -> Path:
+    """Re-save a PNG written elsewhere (e.g. by :mod:`sssbench.report`) with a 256-colour
+    palette, then at lower resolution until it is under ``max_bytes``."""
+    from PIL import Image
+
+    image = Image.open(path).convert("RGB")
+    scale = 1.0
+    while True:
+        size = (max(1, int(image.width * scale)), max(1, int(image.height * scale)))
+        image.resize(size, Image.LANCZOS).quantize(colors=256).save(path, optimize=True)
+        if path.stat().st_size < max_bytes or scale < 0.3:
+            return path
+        scale *= 0.8
+
+
 def md_table(rows: Sequence[Sequence[Any]], headers: Sequence[str]) -> str:
     """A GitHub Markdown table; floats to 4 significant digits."""
 

@@ -53,6 +53,10 @@ DECISION_COLUMNS = [
     "err_taps",
     "err_screen",
     "err_recon",
+    "contribution_model",
+    "contribution_taps",
+    "contribution_screen",
+    "contribution_recon",
     "error_scale",
 ]
 #: columns the report adds per ranking group (:func:`annotate`)
@@ -666,30 +670,36 @@ BUDGET_PARTS = ("err_model", "err_taps", "err_screen")
 
 
 def _plot_budget(table: pd.DataFrame, path: Path) -> Path | None:
-    """Per ranking group: stacked bars of the error budget of each method's configurations
-    (model / taps / screen space), the reconstruction convention as a hatched marker — so a
-    user sees whether more taps, a better kernel or depth awareness would help."""
+    """Per ranking group: the error budget of each configuration as stacked bars of the
+    parts' signed contributions ``⟨part, error⟩ / (‖R‖ ‖error‖)``, which add up exactly to
+    the configuration's rel RMS (the black mark): model, taps, screen space and the
+    reconstruction convention (docs/error_budget.md) — so a user sees whether more taps, a
+    better kernel or depth awareness would help. A negative part cancels some of the others."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    ok = table[(table["status"] == "ok") & table["err_model"].notna()]
+    ok = table[(table["status"] == "ok") & table["contribution_model"].notna()]
     ok = ok[~ok["method"].isin((BASELINE, REFERENCE))]
     if ok.empty:
         return None
     groups = list(ok.groupby(group_keys(ok), dropna=False, sort=True))
     fig, axes = _panels(len(groups), width=5.5, height=3.6)
-    colours = dict(zip(BUDGET_PARTS, ("tab:blue", "tab:orange", "tab:green"), strict=True))
+    parts = ("model", "taps", "screen", "recon")
+    colours = dict(zip(parts, ("tab:blue", "tab:orange", "tab:green", "tab:gray"), strict=True))
     for ax, (key, sub) in zip(axes, groups, strict=True):
         info = dict(zip(group_keys(ok), key, strict=True))
         sub = sub.sort_values(["method", "samples"]).head(14)
         labels = [label(r) for _, r in sub.iterrows()]
-        bottom = [0.0] * len(sub)
-        for part in BUDGET_PARTS:
-            vals = sub[part].astype(float).fillna(0.0).clip(lower=0).tolist()
-            ax.bar(labels, vals, bottom=bottom, color=colours[part], label=part)
-            bottom = [b + v for b, v in zip(bottom, vals, strict=True)]
+        up = [0.0] * len(sub)
+        down = [0.0] * len(sub)
+        for part in parts:
+            vals = sub[f"contribution_{part}"].astype(float).fillna(0.0).tolist()
+            base = [u if v >= 0 else d for u, d, v in zip(up, down, vals, strict=True)]
+            ax.bar(labels, vals, bottom=base, color=colours[part], label=f"err_{part}")
+            up = [u + max(v, 0.0) for u, v in zip(up, vals, strict=True)]
+            down = [d + min(v, 0.0) for d, v in zip(down, vals, strict=True)]
         ax.scatter(
             labels,
             sub[PLOT_METRIC].astype(float),
@@ -699,18 +709,10 @@ def _plot_budget(table: pd.DataFrame, path: Path) -> Path | None:
             zorder=3,
             label="rel_rms (total)",
         )
-        if sub["err_recon"].notna().any():
-            ax.scatter(
-                labels,
-                sub["err_recon"].astype(float),
-                marker="x",
-                color="0.3",
-                zorder=3,
-                label="reconstruction convention",
-            )
+        ax.axhline(0.0, color="k", lw=0.5)
         ax.set_title(_title(info), fontsize=9)
         ax.tick_params(axis="x", labelrotation=60, labelsize=6)
-        ax.set_ylabel("rel. RMS")
+        ax.set_ylabel("contribution to rel RMS")
     axes[0].legend(fontsize=6)
     fig.tight_layout()
     fig.savefig(path, dpi=110)

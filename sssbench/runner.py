@@ -76,6 +76,10 @@ METRIC_KEYS = (
     "err_recon",
     "taps_residual",
     "converged_samples",
+    "contribution_model",
+    "contribution_taps",
+    "contribution_screen",
+    "contribution_recon",
     "samples_per_pixel",
     "reference_ms",
     "pixel_mm",
@@ -469,10 +473,10 @@ def _budget(
         limit=limit,
         recon=bil is not None,
     ).as_dict()
-    return {
-        k: float(result[k])
-        for k in ("err_model", "err_taps", "err_screen", "err_recon", "taps_residual")
-    } | {"converged_samples": int(result["converged_samples"])}
+    keys = [k for k in result if k.startswith(("err_", "contribution_"))] + ["taps_residual"]
+    return {k: float(result[k]) for k in keys if k != "err_total"} | {
+        "converged_samples": int(result["converged_samples"])
+    }
 
 
 def _write_json(path: Path, payload: dict[str, Any]) -> None:
