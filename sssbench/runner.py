@@ -463,12 +463,18 @@ def _budget(
             spec.reference_cache,
             shape=tuple(gbuffer.diffuse.shape),
         )
+    # the budget splits the SSS stage's error: the reference without the specular the
+    # pipeline adds after scattering (on the stencil), as the method alone computes it
+    sss_reference = reference
+    if gbuffer.specular is not None:
+        active = (gbuffer.mask_or_ones() > 0).to(reference.dtype)
+        sss_reference = reference - gbuffer.specular.to(reference.dtype) * active
     result = budget.error_budget(
         build,
         spec.samples,
         g64,
         profile,
-        reference=reference,
+        reference=sss_reference,
         reference_bilinear=bil,
         limit=limit,
         recon=bil is not None,
