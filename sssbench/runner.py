@@ -204,15 +204,11 @@ class RunOutcome:
 
 
 def _reference(
-    spec: RunSpec, gbuffer: Any, profile: Any, cache_dir: Path | None
+    spec: RunSpec, gbuffer: Any, profile: Any, pipeline: Any, cache_dir: Path | None
 ) -> tuple[torch.Tensor, bool, float]:
-    from sssbench.ops import ReferenceSSS
-
+    """The reference image (``pipeline``: the run's reference pipeline), from the cache."""
     key = _scene_key(
         spec, profile, reference_params=spec.reference_params, stages=_reference_stages(spec)
-    )
-    pipeline = registry.build_pipeline(
-        ReferenceSSS(profile, **spec.reference_params), profile, spec.stages, for_reference=True
     )
     image, hit, ms = cached_reference(
         key, lambda: pipeline.run(gbuffer).image, cache_dir, shape=tuple(gbuffer.diffuse.shape)
@@ -265,7 +261,7 @@ def measure(spec: RunSpec, run_dir: Path) -> tuple[dict[str, Any], list[PassStat
         from sssbench.ops import ReferenceSSS
 
         ref_pipeline = registry.build_pipeline(
-            ReferenceSSS(profile), profile, spec.stages, for_reference=True
+            ReferenceSSS(profile, **spec.reference_params), profile, spec.stages, for_reference=True
         )
         fields = tuple(sorted(set(pipeline.needs) | set(ref_pipeline.needs)))
         gbuffer = registry.build_scene(
@@ -289,7 +285,7 @@ def measure(spec: RunSpec, run_dir: Path) -> tuple[dict[str, Any], list[PassStat
                 out = pipeline.run(gbuffer)
                 records.append(out.records)
             result = out.image
-            reference, hit, ref_ms = _reference(spec, gbuffer, profile, cache_dir)
+            reference, hit, ref_ms = _reference(spec, gbuffer, profile, ref_pipeline, cache_dir)
             # the do-nothing baseline on the same scene: the SSS stage left out
             identity = (
                 registry.build_pipeline(
