@@ -44,6 +44,7 @@ __all__ = [
     "ssim",
     "delta_e",
     "flip",
+    "flip_map",
     "METRICS",
     "compute_all",
 ]
@@ -251,6 +252,46 @@ def delta_e(
     return float(_weighted_mean(torch.from_numpy(np.ascontiguousarray(de))[:, None], m).mean())
 
 
+def flip_map(
+    result: torch.Tensor,
+    reference: torch.Tensor,
+    *,
+    exposure: float = 1.0,
+    ppd: float = 67.0,
+) -> np.ndarray:
+    """Per-pixel LDR-FLIP error (``flip_evaluator.evaluate``) of the tone-mapped sRGB images.
+
+    Both images go through :func:`tonemap` and are handed to FLIP as LDR sRGB
+    (``evaluate(reference, test, "LDR", inputsRGB=True)``), viewed at ``ppd`` pixels per degree
+    (FLIP's default, 67: a 0.7 m distance from a 24" 4K monitor).
+
+    Returns:
+        ``(B, H, W)`` float32 FLIP map in ``[0, 1]`` (0 where the images agree).
+    """
+    import flip_evaluator  # imported lazily: the extension is only needed for this metric
+
+    res, ref, _ = _check_pair(result, reference, None)
+    res, ref = res.clamp(min=0.0), ref.clamp(min=0.0)  # a display shows no negative light
+    ppd = check_scalar("ppd", ppd, 0.0, low_inclusive=False)
+    t_res = tonemap(res, exposure)
+    t_ref = tonemap(ref, exposure)
+    maps = []
+    for i in range(ref.shape[0]):
+        a = np.ascontiguousarray(t_ref[i].permute(1, 2, 0).numpy(), dtype=np.float32)
+        b = np.ascontiguousarray(t_res[i].permute(1, 2, 0).numpy(), dtype=np.float32)
+        fmap, _, _ = flip_evaluator.evaluate(
+            a,
+            b,
+            "LDR",
+            inputsRGB=True,
+            applyMagma=False,
+            computeMeanError=False,
+            parameters={"ppd": ppd},
+        )
+        maps.append(np.asarray(fmap, dtype=np.float32)[..., 0])
+    return np.stack(maps)
+
+
 def flip(
     result: torch.Tensor,
     reference: torch.Tensor,
@@ -259,42 +300,17 @@ def flip(
     exposure: float = 1.0,
     ppd: float = 67.0,
 ) -> float:
-    """Mean LDR-FLIP error (``flip_evaluator.evaluate``) of the tone-mapped sRGB images.
-
-    Both images go through :func:`tonemap` and are handed to FLIP as LDR sRGB
-    (``evaluate(reference, test, "LDR", inputsRGB=True)``), viewed at ``ppd`` pixels per degree
-    (FLIP's default, 67: a 0.7 m distance from a 24" 4K monitor). The per-pixel FLIP map is
-    averaged with the mask as weights.
+    """Mean LDR-FLIP error: the :func:`flip_map` averaged with the mask as weights.
 
     Returns:
         Mean FLIP error in ``[0, 1]`` (0 for identical images), averaged over the batch.
     """
-    import flip_evaluator  # imported lazily: the extension is only needed for this metric
-
-    res, ref, m = _check_pair(result, reference, mask)
-    res, ref = res.clamp(min=0.0), ref.clamp(min=0.0)  # a display shows no negative light
-    ppd = check_scalar("ppd", ppd, 0.0, low_inclusive=False)
-    t_res = tonemap(res, exposure)
-    t_ref = tonemap(ref, exposure)
-    out = []
-    for i in range(ref.shape[0]):
-        a = np.ascontiguousarray(t_ref[i].permute(1, 2, 0).numpy(), dtype=np.float32)
-        b = np.ascontiguousarray(t_res[i].permute(1, 2, 0).numpy(), dtype=np.float32)
-        fmap, mean, _ = flip_evaluator.evaluate(
-            a,
-            b,
-            "LDR",
-            inputsRGB=True,
-            applyMagma=False,
-            computeMeanError=m is None,
-            parameters={"ppd": ppd},
-        )
-        if m is None:
-            out.append(float(mean))
-        else:
-            wgt = m[i, 0].numpy()
-            out.append(float((np.asarray(fmap)[..., 0] * wgt).sum() / wgt.sum()))
-    return float(np.mean(out))
+    _, _, m = _check_pair(result, reference, mask)
+    fmap = flip_map(result, reference, exposure=exposure, ppd=ppd).astype(np.float64)
+    if m is None:
+        return float(fmap.mean())
+    wgt = m[:, 0].numpy()
+    return float(np.mean((fmap * wgt).sum(axis=(1, 2)) / wgt.sum(axis=(1, 2))))
 
 
 #: the metrics the app computes for every run, by name

@@ -70,6 +70,7 @@ METRIC_KEYS = (
     "skill",
     "skill_flip",
     "visibility",
+    "visibility_local",
     "err_model",
     "err_taps",
     "err_screen",
@@ -245,7 +246,7 @@ def _mask(gbuffer: Any, dtype: torch.dtype) -> torch.Tensor | None:
 def measure(spec: RunSpec, run_dir: Path) -> tuple[dict[str, Any], list[PassStats]]:
     """Build, time, compare; return the ``metrics.json`` payload and the pass statistics."""
     from sssbench import verdict
-    from sssbench.metrics import compute_all, flip, rel_rms
+    from sssbench.metrics import compute_all, rel_rms
 
     with torch_settings(spec.threads, spec.backend):
         profile = registry.build_profile(spec.profile, spec.profile_kind, **spec.profile_params)
@@ -301,7 +302,7 @@ def measure(spec: RunSpec, run_dir: Path) -> tuple[dict[str, Any], list[PassStat
         mask = _mask(gbuffer, result.dtype)
         values = compute_all(result, reference, mask)
         base_rel = rel_rms(identity, reference, mask)
-        base_flip = flip(identity, reference, mask)
+        base_flip, base_flip_local = verdict.visibility_stats(reference, identity, mask)
         budget = _budget(spec, method, profile, gbuffer, reference, mask) if spec.budget else {}
     time_ms = float(sum(p.ms_median for p in stats))
     payload: dict[str, Any] = {
@@ -330,7 +331,8 @@ def measure(spec: RunSpec, run_dir: Path) -> tuple[dict[str, Any], list[PassStat
         "skill": verdict.skill(values["rel_rms"], base_rel),
         "skill_flip": verdict.skill(values["flip"], base_flip),
         "visibility": base_flip,
-        "visible": bool(base_flip >= verdict.VISIBLE_FLIP),
+        "visibility_local": base_flip_local,
+        "visible": verdict.is_visible(base_flip, base_flip_local),
         **budget,
         "pixel_mm": _pixel_mm(gbuffer),
         "samples_per_pixel": int(sum(p.samples for p in stats)),

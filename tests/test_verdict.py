@@ -10,12 +10,15 @@ import torch
 from sssbench.verdict import (
     BASELINE,
     VISIBLE_FLIP,
+    VISIBLE_LOCAL_FLIP,
+    is_visible,
     pareto_set,
     recommend,
     recommendation_sentence,
     skill,
     sss_visibility,
     verdict_sentence,
+    visibility_stats,
     visible,
 )
 
@@ -46,6 +49,29 @@ def test_visibility_is_flip_of_reference_against_input():
     mask = torch.zeros(1, 1, 64, 64)
     mask[..., :, :8] = 1.0  # the mask covers only unchanged pixels, far from the change
     assert sss_visibility(b, a, mask) < 1e-3 < v
+
+
+def test_a_local_change_is_visible_though_the_mean_is_diluted():
+    """A bright spot on 0.4 % of a 128² frame: the mean FLIP is below the spread-out bar, yet
+    more than 1 - VISIBLE_QUANTILE of the pixels differ strongly, so SSS counts as visible;
+    the same spot on fewer than that fraction of the pixels does not."""
+    a = torch.full((1, 3, 128, 128), 0.2)
+    b = a.clone()
+    b[..., 60:68, 60:68] = 1.0  # 64 pixels = 0.39 % of the frame
+    mean, local = visibility_stats(b, a)
+    assert mean < VISIBLE_FLIP  # diluted by the unchanged area
+    assert local >= VISIBLE_LOCAL_FLIP
+    assert is_visible(mean, local) and visible(b, a)
+    assert not is_visible(0.0, 0.0) and is_visible(VISIBLE_FLIP, 0.0)
+    c = a.clone()
+    c[..., 64, 64] = 1.0  # one pixel (FLIP spreads it over a few): far below 0.1 % of 16384
+    mean_c, local_c = visibility_stats(c, a)
+    assert mean_c < VISIBLE_FLIP and local_c < VISIBLE_LOCAL_FLIP
+    assert not visible(c, a)
+    # the mask restricts the quantile to its pixels: around the spot only, it is widespread
+    mask = torch.zeros(1, 1, 128, 128)
+    mask[..., 56:72, 56:72] = 1.0
+    assert visibility_stats(b, a, mask)[0] > VISIBLE_FLIP
 
 
 def test_pareto_set_hand_example():
