@@ -299,15 +299,8 @@ def build_from_overrides(overrides: Sequence[str]) -> tuple[nn.Module, Any]:
         raise ValueError(problem)
     spec = compose_spec(*overrides)
     profile = registry.build_profile(spec.profile, spec.profile_kind, **spec.profile_params)
-    method = registry.build_method(
-        spec.method,
-        profile,
-        samples=spec.samples,
-        sampling=spec.sampling,
-        seed=spec.seed,
-        params=spec.method_params,
-    )
-    return method, spec
+    options = {key: getattr(spec, key) for key in ("samples", "sampling", "seed")}
+    return registry.build_method(spec.method, profile, params=spec.method_params, **options), spec
 
 
 def _parser() -> argparse.ArgumentParser:
