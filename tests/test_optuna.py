@@ -18,6 +18,8 @@ from sssbench.app import OBJECTIVES
 from sssbench.report import load_runs, run_sweeper, search_fronts, summary_table, write_report
 
 REPO = Path(__file__).resolve().parents[1]
+#: optuna 2.x's database models (unused here: the study is in memory) on SQLAlchemy 2
+pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning:optuna.storages._rdb.models")
 
 
 def _sssbench(args: list[str], cwd: Path) -> subprocess.Popen:
@@ -137,3 +139,68 @@ def test_report_draws_both_fronts(searched, monkeypatch):
     assert colours.count("k") == 1 and colours.count("tab:red") == 1
     red = next(x for c, x in drawn if c == "tab:red")
     assert len(red) == len(fronts["optuna"])
+
+
+def _preset_sweeper(preset: str):
+    from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+
+    from sssbench.app import CONF_DIR
+
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        cfg = compose(
+            config_name="config",
+            overrides=["store=x", f"+experiment={preset}"],
+            return_hydra_config=True,
+        )
+    GlobalHydra.instance().clear()
+    return cfg.hydra
+
+
+@pytest.mark.parametrize("preset", ["optuna", "optuna_quick"])
+def test_preset_search_space_reaches_the_methods_options(preset):
+    """Every value of the preset's search space, as the override text the Optuna sweeper
+    writes for it, composes into a run of the method with that option; the quoted 'null'
+    (Hydra's choice() cannot hold null) arrives as None."""
+    from hydra_plugins.hydra_optuna_sweeper._impl import create_params_from_overrides
+    from optuna.distributions import CategoricalDistribution
+
+    from sssbench.app import compose_spec
+
+    hydra = _preset_sweeper(preset)
+    assert "OptunaSweeper" in hydra.sweeper._target_
+    assert list(hydra.sweeper.direction) == ["minimize"] * len(OBJECTIVES)
+    params = [f"{k}={v}" for k, v in hydra.sweeper.params.items()]
+    space, fixed = create_params_from_overrides(params)
+    assert not fixed and set(space) == {
+        "samples",
+        "sampling",
+        "method.params.follow_surface",
+        "method.params.rotation",
+    }
+    for key, dist in space.items():
+        assert isinstance(dist, CategoricalDistribution)
+        for choice in dist.choices:
+            spec = compose_spec(f"+experiment={preset}", f"{key}={choice}")
+            got = {
+                "samples": spec.samples,
+                "sampling": spec.sampling,
+                "method.params.follow_surface": spec.method_params.get("follow_surface"),
+                "method.params.rotation": spec.method_params.get("rotation"),
+            }[key]
+            assert got == (None if choice == "null" else choice)
+    assert "null" in space["method.params.rotation"].choices
+
+
+def test_full_preset_lands_in_the_benchmarks_portrait_panel():
+    """The report draws the search's front beside the grid's when both share a ranking
+    group (scene, scale, resolution, profile, stages): the preset's are the default
+    benchmark's face_portrait point's."""
+    from sssbench.app import compose_spec
+
+    search = compose_spec("+experiment=optuna")
+    grid = compose_spec("+experiment=benchmark", "scene=face_portrait")
+    for key in ("scene", "scene_params", "resolution", "profile", "stages", "repeats", "budget"):
+        assert getattr(search, key) == getattr(grid, key), key
+    assert "face_portrait" in _preset_sweeper("benchmark").sweeper.params.scene
