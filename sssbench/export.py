@@ -176,7 +176,7 @@ def shader_order(kernel: Kernel1D) -> tuple[list[int], bool]:
     offsets = kernel.offsets.double()
     k = len(kernel)
     i = int(offsets.abs().argmin())
-    if float(offsets[i].abs()) <= _CENTRE_TOL * max(kernel.extent, 1e-300) or k == 1:
+    if float(offsets[i].abs()) <= _CENTRE_TOL * kernel.extent:
         return [i, *[j for j in range(k) if j != i]], True
     return list(range(k)), False
 
@@ -214,6 +214,14 @@ def shader_source(
         f"// {len(kernels)} kernel(s); {vec4}(r, g, b, w): per-channel weights and the offset",
         f"// w = 1.5 * offset_mm / sssWidth with sssWidth = {_num(sss_width_mm)} mm: the pass",
         "// steps w * sssWidth * distToProjWindow / depth * dir / 3 texture units (SSSSBlurPS).",
+        *(
+            [
+                "// float4 kernel[] = {...} as in SeparableSSS.h; outside an effect file make it",
+                "// static const (a plain global is a uniform: its initialiser is not applied).",
+            ]
+            if language == "hlsl"
+            else []
+        ),
         "",
     ]
     single = len(kernels) == 1
@@ -241,6 +249,10 @@ def shader_source(
     return "\n".join(lines)
 
 
+def _dtype_name(t: torch.Tensor) -> str:
+    return str(t.dtype).removeprefix("torch.")
+
+
 def kernels_json(
     kernels: Sequence[NamedKernel], sss_width_mm: float, *, meta: dict[str, Any] | None = None
 ) -> str:
@@ -256,7 +268,8 @@ def kernels_json(
             {
                 "name": nk.name,
                 "unit_mm": nk.unit_mm,
-                "dtype": str(nk.kernel.offsets.dtype).removeprefix("torch."),
+                "offsets_dtype": _dtype_name(nk.kernel.offsets),
+                "weights_dtype": _dtype_name(nk.kernel.weights),
                 "offsets": nk.kernel.offsets.tolist(),
                 "weights": nk.kernel.weights.tolist(),
                 "shader_order": shader_order(nk.kernel)[0],
@@ -279,9 +292,9 @@ def load_kernels(source: str | Path) -> list[NamedKernel]:
         raise ValueError(f"source must be sssbench kernel JSON (format {_JSON_FORMAT!r})")
     out = []
     for k in payload["kernels"]:
-        dtype = getattr(torch, k.get("dtype", "float64"))
         kernel = Kernel1D(
-            torch.tensor(k["offsets"], dtype=dtype), torch.tensor(k["weights"], dtype=dtype)
+            torch.tensor(k["offsets"], dtype=getattr(torch, k["offsets_dtype"])),
+            torch.tensor(k["weights"], dtype=getattr(torch, k["weights_dtype"])),
         )
         out.append(NamedKernel(k["name"], kernel, float(k["unit_mm"]), dict(k.get("extras", {}))))
     return out

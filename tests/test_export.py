@@ -24,7 +24,9 @@ _NUM = r"[-+0-9.eE]+"
 
 def parse_arrays(text: str, language: str) -> dict[str, torch.Tensor]:
     """Every ``float4 name[] = {...};`` (HLSL) or ``const vec4 name[N] = vec4[N](...);``
-    (GLSL) array as a ``(K, 4)`` float64 tensor, in file order of its taps."""
+    (GLSL) array as a ``(K, 4)`` float64 tensor, in file order of its taps (comments
+    skipped, as the compiler does)."""
+    text = re.sub(r"//[^\n]*", "", text)
     if language == "hlsl":
         arrays = re.findall(r"float4\s+(\w+)\[\]\s*=\s*\{(.*?)\};", text, re.S)
         item = r"float4\(([^)]*)\)"
@@ -211,3 +213,25 @@ def test_library_errors_name_the_argument():
         load_kernels('{"kernels": []}')
     with pytest.raises(ValueError, match="invalid JSON"):
         load_kernels("not json")
+
+
+def test_centre_first_then_ascending_as_the_shader_builder():
+    """SeparableSSS.h's kernel builder moves the 0 offset to the front and keeps the others
+    in ascending order (002 appendix: kernel[0] is the unshifted centre sample)."""
+    from sssbench.export import NamedKernel, shader_order
+    from sssbench.kernels import Kernel1D
+
+    w = torch.tensor([[0.1] * 3, [0.2] * 3, [0.4] * 3, [0.2] * 3, [0.1] * 3], dtype=torch.float64)
+    k = Kernel1D(torch.tensor([-2.0, -1.0, 0.0, 1.0, 2.0], dtype=torch.float64), w)
+    assert shader_order(k) == ([2, 0, 1, 3, 4], True)
+    even = Kernel1D(torch.tensor([-1.5, -0.5, 0.5, 1.5]), torch.full((4, 3), 0.25))
+    assert shader_order(even) == ([0, 1, 2, 3], False)
+    one = Kernel1D(torch.zeros(1), torch.ones(1, 3))
+    rows = parse_arrays(shader_source([NamedKernel("one", one)], "glsl", 1.0), "glsl")["kernel"]
+    assert rows.tolist() == [[1.0, 1.0, 1.0, 0.0]]
+    # mixed dtypes survive the JSON round trip
+    mixed = Kernel1D(torch.tensor([-1.0, 0.0, 1.0], dtype=torch.float64), torch.full((3, 3), 1 / 3))
+    (back,) = load_kernels(kernels_json([NamedKernel("m", mixed)], 1.0))
+    assert back.kernel.weights.dtype == torch.float32
+    assert torch.equal(back.kernel.weights, mixed.weights)
+    assert torch.equal(back.kernel.offsets, mixed.offsets)
