@@ -308,14 +308,14 @@ OBJECTIVES = ("rel_rms", "time_ms")
 
 
 def objectives(store: str | Path, config_hash: str) -> tuple[float, ...] | None:
-    """:data:`OBJECTIVES` of the newest stored run of ``config_hash`` if it is ``ok`` (a point
-    a search proposes again, or one stored by an earlier sweep, is skipped by the runner and
-    answered from the store), else ``None``."""
-    for row in RunStore(Path(store)).runs(latest=True, status="ok"):
-        if row["config_hash"] == config_hash:
-            values = {**row["metrics"], "time_ms": row["time_ms"]}
-            return tuple(float(values[k]) for k in OBJECTIVES)
-    return None
+    """:data:`OBJECTIVES` of the newest ``ok`` run of ``config_hash`` in ``store`` (a point a
+    search proposes again, or one stored by an earlier sweep, is skipped by the runner — which
+    skips a point with any ``ok`` run — and answered from the store), ``None`` without one."""
+    rows = [r for r in RunStore(Path(store)).runs(status="ok") if r["config_hash"] == config_hash]
+    if not rows:
+        return None
+    values = {**rows[-1]["metrics"], "time_ms": rows[-1]["time_ms"]}  # oldest first
+    return tuple(float(values[k]) for k in OBJECTIVES)
 
 
 def _returns_objectives(hc: Any) -> bool:

@@ -646,12 +646,13 @@ def _plot_error_vs_time(table: pd.DataFrame, path: Path) -> Path | None:
         Line2D([], [], ls="", marker=_marker(s), color="0.4", label=f"{s} sampling")
         for s in samplings
     ]
-    handles += [
-        Line2D([], [], color="k", alpha=0.6, label="Pareto front" + " (grid)" * searched),
-        *[
+    front_label = "Pareto front (grid)" if searched else "Pareto front"
+    handles.append(Line2D([], [], color="k", alpha=0.6, label=front_label))
+    if searched:
+        handles.append(
             Line2D([], [], color=SEARCH_COLOUR, ls="--", alpha=0.6, label="Optuna trials' front")
-            for _ in range(searched)
-        ],
+        )
+    handles += [
         Line2D([], [], color="0.3", ls="--", label="doing nothing"),
         Line2D(
             [],
