@@ -37,6 +37,7 @@ __all__ = [
     "compose_spec",
     "expand_grid",
     "preset_grid",
+    "preset_hydra",
     "spec_from_cfg",
     "task",
     "OBJECTIVES",
@@ -267,11 +268,11 @@ def expand_grid(params: dict[str, str]) -> list[list[str]]:
     return [list(c) for c in itertools.product(*axes)]
 
 
-def preset_grid(preset: str, *overrides: str) -> list[list[str]]:
-    """The override lists of the jobs of ``sssbench -m +experiment=<preset> <overrides>``."""
+def preset_hydra(preset: str) -> Any:
+    """Hydra's own config (``cfg.hydra``: sweeper, launcher, callbacks) under
+    ``+experiment=<preset>``."""
     from hydra import compose, initialize_config_dir
     from hydra.core.global_hydra import GlobalHydra
-    from omegaconf import OmegaConf
 
     if GlobalHydra.instance().is_initialized():
         GlobalHydra.instance().clear()
@@ -281,7 +282,14 @@ def preset_grid(preset: str, *overrides: str) -> list[list[str]]:
             overrides=["store=x", f"+experiment={preset}"],
             return_hydra_config=True,
         )
-    params = OmegaConf.to_container(cfg.hydra.sweeper.params) or {}
+    return cfg.hydra
+
+
+def preset_grid(preset: str, *overrides: str) -> list[list[str]]:
+    """The override lists of the jobs of ``sssbench -m +experiment=<preset> <overrides>``."""
+    from omegaconf import OmegaConf
+
+    params = OmegaConf.to_container(preset_hydra(preset).sweeper.params) or {}
     for o in overrides:
         key, value = o.split("=", 1)
         params[key.lstrip("+")] = value

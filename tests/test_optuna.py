@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from sssbench.app import OBJECTIVES
+from sssbench.app import OBJECTIVES, preset_hydra
 from sssbench.report import load_runs, run_sweeper, search_fronts, summary_table, write_report
 
 REPO = Path(__file__).resolve().parents[1]
@@ -141,23 +141,6 @@ def test_report_draws_both_fronts(searched, monkeypatch):
     assert len(red) == len(fronts["optuna"])
 
 
-def _preset_sweeper(preset: str):
-    from hydra import compose, initialize_config_dir
-    from hydra.core.global_hydra import GlobalHydra
-
-    from sssbench.app import CONF_DIR
-
-    GlobalHydra.instance().clear()
-    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
-        cfg = compose(
-            config_name="config",
-            overrides=["store=x", f"+experiment={preset}"],
-            return_hydra_config=True,
-        )
-    GlobalHydra.instance().clear()
-    return cfg.hydra
-
-
 @pytest.mark.parametrize("preset", ["optuna", "optuna_quick"])
 def test_preset_search_space_reaches_the_methods_options(preset):
     """Every value of the preset's search space, as the override text the Optuna sweeper
@@ -168,7 +151,7 @@ def test_preset_search_space_reaches_the_methods_options(preset):
 
     from sssbench.app import compose_spec
 
-    hydra = _preset_sweeper(preset)
+    hydra = preset_hydra(preset)
     assert "OptunaSweeper" in hydra.sweeper._target_
     assert list(hydra.sweeper.direction) == ["minimize"] * len(OBJECTIVES)
     params = [f"{k}={v}" for k, v in hydra.sweeper.params.items()]
@@ -203,4 +186,4 @@ def test_full_preset_lands_in_the_benchmarks_portrait_panel():
     grid = compose_spec("+experiment=benchmark", "scene=face_portrait")
     for key in ("scene", "scene_params", "resolution", "profile", "stages", "repeats", "budget"):
         assert getattr(search, key) == getattr(grid, key), key
-    assert "face_portrait" in _preset_sweeper("benchmark").sweeper.params.scene
+    assert "face_portrait" in preset_hydra("benchmark").sweeper.params.scene
