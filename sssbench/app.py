@@ -37,8 +37,11 @@ __all__ = [
     "compose_spec",
     "expand_grid",
     "preset_grid",
+    "preset_hydra",
     "spec_from_cfg",
     "task",
+    "OBJECTIVES",
+    "objectives",
     "ExitStatusCallback",
     "main",
 ]
@@ -265,11 +268,11 @@ def expand_grid(params: dict[str, str]) -> list[list[str]]:
     return [list(c) for c in itertools.product(*axes)]
 
 
-def preset_grid(preset: str, *overrides: str) -> list[list[str]]:
-    """The override lists of the jobs of ``sssbench -m +experiment=<preset> <overrides>``."""
+def preset_hydra(preset: str) -> Any:
+    """Hydra's own config (``cfg.hydra``: sweeper, launcher, callbacks) under
+    ``+experiment=<preset>``."""
     from hydra import compose, initialize_config_dir
     from hydra.core.global_hydra import GlobalHydra
-    from omegaconf import OmegaConf
 
     if GlobalHydra.instance().is_initialized():
         GlobalHydra.instance().clear()
@@ -279,7 +282,14 @@ def preset_grid(preset: str, *overrides: str) -> list[list[str]]:
             overrides=["store=x", f"+experiment={preset}"],
             return_hydra_config=True,
         )
-    params = OmegaConf.to_container(cfg.hydra.sweeper.params) or {}
+    return cfg.hydra
+
+
+def preset_grid(preset: str, *overrides: str) -> list[list[str]]:
+    """The override lists of the jobs of ``sssbench -m +experiment=<preset> <overrides>``."""
+    from omegaconf import OmegaConf
+
+    params = OmegaConf.to_container(preset_hydra(preset).sweeper.params) or {}
     for o in overrides:
         key, value = o.split("=", 1)
         params[key.lstrip("+")] = value
@@ -299,8 +309,34 @@ def _overridden() -> tuple[str, ...]:
     return tuple(keys)
 
 
-def task(cfg: Any) -> str:
-    """The Hydra task function: one run. Failures are recorded, never raised."""
+#: what the app returns to a search that minimises the task's return values (Hydra's Optuna
+#: sweeper, ``conf/experiment/optuna.yaml``), in the order of its ``direction`` list: the run's
+#: relative RMS error against the exact reference and its time (ms, sum of the pass medians)
+OBJECTIVES = ("rel_rms", "time_ms")
+
+
+def objectives(store: str | Path, config_hash: str) -> tuple[float, ...] | None:
+    """:data:`OBJECTIVES` of the newest ``ok`` run of ``config_hash`` in ``store`` (a point a
+    search proposes again, or one stored by an earlier sweep, is skipped by the runner — which
+    skips a point with any ``ok`` run — and answered from the store), ``None`` without one."""
+    rows = [r for r in RunStore(Path(store)).runs(status="ok") if r["config_hash"] == config_hash]
+    if not rows:
+        return None
+    values = {**rows[-1]["metrics"], "time_ms": rows[-1]["time_ms"]}  # oldest first
+    return tuple(float(values[k]) for k in OBJECTIVES)
+
+
+def _returns_objectives(hc: Any) -> bool:
+    """Whether the sweeper uses the task's return value as objectives (Optuna's)."""
+    return "optuna" in str(hc.sweeper.get("_target_", "")).lower()
+
+
+def task(cfg: Any) -> str | tuple[float, ...]:
+    """The Hydra task function: one run. Failures are recorded, never raised.
+
+    Returns the run's status, or under a search that minimises return values (Optuna) the
+    run's :data:`OBJECTIVES` (the status when the run failed: the sweeper records a failed
+    trial and goes on, ``max_failure_rate`` permitting)."""
     from hydra.core.hydra_config import HydraConfig
     from hydra.types import RunMode
 
@@ -328,6 +364,8 @@ def task(cfg: Any) -> str:
         _STATE["failed"] += 1
     if not multirun:
         print(f"sssbench: {outcome.status}; output in {run_dir.resolve()}", flush=True)
+    if _returns_objectives(hc) and outcome.status in ("ok", "skipped"):
+        return objectives(spec.store, outcome.config_hash) or outcome.status
     return outcome.status
 
 
@@ -448,8 +486,10 @@ def _sweep_mirror(config: Any) -> Any:
 
 def _sweep_size(config: Any) -> int:
     """Number of jobs of a basic-sweeper grid (0 when unknown): the preset's sweeper params
-    and the command line's swept overrides (``a,b``, ``glob(...)``)."""
+    and the command line's swept overrides (``a,b``, ``glob(...)``); a search's ``n_trials``."""
     try:
+        if "n_trials" in config.hydra.sweeper:  # a search (Optuna): its number of trials
+            return int(config.hydra.sweeper.n_trials)
         params = {str(k): str(v) for k, v in dict(config.hydra.sweeper.get("params") or {}).items()}
         for o in config.hydra.overrides.task:
             key, _, value = str(o).partition("=")

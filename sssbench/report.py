@@ -7,7 +7,8 @@
 * ``summary.md`` — per scene, a method table with the error metrics, time, samples and passes;
 * ``error_vs_time.png`` — per scene, run time (log) against relative RMS error (log), each
   method a colour, the Pareto front (no other point is both faster and more accurate) drawn
-  as a step line through ringed points;
+  as a step line through ringed points; the trials of an Optuna search (``+experiment=optuna``)
+  get their own front (red, dashed) beside the grid's (:func:`search_fronts`);
 * ``pass_times.png`` — a stacked bar per method of its median pass times (mean over its points):
   where each method spends its time.
 
@@ -35,6 +36,8 @@ __all__ = [
     "load_runs",
     "summary_table",
     "pareto_front",
+    "run_sweeper",
+    "search_fronts",
     "write_report",
     "Report",
     "ReportCallback",
@@ -359,6 +362,47 @@ def pareto_front(time_ms: list[float], error: list[float]) -> list[int]:
     return front
 
 
+# ----------------------------------------------------------------------------- searches
+#: the sweeper whose trials the error-versus-time plot draws with their own Pareto front
+SEARCH = "optuna"
+
+
+def run_sweeper(run_dir: str | None) -> str | None:
+    """The Hydra sweeper that launched the run in ``run_dir`` (``basic`` for a grid job,
+    ``optuna`` for a trial of an Optuna search), read from the ``.hydra/hydra.yaml`` Hydra
+    writes into every job's directory; ``None`` for a single run, a run of the experiments'
+    own grids (no Hydra job) or a directory that is gone."""
+    import yaml
+
+    if not isinstance(run_dir, str):
+        return None
+    try:
+        text = (Path(run_dir) / ".hydra" / "hydra.yaml").read_text()
+        hydra = yaml.load(text, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))["hydra"]
+        if hydra.get("mode") != "MULTIRUN":
+            return None
+        return str(hydra["runtime"]["choices"]["hydra/sweeper"])
+    except (OSError, yaml.YAMLError, KeyError, TypeError):
+        return None
+
+
+def search_fronts(group: pd.DataFrame) -> dict[str, pd.DataFrame]:
+    """The Pareto fronts of (time, rel_rms) of one ranking group, fastest first: ``"grid"``
+    over its ranked points (:func:`_candidates`) that are not trials of an Optuna search, and
+    ``"optuna"`` over those that are (:func:`run_sweeper`); a front without points is left
+    out. Without trials, the grid front is the group's ``pareto`` flags (:func:`annotate`)."""
+    ranked = _candidates(group)
+    trial = ranked["run_dir"].map(lambda d: run_sweeper(d) == SEARCH).astype(bool)
+    fronts = {}
+    for name, part in (("grid", ranked[~trial]), (SEARCH, ranked[trial])):
+        if part.empty:
+            continue
+        times = part["time_ms"].astype(float).fillna(math.inf).tolist()
+        front = pareto_front(times, part[PLOT_METRIC].astype(float).tolist())
+        fronts[name] = part.iloc[front]
+    return fronts
+
+
 # ----------------------------------------------------------------------------- writing
 def _fmt(value: Any) -> str:
     if value is None or value is pd.NA or (isinstance(value, float) and math.isnan(value)):
@@ -452,6 +496,8 @@ def summary_markdown(table: pd.DataFrame, source: str) -> str:
     return "\n".join(parts) + "\n"
 
 
+#: colour of the Optuna trials' Pareto front
+SEARCH_COLOUR = "tab:red"
 #: marker per sampling rule (the same in every plot)
 MARKERS = {"importance": "o", "uniform": "s", "power": "^", None: "D"}
 
@@ -507,6 +553,7 @@ def _plot_error_vs_time(table: pd.DataFrame, path: Path) -> Path | None:
     colours = {m: plt.get_cmap("tab10")(i % 10) for i, m in enumerate(methods)}
     groups = list(ok.groupby(group_keys(ok), dropna=False, sort=True))
     fig, axes = _panels(len(groups))
+    searched = False  # some panel has Optuna trials
     for ax, (key, sub) in zip(axes, groups, strict=True):
         info = dict(zip(group_keys(ok), key, strict=True))
         sub = sub.reset_index()
@@ -571,12 +618,13 @@ def _plot_error_vs_time(table: pd.DataFrame, path: Path) -> Path | None:
                 fontsize=6,
                 ha="right",
             )
-        front = sub[sub["pareto"].astype(bool)].sort_values("time_ms")
-        if len(front):
+        for name, front in search_fronts(sub).items():  # the grid's and the search's
+            searched |= name == SEARCH
+            colour, ls = ("k", "-") if name == "grid" else (SEARCH_COLOUR, "--")
             ft = [max(float(t), tmin / 3) for t in front["time_ms"]]
             fe = [max(float(e), floor) for e in front[PLOT_METRIC]]
-            ax.step(ft, fe, where="post", color="k", lw=1, alpha=0.6, zorder=2)
-            ax.scatter(ft, fe, s=120, facecolors="none", edgecolors="k", zorder=4)
+            ax.step(ft, fe, where="post", color=colour, ls=ls, lw=1, alpha=0.6, zorder=2)
+            ax.scatter(ft, fe, s=120, facecolors="none", edgecolors=colour, zorder=4)
         ax.set_xscale("log")
         ax.set_yscale("log")
         lo_t, hi_t = ax.get_xlim()
@@ -598,8 +646,13 @@ def _plot_error_vs_time(table: pd.DataFrame, path: Path) -> Path | None:
         Line2D([], [], ls="", marker=_marker(s), color="0.4", label=f"{s} sampling")
         for s in samplings
     ]
+    front_label = "Pareto front (grid)" if searched else "Pareto front"
+    handles.append(Line2D([], [], color="k", alpha=0.6, label=front_label))
+    if searched:
+        handles.append(
+            Line2D([], [], color=SEARCH_COLOUR, ls="--", alpha=0.6, label="Optuna trials' front")
+        )
     handles += [
-        Line2D([], [], color="k", alpha=0.6, label="Pareto front"),
         Line2D([], [], color="0.3", ls="--", label="doing nothing"),
         Line2D(
             [],

@@ -1,0 +1,381 @@
+"""``sssbench-export-kernel``: a method's 1D kernels as JSON or as HLSL / GLSL arrays.
+
+A separable method's taps (:class:`~sssbench.kernels.Kernel1D`) are what a renderer needs to
+reproduce it: this module collects every kernel a method's passes use (:func:`method_kernels`,
+each named after its passes), writes them for a shader (:func:`shader_source`) or as JSON
+(:func:`kernels_json`, read back exactly by :func:`load_kernels`), and is the console script::
+
+    sssbench-export-kernel method=preintegrated profile=skin_deon6 samples=7 \\
+        sampling=importance --format hlsl --out kernel.hlsl
+
+The method is composed exactly as the app composes a run (:func:`sssbench.app.compose_spec`,
+:func:`sssbench.registry.build_method`), so the defaults are the app's.
+
+Shader conventions (transcribed from the separable SSS shader ``SSSSBlurPS``, 002 appendix,
+the shader of ``SeparableSSS.h``):
+
+- one ``float4`` per tap: ``rgb`` the per-channel weight, ``w`` (``.a``) the offset;
+- the centre tap (offset 0) comes first: the shader weights the unshifted centre colour by
+  ``kernel[0].rgb`` and loops over ``i = 1 .. N-1`` for the shifted taps (the kernel builder of
+  ``SeparableSSS.h`` moves the 0 offset to the front the same way); the other taps follow in
+  ascending order. A kernel without a centre tap (an even tap count) keeps ascending order and
+  says so in the file: such a kernel needs a loop over all taps (004 Fig. 3.6);
+- offset units: the shader steps ``kernel[i].a * sssWidth * (distToProjWindow / depth) / 3``
+  texture coordinates ("divide by 3 as the kernels range from -3 to 3", 002 appendix). A
+  texture coordinate spans the whole projection window, twice its half-height, so a tap lands
+  ``w · sssWidth · 2/3`` world units away along the vertical axis (the mapping
+  :func:`sssbench.kernels.jimenez2012` documents). The file therefore writes
+  ``w = 1.5 · offset_mm / sss_width_mm`` and names the ``sssWidth`` (mm) to set. The default
+  ``sss_width_mm``: the 2012 method's own ``width`` (then ``w`` is exactly the 2012 kernel
+  builder's offset, range ±2, or ±3 above 20 taps); otherwise half the largest offset in mm,
+  so the widest tap sits at ``|w| = 3``, the listing's range. ``--sss-width 1.5`` writes
+  ``w`` in mm. If the scene's world unit is not the mm, multiply ``sssWidth`` by the world
+  units per mm.
+
+The JSON file keeps each :class:`Kernel1D` exactly (offsets in the kernel's own unit, and
+``unit_mm``, the mm per offset unit: 1 for every method but the 2012 one, whose offsets are in
+widths); :func:`load_kernels` reads it back bit for bit.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import nn
+
+from sssbench._checks import check_choice, check_magnitude
+from sssbench.kernels.kernel1d import Kernel1D
+
+__all__ = [
+    "FORMATS",
+    "NamedKernel",
+    "method_kernels",
+    "shader_order",
+    "shader_source",
+    "kernels_json",
+    "load_kernels",
+    "build_from_overrides",
+    "main",
+]
+
+#: output formats of the console script
+FORMATS = ("hlsl", "glsl", "json")
+#: printf format of every number in the shader arrays: 9 significant digits round-trip a
+#: float32 exactly (and leave a float64 within 5e-9 relative)
+NUMBER = "%.9g"
+#: the shader's kernel range (002 appendix: "the kernels range from -3 to 3")
+SHADER_RANGE = 3.0
+#: world units per unit of ``w · sssWidth`` (see the module doc: ``/3`` in texture
+#: coordinates, which span 2 half-heights of the projection window)
+_WORLD_PER_W = 2.0 / 3.0
+#: an offset within this fraction of the kernel's extent counts as the centre tap
+_CENTRE_TOL = 1e-9
+_JSON_FORMAT = "sssbench-kernels/1"
+
+
+@dataclass(frozen=True)
+class NamedKernel:
+    """One kernel of a method, named after the passes that apply it.
+
+    Attributes:
+        name: the pass name without its axis (``preintegrated``, ``sog2``) or with it when
+            the two axes differ (``low_rank0.x``, ``low_rank0.y``).
+        kernel: the taps (offsets in units of ``unit_mm`` mm, weights ``(K, 3)``).
+        unit_mm: mm per offset unit (1, or the 2012 method's ``width``).
+        extras: per-channel constants the shader needs beside the taps, e.g. the sum of
+            Gaussians' blend factor ``w'_i`` (003 §7.3.3) as ``{"blend": [r, g, b]}``.
+    """
+
+    name: str
+    kernel: Kernel1D
+    unit_mm: float = 1.0
+    extras: dict[str, list[float]] = field(default_factory=dict)
+
+    @property
+    def offsets_mm(self) -> torch.Tensor:
+        """``(K,)`` float64 offsets in mm."""
+        return self.kernel.offsets.double() * self.unit_mm
+
+
+# ----------------------------------------------------------------------------- collecting
+def method_kernels(method: nn.Module, name: str | None = None) -> list[NamedKernel]:
+    """Every 1D kernel the passes of ``method`` apply, in pass order.
+
+    - pre-integrated, artist, 2012 and any other :class:`~sssbench.ops.SeparableMethod`
+      whose ``kernel`` is a :class:`Kernel1D`: one kernel, both axes (named after the method);
+    - sum of Gaussians: one kernel per blurred Gaussian step ``sog<i>`` (the increment's
+      taps, 003 §7.3.3) with its blend factor; the unblurred first step has no pass and no
+      kernel;
+    - SVD rank-N: per term ``low_rank<i>.x`` (horizontal) and ``low_rank<i>.y`` (vertical).
+
+    Args:
+        method: the operator (e.g. from :func:`sssbench.registry.build_method`).
+        name: the method's name in messages (default: its class name).
+
+    Raises:
+        ValueError: a method without separable 1D kernels (the exact reference, the identity,
+            the 2D disk), naming it and why.
+    """
+    from sssbench.ops import Jimenez2012SSS, LowRankSSS, SeparableMethod, SumOfGaussiansSSS
+
+    kind = type(method).__name__
+    if isinstance(method, SumOfGaussiansSSS):
+        return [
+            NamedKernel(f"sog{i}", s.kernel, extras={"blend": s.blend.double().tolist()})
+            for i, s in enumerate(method.steps)
+            if s.kernel is not None
+        ]
+    if isinstance(method, LowRankSSS):
+        out = []
+        for i, (h, v) in enumerate(method.kernel.terms):
+            out += [NamedKernel(f"low_rank{i}.x", h), NamedKernel(f"low_rank{i}.y", v)]
+        return out
+    kernel = getattr(method, "kernel", None)
+    if isinstance(method, SeparableMethod) and isinstance(kernel, Kernel1D):
+        # the 2012 kernel's offsets are in widths; its passes run at width = `width` mm
+        unit = float(method.width) if isinstance(method, Jimenez2012SSS) else 1.0
+        name = re.sub(r"(?<!^)(?=[A-Z])", "_", kind.removesuffix("SSS")).lower()
+        return [NamedKernel(name, kernel, unit)]
+    why = {
+        "ReferenceSSS": "it integrates the full 2D profile per pixel (the exact reference)",
+        "IdentitySSS": "it does nothing (the do-nothing baseline)",
+        "DiskSSS": "it samples a 2D disk per pixel in one gather pass",
+    }.get(kind, "it is not a separable method with Kernel1D taps")
+    raise ValueError(
+        f"method {name or kind} has no separable kernel to export: {why}; the separable "
+        "methods are "
+        "preintegrated, sum_of_gaussians, low_rank, artist and jimenez2012"
+    )
+
+
+def default_sss_width(kernels: Sequence[NamedKernel], method: nn.Module | None = None) -> float:
+    """The ``sssWidth`` (mm) written by default: the 2012 method's ``width``, else half the
+    largest offset in mm, so the widest tap is at ``|w| = 3`` (the shader's range)."""
+    from sssbench.ops import Jimenez2012SSS
+
+    if isinstance(method, Jimenez2012SSS):
+        return float(method.width)
+    extent = max(float(k.offsets_mm.abs().max()) for k in kernels)
+    return 1.5 * extent / SHADER_RANGE if extent > 0 else 1.5  # |w| = 1.5 · extent / sssWidth
+
+
+def shader_order(kernel: Kernel1D) -> tuple[list[int], bool]:
+    """Tap indices in the shader's order and whether the first is the centre tap.
+
+    The tap with offset 0 (to ``1e-9`` of the extent: placement rules may leave a rounding
+    residue like 5.6e-16 mm) comes first, the others follow ascending (002 appendix,
+    ``SeparableSSS.h``'s kernel builder); without a centre tap the order stays ascending."""
+    offsets = kernel.offsets.double()
+    k = len(kernel)
+    i = int(offsets.abs().argmin())
+    if float(offsets[i].abs()) <= _CENTRE_TOL * kernel.extent:
+        return [i, *[j for j in range(k) if j != i]], True
+    return list(range(k)), False
+
+
+# ----------------------------------------------------------------------------- writing
+def _identifier(name: str, single: bool) -> str:
+    return "kernel" if single else "kernel_" + re.sub(r"[^0-9A-Za-z_]", "_", name)
+
+
+def _num(x: float) -> str:
+    return NUMBER % x
+
+
+def shader_source(
+    kernels: Sequence[NamedKernel],
+    language: str,
+    sss_width_mm: float,
+    *,
+    header: str = "",
+) -> str:
+    """HLSL or GLSL source: per kernel, ``<N>`` taps as ``float4(r, g, b, w)`` (HLSL
+    ``float4 kernel[] = {...};``, as in ``SeparableSSS.h``) or ``vec4`` (GLSL
+    ``const vec4 kernel[N] = vec4[N](...);``), centre tap first (:func:`shader_order`), ``w``
+    the offset in the shader's units for ``sssWidth = sss_width_mm`` (module doc). One
+    kernel is named ``kernel``; several ``kernel_<name>``, each with its ``*_N_SAMPLES``
+    define and its extras (``float3`` / ``vec3`` constants)."""
+    language = str(check_choice("language", language, ("hlsl", "glsl")))
+    sss_width_mm = check_magnitude("sss_width_mm", sss_width_mm, "length")
+    if not kernels:
+        raise ValueError("kernels must hold at least one NamedKernel, got none")
+    vec4, vec3 = ("float4", "float3") if language == "hlsl" else ("vec4", "vec3")
+    scale = 1.0 / (_WORLD_PER_W * sss_width_mm)  # w per mm
+    lines = [f"// {line}" if line else "//" for line in header.splitlines()]
+    lines += [
+        f"// {len(kernels)} kernel(s); {vec4}(r, g, b, w): per-channel weights and the offset",
+        f"// w = 1.5 * offset_mm / sssWidth with sssWidth = {_num(sss_width_mm)} mm: the pass",
+        "// steps w * sssWidth * distToProjWindow / depth * dir / 3 texture units (SSSSBlurPS).",
+        *(
+            [
+                "// float4 kernel[] = {...} as in SeparableSSS.h; outside an effect file make it",
+                "// static const (a plain global is a uniform: its initialiser is not applied).",
+            ]
+            if language == "hlsl"
+            else []
+        ),
+        "",
+    ]
+    single = len(kernels) == 1
+    for nk in kernels:
+        ident = _identifier(nk.name, single)
+        order, centred = shader_order(nk.kernel)
+        w = (nk.offsets_mm * scale).tolist()
+        weights = nk.kernel.weights.double().tolist()
+        n = len(order)
+        lines.append(f"// {nk.name}: {n} taps, offsets {_num(nk.unit_mm)} mm per kernel unit")
+        if not centred:
+            lines.append("// no centre tap: loop over all taps (i = 0 .. N-1), not from 1")
+        lines.append(f"#define {ident.upper()}_N_SAMPLES {n}")
+        for key, values in nk.extras.items():
+            args = ", ".join(_num(v) for v in values)
+            const = "static const" if language == "hlsl" else "const"
+            lines.append(f"{const} {vec3} {ident}_{key} = {vec3}({args});")
+        taps = [f"{vec4}({', '.join(_num(v) for v in (*weights[j], w[j]))})" for j in order]
+        body = ",\n".join(f"    {t}" for t in taps)
+        if language == "hlsl":
+            lines.append(f"float4 {ident}[] = {{\n{body}\n}};")
+        else:
+            lines.append(f"const vec4 {ident}[{n}] = vec4[{n}](\n{body}\n);")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def _dtype_name(t: torch.Tensor) -> str:
+    return str(t.dtype).removeprefix("torch.")
+
+
+def kernels_json(
+    kernels: Sequence[NamedKernel], sss_width_mm: float, *, meta: dict[str, Any] | None = None
+) -> str:
+    """The kernels as JSON: per kernel its name, ``unit_mm``, offsets and ``(K, 3)`` weights
+    exactly as the :class:`Kernel1D` holds them (ascending), extras, plus the shader's
+    ``sss_width_mm`` and the centre-first tap order (``shader_order``)."""
+    sss_width_mm = check_magnitude("sss_width_mm", sss_width_mm, "length")
+    payload = {
+        "format": _JSON_FORMAT,
+        **(meta or {}),
+        "sss_width_mm": sss_width_mm,
+        "kernels": [
+            {
+                "name": nk.name,
+                "unit_mm": nk.unit_mm,
+                "offsets_dtype": _dtype_name(nk.kernel.offsets),
+                "weights_dtype": _dtype_name(nk.kernel.weights),
+                "offsets": nk.kernel.offsets.tolist(),
+                "weights": nk.kernel.weights.tolist(),
+                "shader_order": shader_order(nk.kernel)[0],
+                "extras": nk.extras,
+            }
+            for nk in kernels
+        ],
+    }
+    return json.dumps(payload, indent=1) + "\n"
+
+
+def load_kernels(source: str | Path) -> list[NamedKernel]:
+    """The kernels of a JSON file written by :func:`kernels_json` (a path, or the text)."""
+    text = Path(source).read_text() if isinstance(source, Path) else source
+    try:
+        payload = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"source must be sssbench kernel JSON, got invalid JSON: {exc}") from None
+    if not isinstance(payload, dict) or payload.get("format") != _JSON_FORMAT:
+        raise ValueError(f"source must be sssbench kernel JSON (format {_JSON_FORMAT!r})")
+    out = []
+    for k in payload["kernels"]:
+        kernel = Kernel1D(
+            torch.tensor(k["offsets"], dtype=getattr(torch, k["offsets_dtype"])),
+            torch.tensor(k["weights"], dtype=getattr(torch, k["weights_dtype"])),
+        )
+        out.append(NamedKernel(k["name"], kernel, float(k["unit_mm"]), dict(k.get("extras", {}))))
+    return out
+
+
+# ----------------------------------------------------------------------------- command line
+def build_from_overrides(overrides: Sequence[str]) -> tuple[nn.Module, Any]:
+    """The method (and its spec) the app would run for ``overrides`` (``method=...``,
+    ``profile=...``, ``samples=...``, ``sampling=...``, ``method.params.x=...``)."""
+    from sssbench import registry
+    from sssbench.app import check_overrides, compose_spec
+
+    problem = check_overrides(list(overrides))
+    if problem:
+        raise ValueError(problem)
+    spec = compose_spec(*overrides)
+    profile = registry.build_profile(spec.profile, spec.profile_kind, **spec.profile_params)
+    options = {key: getattr(spec, key) for key in ("samples", "sampling", "seed")}
+    return registry.build_method(spec.method, profile, params=spec.method_params, **options), spec
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="sssbench-export-kernel",
+        description="Write a method's 1D kernels as an HLSL / GLSL array (float4(r, g, b, w), "
+        "centre tap first, as the separable SSS shader reads them) or as JSON.",
+        epilog="example: sssbench-export-kernel method=preintegrated profile=skin_deon6 "
+        "samples=7 sampling=importance --format hlsl --out kernel.hlsl",
+    )
+    p.add_argument("overrides", nargs="*", help="the app's key=value overrides")
+    p.add_argument("--format", default="hlsl", help=f"one of {', '.join(FORMATS)}")
+    p.add_argument("--out", default=None, help="output file (default: standard output)")
+    p.add_argument(
+        "--sss-width",
+        type=float,
+        default=None,
+        help="the shader's sssWidth in mm (w = 1.5 * offset_mm / sssWidth); default: the 2012 "
+        "method's width, else half the largest offset (|w| <= 3); 1.5 writes w in mm",
+    )
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Console entry point of ``sssbench-export-kernel``; exit 2 with one line on bad input."""
+    args = _parser().parse_args(argv)
+    try:
+        fmt = str(check_choice("--format", args.format, FORMATS))
+        if args.sss_width is not None:
+            check_magnitude("--sss-width", args.sss_width, "length")
+        method, spec = build_from_overrides(args.overrides)
+        kernels = method_kernels(method, spec.method)
+        if not kernels:
+            raise ValueError(f"method {spec.method} uses no blurred pass with these options")
+        width = args.sss_width or default_sss_width(kernels, method)
+        from sssbench.registry import METHODS
+
+        meta = {
+            "method": spec.method,
+            # parametric kernels (artist, 2012) carry their own profile
+            "profile": spec.profile if METHODS[spec.method].uses_profile else None,
+            "samples": spec.samples,
+            "sampling": spec.sampling,
+            "method_params": spec.method_params,
+        }
+        if fmt == "json":
+            text = kernels_json(kernels, width, meta=meta)
+        else:
+            header = "sssbench-export-kernel " + " ".join(
+                f"{k}={json.dumps(v)}" for k, v in meta.items()
+            )
+            text = shader_source(kernels, fmt, width, header=header)
+    except (ValueError, TypeError) as exc:
+        print(f"sssbench-export-kernel: {exc}", file=sys.stderr)
+        return 2
+    if args.out is None:
+        sys.stdout.write(text)
+    else:
+        Path(args.out).write_text(text)
+        print(f"sssbench-export-kernel: {len(kernels)} kernel(s) written to {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
