@@ -18,8 +18,9 @@ Parametrisation (:class:`SymmetricTaps`), so that every iterate is a valid kerne
 - weights per channel non-negative, normalised and symmetric: a softmax over the taps of
   mirrored logits (``w_{-i} = w_i``, ``Σ w = 1``, as the normalised kernel of 000 eq. 5).
 
-The fit starts from the importance-sampled kernel (000 §7) and keeps the best iterate seen
-(the initialisation included), so the training error never rises above the published rule's.
+The fit starts from the best of the published rules on the training set (importance, 000 §7;
+uniform; power, 002 appendix — at equal taps) and keeps the best iterate seen (the start
+included), so the training error never rises above the best rule's.
 
 Backend: the native gather's backward recomputes the torch loop (see
 :mod:`sssbench.ops._gather_native`), so a training step with the native forward costs a native
@@ -52,7 +53,7 @@ from torch import nn
 
 from sssbench._checks import check_choice, check_int, check_scalar
 from sssbench.kernels.kernel1d import Kernel1D
-from sssbench.kernels.sampling import OPTIMISED
+from sssbench.kernels.sampling import OPTIMISED, SAMPLINGS
 from sssbench.profiles.base import Profile
 
 __all__ = [
@@ -71,6 +72,8 @@ __all__ = [
     "kernel_cache_dir",
     "nearest_footprint",
     "rel_rms_loss",
+    "training_loss",
+    "sss_reference",
 ]
 
 log = logging.getLogger("sssbench")
@@ -84,7 +87,7 @@ MAX_OPTIMISED_TAPS = 33
 #: run's G-buffer: a log grid (ratio ≈ 1.4–1.7), a run uses the nearest (:func:`nearest_footprint`)
 FOOTPRINTS = (0.05, 0.07, 0.1, 0.15, 0.2, 0.3, 0.5, 0.7, 1.0, 1.5, 2.0, 3.0, 5.0)
 #: optimiser defaults (Adam, cosine-decayed learning rate)
-DEFAULT_STEPS = 120
+DEFAULT_STEPS = 100
 DEFAULT_LR = 0.05
 
 
@@ -199,6 +202,11 @@ def rel_rms_loss(
     return ((m * (result - ref) ** 2).sum() / (m * ref * ref).sum()).sqrt()
 
 
+def training_loss(method: nn.Module, problems: Sequence[tuple[Any, torch.Tensor]]) -> torch.Tensor:
+    """Mean over ``(gbuffer, target)`` pairs of :func:`rel_rms_loss` of ``method(gbuffer)``."""
+    return sum(rel_rms_loss(method(g), t, g.mask) for g, t in problems) / len(problems)
+
+
 @dataclass(frozen=True)
 class FitResult:
     """What :func:`fit_taps` returns.
@@ -255,7 +263,7 @@ def fit_taps(
             for step in range(steps + 1):
                 kernel = taps.kernel()
                 method.kernel = kernel
-                loss = sum(rel_rms_loss(method(g), t, g.mask) for g, t in problems) / len(problems)
+                loss = training_loss(method, problems)
                 value = float(loss.detach())
                 losses.append(value)
                 if value < best[0]:
@@ -302,7 +310,7 @@ def cache_key(
         "taps": taps,
         "pixel_mm": pixel_mm,
         "training": [s.describe() for s in training],
-        "init": "importance",
+        "init": "best of " + "/".join(SAMPLINGS),
         "optimiser": {"name": "adam", "steps": steps, "lr": lr},
     }
 
@@ -314,9 +322,10 @@ class OptimisedKernel:
     Attributes:
         kernel: the taps (mm, float64), a normal :class:`Kernel1D`.
         pixel_mm: the footprint it was fitted at (mm per pixel).
-        init_loss, loss: mean training rel RMS of the importance-sampled start and of ``kernel``.
+        init_loss, loss: mean training rel RMS of the start (the best rule) and of ``kernel``.
+        rule_losses: mean training rel RMS of each published rule (:data:`SAMPLINGS`).
         losses: the training loss per step.
-        seconds: wall time of the fit (0 when loaded from the cache... as stored: the fit's).
+        seconds: wall time of the fit (references, rules and steps), as stored with the entry.
         cached: loaded from the disk cache.
         key: :func:`cache_key`.
     """
@@ -325,6 +334,7 @@ class OptimisedKernel:
     pixel_mm: float
     init_loss: float
     loss: float
+    rule_losses: dict[str, float]
     losses: list[float]
     seconds: float
     cached: bool
@@ -349,7 +359,8 @@ def _load(path: Path, key: Mapping[str, Any], pixel_mm: float) -> OptimisedKerne
             torch.tensor(entry["weights"], dtype=torch.float64),
         )
         return OptimisedKernel(
-            kernel, pixel_mm, entry["init_loss"], entry["loss"], entry["losses"],
+            kernel, pixel_mm, entry["init_loss"], entry["loss"], entry["rule_losses"],
+            entry["losses"],
             entry["seconds"], True, dict(key),
         )  # fmt: skip
     except Exception as exc:  # an unreadable entry is recomputed
@@ -365,6 +376,7 @@ def _store(path: Path, result: OptimisedKernel) -> None:
         "key": result.key,
         **result.kernel.as_dict(),
         "init_loss": result.init_loss,
+        "rule_losses": result.rule_losses,
         "loss": result.loss,
         "losses": result.losses,
         "seconds": result.seconds,
@@ -373,9 +385,12 @@ def _store(path: Path, result: OptimisedKernel) -> None:
     os.replace(tmp, path)
 
 
-def _training_reference(scene: TrainingScene, gbuffer: Any, profile: Profile, pixel_mm: float):
-    """The exact SSS-stage reference of a training scene, from the shared reference cache (its
-    own key: the scattered diffuse only, not a pipeline image)."""
+def sss_reference(
+    scene: TrainingScene, gbuffer: Any, profile: Profile, pixel_mm: float
+) -> torch.Tensor:
+    """``ReferenceSSS(profile)(gbuffer)`` for ``gbuffer = scene.build(pixel_mm)``, from the
+    shared reference cache (:mod:`sssbench.refcache`) under its own key: the SSS stage only
+    (the scattered diffuse), not a pipeline image."""
     from sssbench.ops import ReferenceSSS
     from sssbench.refcache import cached_reference, reference_key
 
@@ -414,12 +429,14 @@ def optimise(
 
     Minimises the mean rel RMS of ``PreintegratedSSS(profile, taps, **options)`` against the
     exact reference over ``training`` built at ``pixel_mm`` mm per pixel, starting from the
-    importance-sampled kernel (000 §7). The result is valid for footprints near ``pixel_mm``
-    (the fit sees how the taps fall on pixels of that size); the method's
+    best published rule on the training set (:data:`SAMPLINGS`). The result is valid for
+    footprints near ``pixel_mm`` (the fit sees how the taps fall on pixels of that size); the
+    method's
     ``sampling="optimised"`` uses the kernel fitted at the nearest of :data:`FOOTPRINTS`
     (0.05–5 mm per pixel). Cost: one forward + backward of the method per training scene and
-    step (7 taps, three 96² scenes, 120 steps: about a minute on 2 cores; measured in
-    ``experiments/optimised.py``).
+    step, plus the training references once (cached): 7 taps, the three 96² default scenes,
+    120 steps took 70 s on one torch thread of this 2-core machine shared with other jobs
+    (``experiments/optimised.py`` times the default).
 
     Args:
         profile: the radial profile (its pre-integrated kernel is the starting point and its
@@ -463,14 +480,18 @@ def optimise(
     if cache and (hit := _load(path, key, pixel_mm)) is not None:
         return hit
     start = time.perf_counter()
-    op = PreintegratedSSS(profile, taps, "importance", **options)
     problems = []
     for scene in training:
         g = scene.build(pixel_mm)
-        problems.append((g, _training_reference(scene, g, profile, pixel_mm)))
+        problems.append((g, sss_reference(scene, g, profile, pixel_mm)))
+    ops = {rule: PreintegratedSSS(profile, taps, rule, **options) for rule in SAMPLINGS}
+    with torch.no_grad():
+        rule_losses = {rule: float(training_loss(op, problems)) for rule, op in ops.items()}
+    best_rule = min(rule_losses, key=rule_losses.get)
+    op = ops[best_rule]
     fit = fit_taps(op, problems, op.kernel, steps=steps, lr=lr)
     result = OptimisedKernel(
-        fit.kernel, pixel_mm, fit.losses[0], min(fit.losses), fit.losses,
+        fit.kernel, pixel_mm, fit.losses[0], min(fit.losses), rule_losses, fit.losses,
         time.perf_counter() - start, False, key,
     )  # fmt: skip
     log.info(
