@@ -122,7 +122,7 @@ def test_optimise_caches_on_disk(tmp_path, monkeypatch):
     scenes = (opt.TrainingScene("step_edge", (16, 16)),)
     a = opt.optimise(PROFILE, taps=3, pixel_mm=0.5, training=scenes, steps=2)
     assert not a.cached and a.loss <= a.init_loss
-    assert a.init_loss == min(a.rule_losses.values())  # the fit starts from the best rule
+    assert a.loss <= min(a.rule_losses.values())  # never worse than the best rule (training)
     assert set(a.rule_losses) == {"importance", "uniform", "power"}
     assert list((tmp_path / "kernels").glob("optimised_*.json"))
     b = opt.optimise(PROFILE, taps=3, pixel_mm=0.5, training=scenes, steps=2)
