@@ -92,10 +92,10 @@ MAX_OPTIMISED_TAPS = 33
 #: run's G-buffer: a log grid (ratio ≈ 1.4–1.7), a run uses the nearest (:func:`nearest_footprint`)
 FOOTPRINTS = (0.05, 0.07, 0.1, 0.15, 0.2, 0.3, 0.5, 0.7, 1.0, 1.5, 2.0, 3.0, 5.0)
 #: optimiser defaults (Adam, cosine-decayed learning rate)
-DEFAULT_STEPS = 100
+DEFAULT_STEPS = 60
 DEFAULT_LR = 0.15
 #: steps of the screening run from each published rule (at most ``steps``)
-SCREEN_STEPS = 20
+SCREEN_STEPS = 15
 
 
 # ------------------------------------------------------------------- training scenes
