@@ -42,6 +42,7 @@ changed input can never be served an old kernel.
 
 from __future__ import annotations
 
+import inspect
 import json
 import logging
 import math
@@ -479,8 +480,12 @@ def optimise(
     if not training or not all(isinstance(s, TrainingScene) for s in training):
         raise TypeError("training must be a non-empty sequence of TrainingScene")
     options = dict(options or {})
-    if "sampling" in options or "samples" in options:
-        raise ValueError("options must not set sampling or samples (the fit chooses the taps)")
+    if {"sampling", "samples", "pixel_mm"} & set(options):
+        raise ValueError("options must not set sampling, samples or pixel_mm (the fit's own)")
+    # every option explicit, so that equal methods share one key (defaults filled in)
+    params = inspect.signature(PreintegratedSSS.__init__).parameters
+    skip = ("self", "profile", "samples", "sampling", "pixel_mm")
+    options = {k: p.default for k, p in params.items() if k not in skip} | options
     key = cache_key(profile, method, taps, pixel_mm, training, options, steps, lr)
     path = _cache_path(key, cache_dir)
     if cache and (hit := _load(path, key, pixel_mm)) is not None:

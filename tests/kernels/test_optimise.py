@@ -140,8 +140,7 @@ def test_method_uses_the_kernel_fitted_at_the_runs_footprint(tmp_path, monkeypat
     m = PreintegratedSSS(PROFILE, samples=3, sampling="optimised")
     assert m.kernel is None
     out = m(g)
-    fitted = opt.optimise(PROFILE, taps=3, pixel_mm=0.3, options=dict(
-        follow_surface="lerp", rotation=None, seed=0, halo=None, halo_sigma=None))  # fmt: skip
+    fitted = opt.optimise(PROFILE, taps=3, pixel_mm=0.3)  # the method's options are defaults
     assert fitted.cached  # the method stored the kernel fitted at the nearest grid point, 0.3
     assert torch.equal(m.kernel.offsets, fitted.kernel.offsets)
     assert torch.equal(
