@@ -267,7 +267,8 @@ def fit_taps(
     losses: list[float] = []
     best = (math.inf, init.to(torch.float64), 0)
     try:
-        with backend("torch"), torch.enable_grad():
+        # also inside a caller's no_grad / inference_mode (a method fits on its first call)
+        with backend("torch"), torch.inference_mode(False), torch.enable_grad():
             for step in range(steps + 1):
                 kernel = taps.kernel()
                 method.kernel = kernel
@@ -491,18 +492,19 @@ def optimise(
     if cache and (hit := _load(path, key, pixel_mm)) is not None:
         return hit
     start = time.perf_counter()
-    problems = []
-    for scene in training:
-        g = scene.build(pixel_mm)
-        problems.append((g, sss_reference(scene, g, profile, pixel_mm)))
-    ops = {rule: PreintegratedSSS(profile, taps, rule, **options) for rule in SAMPLINGS}
-    screens = {
-        rule: fit_taps(op, problems, op.kernel, steps=min(SCREEN_STEPS, steps), lr=lr)
-        for rule, op in ops.items()
-    }
-    rule_losses = {rule: fit.losses[0] for rule, fit in screens.items()}
-    chosen = min(screens, key=lambda rule: min(screens[rule].losses))
-    fit = fit_taps(ops[chosen], problems, screens[chosen].kernel, steps=steps, lr=lr)
+    with torch.inference_mode(False):  # scenes and references usable by autograd
+        problems = []
+        for scene in training:
+            g = scene.build(pixel_mm)
+            problems.append((g, sss_reference(scene, g, profile, pixel_mm).clone()))
+        ops = {rule: PreintegratedSSS(profile, taps, rule, **options) for rule in SAMPLINGS}
+        screens = {
+            rule: fit_taps(op, problems, op.kernel, steps=min(SCREEN_STEPS, steps), lr=lr)
+            for rule, op in ops.items()
+        }
+        rule_losses = {rule: fit.losses[0] for rule, fit in screens.items()}
+        chosen = min(screens, key=lambda rule: min(screens[rule].losses))
+        fit = fit_taps(ops[chosen], problems, screens[chosen].kernel, steps=steps, lr=lr)
     result = OptimisedKernel(
         fit.kernel, pixel_mm, min(rule_losses.values()), min(fit.losses), rule_losses,
         fit.losses, time.perf_counter() - start, False, key,
