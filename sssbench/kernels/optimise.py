@@ -537,7 +537,8 @@ def optimise(
         fit.losses, time.perf_counter() - start, False, key,
     )  # fmt: skip
     log.info(
-        "optimised %d-tap kernel at %.3g mm/px: training rel RMS %.4g -> %.4g (%.0f s)",
+        "optimised %d-tap kernel at %.3g mm/px: training loss (rel RMS / best rule's) "
+        "%.4g -> %.4g (%.0f s)",
         taps, pixel_mm, result.init_loss, result.loss, result.seconds,
     )  # fmt: skip
     if cache:
