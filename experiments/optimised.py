@@ -193,7 +193,9 @@ def run(ctx: Context) -> Section:
                 "less error",
             ],
         )  # fmt: skip
-        + "\n\nFits (training rel RMS: the best published rule → optimised; seconds of the fit as "
+        + "\n\nFits (training loss: the mean over the training scenes of the rel RMS divided "
+        "by the best published rule's on that scene, for the best single rule and the fitted "
+        "kernel; seconds of the fit as "
         "stored with the cached kernel; 1 torch thread on a 2-core machine shared with 5 "
         "other jobs, so times are inflated):\n\n"
         + md_table(
