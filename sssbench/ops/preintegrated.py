@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch
 
-from sssbench._checks import check_choice, check_magnitude, check_method_options
+from sssbench._checks import check_choice, check_int, check_magnitude, check_method_options
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.kernel1d import Kernel1D
 from sssbench.kernels.preintegrated import preintegrated
@@ -101,6 +101,10 @@ class PreintegratedSSS(SeparableMethod):
             raise TypeError(f"profile must be a sssbench Profile, got {type(profile).__name__}")
         check_method_options(None, seed)
         check_choice("sampling", sampling, METHOD_SAMPLINGS)
+        if sampling == OPTIMISED:  # fitted kernels stop at MAX_OPTIMISED_TAPS
+            from sssbench.kernels.optimise import MAX_OPTIMISED_TAPS
+
+            check_int("samples (with sampling='optimised')", samples, 1, MAX_OPTIMISED_TAPS)
         if pixel_mm is not None:
             if sampling != OPTIMISED:
                 raise ValueError(

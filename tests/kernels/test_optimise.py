@@ -163,6 +163,8 @@ def test_bad_arguments_are_named():
         PreintegratedSSS(PROFILE, 7, "importance", pixel_mm=0.3)
     with pytest.raises(ValueError, match="sampling"):
         PreintegratedSSS(PROFILE, 7, "learned")
+    with pytest.raises(ValueError, match="samples"):
+        PreintegratedSSS(PROFILE, opt.MAX_OPTIMISED_TAPS + 2, "optimised")
     with pytest.raises(ValueError, match="taps"):
         opt.optimise(PROFILE, taps=opt.MAX_OPTIMISED_TAPS + 1)
     with pytest.raises(ValueError, match="method"):
