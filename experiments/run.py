@@ -35,6 +35,7 @@ EXPERIMENTS = {
     "stability": "experiments.stability",
     "disk": "experiments.disk",
     "mc_profiles": "experiments.mc_profiles",
+    "optimised": "experiments.optimised",
 }
 
 

@@ -16,6 +16,8 @@ from sssbench._checks import check_choice, check_int, check_magnitude
 
 __all__ = [
     "SAMPLINGS",
+    "OPTIMISED",
+    "METHOD_SAMPLINGS",
     "MAX_SAMPLES",
     "tap_positions",
     "inverse_cdf",
@@ -24,7 +26,13 @@ __all__ = [
     "gaussian_mixture_cdf",
 ]
 
+#: the published placement rules (000 §7, 002 appendix), which every kernel builder accepts
 SAMPLINGS = ("uniform", "power", "importance")
+#: taps fitted by gradient descent through the passes (:mod:`sssbench.kernels.optimise`); a
+#: method option, not a placement rule: ``tap_positions`` does not take it
+OPTIMISED = "optimised"
+#: the ``sampling`` choices of the pre-integrated method: the rules and ``optimised``
+METHOD_SAMPLINGS = (*SAMPLINGS, OPTIMISED)
 #: largest supported tap count (000 Fig. 12 uses 513 uniform taps as its ground truth)
 MAX_SAMPLES = 1025
 

@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import torch
 
-from sssbench._checks import check_choice, check_magnitude, check_method_options
+from sssbench._checks import check_choice, check_int, check_magnitude, check_method_options
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.kernel1d import Kernel1D
 from sssbench.kernels.preintegrated import preintegrated
+from sssbench.kernels.sampling import METHOD_SAMPLINGS, OPTIMISED
 from sssbench.ops.functional import functional
 from sssbench.ops.gather import separable_pass
 from sssbench.ops.halo import HALO_KINDS, halo_weight
@@ -42,7 +43,17 @@ class PreintegratedSSS(SeparableMethod):
     Args:
         profile: radial diffusion profile (mm).
         samples: taps per pass (default 7, 000 §7).
-        sampling: tap placement, one of ``uniform``, ``power``, ``importance``.
+        sampling: tap placement, one of ``uniform``, ``power``, ``importance`` (000 §7) or
+            ``optimised``: taps fitted by gradient descent through these very passes (this
+            method's options included) against the exact reference on training scenes at one
+            pixel footprint (:func:`sssbench.kernels.optimise.optimise`, disk-cached; fitted
+            for 0.05–5 mm per pixel). The footprint is ``pixel_mm`` when given, else the
+            footprint of the G-buffer of each call (:func:`sssbench.budget.footprint_mm`, the
+            median over the mask) snapped to the nearest of
+            :data:`~sssbench.kernels.optimise.FOOTPRINTS` — a choice: the fit sees how taps fall
+            on pixels of one size, and a log grid of ratio ≤ 1.7 keeps a run within ~30 % of
+            the footprint its kernel was fitted at while reusing the cache. ``kernel`` then
+            holds the kernel of the last call (``None`` before the first).
         follow_surface: ``"lerp"`` (default), ``"gaussian"`` or ``None``. The default is the
             depth-aware pass the method is published with: 000 §7 renders its kernel with
             the screen-space pass of [JSG09], whose shader follows the surface by lerping a
@@ -59,6 +70,8 @@ class PreintegratedSSS(SeparableMethod):
         halo: ``None``, ``"bilateral"`` (halo reduction, 004 §3.3.1) or ``"lab"`` (skin /
             non-skin colour weights, 004 §3.3.2), see :func:`~sssbench.ops.halo.halo_weight`.
         halo_sigma: range σ of ``halo`` (``None``: its default).
+        pixel_mm: footprint (mm per pixel) of an ``optimised`` kernel (see ``sampling``);
+            ``None`` (default): the run's own. Only with ``sampling="optimised"``.
 
     Shape:
         - forward(gbuffer): ``(B, 3, H, W)``.
@@ -81,11 +94,24 @@ class PreintegratedSSS(SeparableMethod):
         seed: int = 0,
         halo: str | None = None,
         halo_sigma: float | None = None,
+        pixel_mm: float | None = None,
     ) -> None:
         super().__init__()
         if not isinstance(profile, Profile):
             raise TypeError(f"profile must be a sssbench Profile, got {type(profile).__name__}")
         check_method_options(None, seed)
+        check_choice("sampling", sampling, METHOD_SAMPLINGS)
+        if sampling == OPTIMISED:  # fitted kernels stop at MAX_OPTIMISED_TAPS
+            from sssbench.kernels.optimise import MAX_OPTIMISED_TAPS
+
+            check_int("samples (with sampling='optimised')", samples, 1, MAX_OPTIMISED_TAPS)
+        if pixel_mm is not None:
+            if sampling != OPTIMISED:
+                raise ValueError(
+                    f"pixel_mm is the footprint of sampling='optimised' kernels; it must be None "
+                    f"with sampling={sampling!r}"
+                )
+            pixel_mm = check_magnitude("pixel_mm", pixel_mm, "length")
         check_choice("halo", halo, (None, *HALO_KINDS))
         if halo_sigma is not None:
             halo_sigma = check_magnitude("halo_sigma", halo_sigma, "factor")
@@ -95,11 +121,16 @@ class PreintegratedSSS(SeparableMethod):
             follow_surface, None, rotation, seed, default_scale=profile.length_scales()[1]
         )
         self.profile = profile
-        self.kernel = preintegrated(profile, samples, sampling)
         self.samples = samples
         self.sampling = sampling
         self.halo = halo
         self.halo_sigma = halo_sigma
+        self.pixel_mm = pixel_mm
+        self._fitted: dict[float, Kernel1D] = {}
+        if sampling != OPTIMISED:
+            self.kernel: Kernel1D | None = preintegrated(profile, samples, sampling)
+        else:
+            self.kernel = None if pixel_mm is None else self.optimised_kernel(pixel_mm)
         if halo == "bilateral":
             self.needs = ("mask", "normal")
         elif halo == "lab":
@@ -112,7 +143,29 @@ class PreintegratedSSS(SeparableMethod):
             guide, sample_weight = halo_weight(gbuffer, self.halo, self.halo_sigma)
         return super().pass_options(gbuffer, width, guide, sample_weight)
 
+    def optimised_kernel(self, pixel_mm: float) -> Kernel1D:
+        """The ``optimised`` kernel fitted at ``pixel_mm`` with this method's options (fitted
+        on first use, then from the disk cache; memoised per footprint)."""
+        from sssbench.kernels.optimise import optimise
+
+        if pixel_mm not in self._fitted:
+            options = dict(follow_surface=self.follow_surface, rotation=self.rotation,
+                           seed=self.seed, halo=self.halo, halo_sigma=self.halo_sigma)  # fmt: skip
+            fit = optimise(self.profile, "preintegrated", self.samples, pixel_mm, options=options)
+            self._fitted[pixel_mm] = fit.kernel
+        return self._fitted[pixel_mm]
+
     def scatter(self, gbuffer: GBuffer, options: dict[str, object]) -> torch.Tensor:
+        if self.sampling == OPTIMISED and self.pixel_mm is None:
+            from sssbench.budget import footprint_mm
+            from sssbench.kernels.optimise import nearest_footprint
+
+            if gbuffer.shape[0] != 1:
+                raise ValueError(
+                    "sampling='optimised' without pixel_mm resolves the footprint per G-buffer: "
+                    f"give B = 1 (got {gbuffer.shape[0]}) or pixel_mm"
+                )
+            self.kernel = self.optimised_kernel(nearest_footprint(footprint_mm(gbuffer)))
         return two_pass(gbuffer.diffuse, self.kernel, gbuffer, name="preintegrated", **options)
 
 

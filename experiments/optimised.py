@@ -1,0 +1,269 @@
+"""Beyond the papers — taps optimised through the passes against the published rules (issue 18).
+
+For 5, 7, 9 and 13 taps at the portrait (0.3 mm/px) and medium (1 mm/px) scales, the
+pre-integrated kernel's taps are fitted by gradient descent through the method's own two
+depth-aware passes (:func:`sssbench.kernels.optimise.optimise`, default training set: a
+textured face, a shadow edge and a light disc at 96²) and evaluated on HELD-OUT scenes that
+share nothing with the training set (other geometry, textures and seeds, 128²): the procedural
+head, the sphere, and the skin patch textured by a photograph (``pores``). The error is the SSS
+stage's (the method's scattered diffuse against the exact :class:`~sssbench.ops.ReferenceSSS`,
+rel RMS over the mask), against the best of the published rules (importance, uniform, power)
+at equal taps and passes, with the do-nothing baseline (identity). The error budget
+(:mod:`sssbench.budget`) of the importance kernel at 7 taps shows what limits the gain.
+
+    python -m experiments.run optimised [--quick]
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+
+import matplotlib.pyplot as plt
+import torch
+
+from experiments.common import Context, Section, main, md_table
+from sssbench.budget import error_budget
+from sssbench.kernels import optimise as opt
+from sssbench.metrics import rel_rms
+from sssbench.ops import IdentitySSS, PreintegratedSSS
+from sssbench.profiles import SumOfGaussians
+from sssbench.verdict import VISIBLE_FLIP, sss_visibility
+
+TITLE = "Beyond the papers: taps optimised through the passes (issue 18)"
+SCALES = {"portrait": 0.3, "medium": 1.0}
+TAPS = (5, 7, 9, 13)
+RULES = ("importance", "uniform", "power")
+#: held out: none of these scenes, textures or seeds is in opt.DEFAULT_TRAINING
+HELD_OUT = (
+    opt.TrainingScene("head", (128, 128), seed=7),
+    opt.TrainingScene("sphere", (128, 128), seed=7),
+    opt.TrainingScene("pores", (128, 128), seed=7),
+)
+#: the goal of issue 18: at least this much less error at these tap counts
+GOAL, GOAL_TAPS = 0.30, (7, 9)
+
+
+def _error(method, g, ref) -> float:
+    with torch.no_grad():
+        return rel_rms(method(g), ref, (g.mask > 0).to(ref.dtype))
+
+
+def run(ctx: Context) -> Section:
+    prof = SumOfGaussians.from_table("skin_deon6")
+    taps = (5, 7) if ctx.quick else TAPS
+    held = HELD_OUT
+    training = opt.DEFAULT_TRAINING
+    steps = None
+    if ctx.quick:
+        held = tuple(opt.TrainingScene(s.name, (24, 24), s.seed) for s in HELD_OUT[:2])
+        training = (opt.TrainingScene("step_edge", (24, 24)),)
+        steps = 3
+    train_names = {(s.name, s.seed) for s in training}
+    if train_names & {(s.name, s.seed) for s in held}:
+        raise RuntimeError("training and held-out scenes overlap")
+
+    rows, fits, data = [], [], {}
+    fit_seconds: dict[str, float] = {}
+    for scale, px in SCALES.items():
+        scenes = []
+        for s in held:
+            g = s.build(px)
+            scenes.append((s.name, g, opt.sss_reference(s, g, prof, px)))
+        ident = {name: _error(IdentitySSS(), g, ref) for name, g, ref in scenes}
+        # visible: the project's criterion (sssbench.verdict), mean FLIP of input vs reference
+        flips = {name: sss_visibility(ref, g.diffuse, g.mask) for name, g, ref in scenes}
+        for n in taps:
+            t0 = time.perf_counter()
+            fit = opt.optimise(prof, taps=n, pixel_mm=px, training=training, steps=steps)
+            if n == 7:
+                fit_seconds[scale] = fit.seconds
+            how = "yes" if fit.cached else f"no ({time.perf_counter() - t0:.0f} s)"
+            fits.append([scale, n, fit.init_loss, fit.loss, fit.seconds, how])
+            method = PreintegratedSSS(prof, n, "optimised", pixel_mm=px)
+            for name, g, ref in scenes:
+                rule_err = {r: _error(PreintegratedSSS(prof, n, r), g, ref) for r in RULES}
+                best_rule = min(rule_err, key=rule_err.get)
+                e_opt = _error(method, g, ref)
+                gain = 1.0 - e_opt / rule_err[best_rule]
+                data[f"{scale}/{n}/{name}"] = {
+                    "identity": ident[name], **rule_err, "best_rule": best_rule,
+                    "optimised": e_opt, "reduction": gain, "flip": flips[name],
+                    "visible": flips[name] >= VISIBLE_FLIP,
+                }  # fmt: skip
+                rows.append([scale, n, name, "yes" if flips[name] >= VISIBLE_FLIP else "no",
+                             ident[name], *rule_err.values(),
+                             best_rule, e_opt, f"{100 * gain:.0f} %"])  # fmt: skip
+
+    # what limits it: the importance kernel's error budget at 7 taps (docs/error_budget.md)
+    budget_rows = []
+    if not ctx.quick:
+        for scale, px in SCALES.items():
+            for s in held:
+                g = s.build(px).to(torch.float64)
+                ref = opt.sss_reference(s, s.build(px), prof, px)
+                b = error_budget(lambda k: PreintegratedSSS(prof, k), 7, g, prof,
+                                 reference=ref, recon=False)  # fmt: skip
+                e_opt = data[f"{scale}/7/{s.name}"]["optimised"]
+                budget_rows.append([scale, s.name, b.total, b.taps, b.model, b.screen,
+                                    b.contributions["taps"], e_opt])  # fmt: skip
+                data[f"budget/{scale}/{s.name}"] = b.as_dict()
+
+    # item 5: one fresh 7-tap fit timed (wall and this process's CPU time, 1 torch thread)
+    timing = None
+    if not ctx.quick:
+        wall, cpu = time.perf_counter(), time.process_time()
+        opt.optimise(prof, taps=7, pixel_mm=SCALES["portrait"], cache=False)  # refs cached
+        timing = (time.perf_counter() - wall, time.process_time() - cpu, os.getloadavg()[0])
+
+    # figure: error against taps per scale, per held-out scene
+    fig, axes = plt.subplots(1, len(SCALES), figsize=(9, 3.3), sharey=True)
+    colours = dict(zip([s.name for s in held], ["C0", "C1", "C2"], strict=False))
+    for ax, (scale, px) in zip(axes, SCALES.items(), strict=True):
+        for s in held:
+            d = [data[f"{scale}/{n}/{s.name}"] for n in taps]
+            c = colours[s.name]
+            ax.plot(taps, [min(x[r] for r in RULES) for x in d], "--o", c=c, ms=3,
+                    label=f"{s.name}: best rule")  # fmt: skip
+            ax.plot(taps, [x["optimised"] for x in d], "-s", c=c, ms=3,
+                    label=f"{s.name}: optimised")  # fmt: skip
+            ax.axhline(d[0]["identity"], c=c, ls=":", lw=0.8)
+        ax.set_yscale("log")
+        ax.set_xlabel("taps per pass")
+        ax.set_title(f"{scale} ({px} mm/px); dotted: identity", fontsize=9)
+    axes[0].set_ylabel("held-out rel. RMS (SSS stage)")
+    axes[-1].legend(fontsize=6)
+    link = ctx.figure(fig)
+
+    # the verdict, from the numbers
+    visible = {k: v for k, v in data.items() if not k.startswith("budget") and v["visible"]}
+    goal_cases = {k: v for k, v in visible.items() if int(k.split("/")[1]) in GOAL_TAPS}
+    met_gain = [k for k, v in goal_cases.items() if v["reduction"] >= GOAL]
+    worse = [k for k, v in data.items() if not k.startswith("budget") and v["reduction"] < 0]
+    worse_visible = [k for k in worse if data[k]["visible"]]
+    ok = bool(goal_cases) and len(met_gain) == len(goal_cases) and not worse
+    gains = [v["reduction"] for v in goal_cases.values()]
+    t7 = ", ".join(f"{k} {v:.0f} s" for k, v in fit_seconds.items())
+    n_visible = len({(k.split("/")[0], k.split("/")[2]) for k in visible})
+    measured = (
+        f"On {len(held)} held-out scenes at {len(SCALES)} scales, SSS is visible (mean FLIP "
+        f"of the input against the reference ≥ {VISIBLE_FLIP}, sssbench.verdict) in "
+        f"{n_visible} scene-scale cases. "
+        f"At {' and '.join(map(str, GOAL_TAPS))} taps the optimised "
+        f"kernel has {100 * min(gains, default=float('nan')):.0f}–"
+        f"{100 * max(gains, default=float('nan')):.0f} % less error than the best published "
+        f"rule in these cases ({len(met_gain)} of {len(goal_cases)} reach {GOAL:.0%}); "
+        f"over all tap counts and scenes it has more error than the best rule in {len(worse)} "
+        f"of {sum(not k.startswith('budget') for k in data)} cases"
+        + (f" ({', '.join(worse)})" if worse else "")
+        + f", {len(worse_visible)} of them where SSS is visible"
+        + f". One 7-tap fit (3 training scenes at 96², 1 torch thread), as stored: {t7}"
+        + (
+            f"; timed afresh in this run at the portrait scale (training references from the "
+            f"cache): {timing[0]:.0f} s wall, "
+            f"{timing[1]:.0f} s CPU (≤ 300 s: {'yes' if timing[0] <= 300 else 'no'} wall, "
+            f"{'yes' if timing[1] <= 300 else 'no'} CPU). The machine (2 cores) was shared with "
+            f"5 other agents' jobs (1-minute load average {timing[2]:.1f} at the end of the "
+            "fit), so the wall time is inflated; the CPU time is what one core spends"
+            if timing
+            else ""
+        )
+        + "."
+    )
+    reason = (
+        f"Goal (≥ {GOAL:.0%} less error at 7 and 9 taps on every held-out scene where SSS is "
+        f"visible, never more error): {'met' if ok else 'not met'}. " + _limits(data, budget_rows)
+    )
+    body = (
+        "Held-out error (rel RMS of the SSS stage over the mask; skin_deon6; 128²; the "
+        "optimised kernel was fitted on face, step_edge and light_dot at 96² — other scenes, "
+        "textures and seeds):\n\n"
+        + md_table(
+            rows,
+            [
+                "scale",
+                "taps",
+                "scene",
+                "SSS visible",
+                "identity",
+                *RULES,
+                "best rule",
+                "optimised",
+                "less error",
+            ],
+        )  # fmt: skip
+        + "\n\nFits (training loss: the mean over the training scenes of the rel RMS divided "
+        "by the best published rule's on that scene, for the best single rule and the fitted "
+        "kernel; seconds of the fit as "
+        "stored with the cached kernel; 1 torch thread on a 2-core machine shared with 5 "
+        "other jobs, so times are inflated):\n\n"
+        + md_table(
+            fits, ["scale", "taps", "best rule (train)", "optimised (train)", "fit s", "cached"]
+        )
+    )
+    if budget_rows:
+        body += (
+            "\n\nWhat limits it — the importance kernel's error budget at 7 taps "
+            "(docs/error_budget.md; taps = M_7 − M_∞, model = the separable kernel against the "
+            "profile on a flat plane, screen = the rest). Better taps can remove at most about "
+            "the taps part; model and screen error belong to the separable model and the "
+            "screen-space pass and stay:\n\n"
+            + md_table(
+                budget_rows,
+                [
+                    "scale",
+                    "scene",
+                    "total",
+                    "taps",
+                    "model",
+                    "screen",
+                    "taps contribution",
+                    "optimised total",
+                ],
+            )  # fmt: skip
+        )
+    return Section(
+        TITLE,
+        "Issue 18 (not a paper's claim): every method places its taps by a rule from its paper "
+        "that ignores the pixel grid and the depth-aware pass; taps fitted by gradient descent "
+        "through the differentiable passes should have ≥ 30 % less error at 7 and 9 taps on "
+        "held-out scenes, and never more.",
+        measured,
+        "target met" if ok else "target not met",
+        reason,
+        body=body,
+        figures=[link],
+        data={"cases": data, "fit_seconds_7": fit_seconds, "fresh_fit_wall_cpu_s": timing},
+    )
+
+
+def _limits(data: dict, budget_rows: list) -> str:
+    """What limits the gain, from the 7-tap budget rows (computed, not fixed prose)."""
+    parts = []
+    for scale, name, total, taps, model, screen, _, e_opt in budget_rows:
+        case = data[f"{scale}/7/{name}"]
+        if not case["visible"]:
+            continue
+        removed = 1.0 - e_opt / total
+        parts.append(
+            f"{scale} {name}: the importance kernel's {total:.3g} has a taps part of {taps:.3g} "
+            f"({taps / total:.0%} of it) beside model {model:.3g} and screen {screen:.3g}; the "
+            f"fit removes {removed:.0%} of it"
+            + (" (more than the taps part: it also compensates part of the model and "
+               "screen-space error on this scene)" if removed > taps / total else "")
+            + f" and the best rule ({case['best_rule']}) "
+            f"{max(0.0, 1 - case[case['best_rule']] / total):.0%}"
+        )  # fmt: skip
+    if not parts:
+        return ""
+    return (
+        "What limits it (7 taps, the error budget of the importance kernel on the visible "
+        "cases): " + "; ".join(parts) + ". Where the best rule already leaves little taps "
+        "error, what remains is the separable model's and the screen-space pass's (depth "
+        "steps, silhouettes), which no choice of taps in two passes removes."
+    )
+
+
+if __name__ == "__main__":
+    sys.exit(main("optimised", run))
