@@ -144,6 +144,11 @@ def method_kernels(method: nn.Module, name: str | None = None) -> list[NamedKern
         unit = float(method.width) if isinstance(method, Jimenez2012SSS) else 1.0
         name = re.sub(r"(?<!^)(?=[A-Z])", "_", kind.removesuffix("SSS")).lower()
         return [NamedKernel(name, kernel, unit)]
+    if getattr(method, "sampling", None) == "optimised" and kernel is None:
+        raise ValueError(
+            f"method {kind} with sampling='optimised' fits its taps at a pixel footprint on "
+            "first use: give it one, e.g. +method.params.pixel_mm=0.3"
+        )
     why = {
         "ReferenceSSS": "it integrates the full 2D profile per pixel (the exact reference)",
         "IdentitySSS": "it does nothing (the do-nothing baseline)",

@@ -417,12 +417,16 @@ def _budget(
     ):
         return {}
 
+    # fitted taps (sampling="optimised") exist for the run's own tap count only; the converged
+    # limit is the same continuous kernel, reached by importance sampling at many taps
+    limit_sampling = "importance" if spec.sampling == "optimised" else spec.sampling
+
     def build(samples: int) -> Any:
         return registry.build_method(
             spec.method,
             profile,
             samples=samples,
-            sampling=spec.sampling,
+            sampling=spec.sampling if samples == spec.samples else limit_sampling,
             seed=spec.seed,
             params=spec.method_params,
         )
@@ -432,7 +436,7 @@ def _budget(
     scale = float(reference.double().pow(2).mean().sqrt()) or 1.0
     limit_key = {
         **key,
-        "budget_limit": [spec.method, spec.method_params, spec.sampling, BUDGET_START, BUDGET_MAX],
+        "budget_limit": [spec.method, spec.method_params, limit_sampling, BUDGET_START, BUDGET_MAX],
     }
     cached: dict[str, Any] = {}
 

@@ -190,6 +190,7 @@ def test_json_file_from_the_command_line(tmp_path):
         (["--format", "xml"], "--format must be one of ['hlsl', 'glsl', 'json'], got 'xml'"),
         (["--sss-width", "0"], "--sss-width must be in"),
         (["samples=0"], "samples"),
+        (["sampling=optimised"], "+method.params.pixel_mm"),
     ],
 )
 def test_bad_arguments_exit_2_with_one_line(argv, message, capsys, tmp_path):
