@@ -77,6 +77,12 @@ PROFILE_MATERIALS = {"skin_jg10": "skin1", "skin_deon6": "skin1", "marble_jg10":
 ALBEDO_PHOTONS = 1_000_000
 #: sub-rays per pixel side for the sphere's per-pixel area
 AREA_SUBSAMPLES = 8
+#: default photons of a flat scene (per lit face): every photon serves every pixel
+FLAT_PHOTONS = 2_000_000
+#: default photons of the sphere per pixel that shows it
+SPHERE_PHOTONS_PER_PIXEL = 4_000
+#: runs of at least this many photons use two worker processes by default
+PARALLEL_PHOTONS = 1_000_000
 
 
 def medium_for(material: str | tuple) -> Medium:
@@ -391,10 +397,10 @@ def scene_mc(
     params: dict | None = None,
     material: str | tuple = "skin1",
     *,
-    photons: int = 3_000_000,
+    photons: int | None = None,
     batches: int = 8,
     seed: int = 0,
-    workers: int = 1,
+    workers: int | None = None,
     cache: bool = True,
     progress: bool | None = None,
 ) -> SceneMC:
@@ -406,10 +412,13 @@ def scene_mc(
             painted irradiance are used; the geometry is the analytic one).
         params: the scene's parameters (defaults of its builder otherwise).
         material: a material or profile-table name, or ``(σs′, σa[, η])`` (:func:`medium_for`).
-        photons: photons over all batches (and faces), a third per channel.
+        photons: photons over all batches (and faces), a third per channel; None:
+            :data:`FLAT_PHOTONS` for a flat scene, :data:`SPHERE_PHOTONS_PER_PIXEL` per pixel
+            showing the sphere.
         batches: independent walks (>= 2: the standard errors come from them).
         seed: base seed.
-        workers: processes running the batches (1 = in this process).
+        workers: processes running the batches (1 = in this process); None: 2 for runs of
+            at least :data:`PARALLEL_PHOTONS` photons, else 1.
         cache: read and write the disk cache.
         progress: tqdm bars per batch (None: for walks longer than ~3 s).
 
@@ -421,8 +430,14 @@ def scene_mc(
 
     model = mc_model(scene, gbuffer, params)
     medium = medium_for(material)
+    if photons is None:
+        sphere = isinstance(model, SphereMC)
+        covered = int((sphere_pixel_area(model) > 0).sum()) if sphere else 0
+        photons = SPHERE_PHOTONS_PER_PIXEL * covered if sphere else FLAT_PHOTONS
     photons = check_int("photons", photons, 6)
     batches = check_int("batches", batches, 2)
+    if workers is None:
+        workers = 2 if photons >= PARALLEL_PHOTONS else 1
     workers = check_int("workers", workers, 1)
     key = {
         "kind": "scene",
