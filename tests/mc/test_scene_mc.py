@@ -103,3 +103,55 @@ def test_scene_without_a_model_is_a_clear_error():
     g = data_synth.make_scene("pores", (8, 8), fields=[])
     with pytest.raises(ValueError, match="no Monte Carlo model"):
         scene_mc("pores", g, {}, photons=30, cache=False)
+
+
+# ----------------------------------------------------------------------------- the app
+def test_app_reference_mc_stores_both_errors(tmp_path, monkeypatch):
+    from sssbench import app, runner
+    from sssbench.tracking import RunStore
+
+    monkeypatch.setenv("SSSBENCH_CACHE_DIR", str(tmp_path / "cache"))
+    common = [
+        "scene=sphere",
+        "resolution=[16,16]",
+        "repeats=1",
+        "warmup=0",
+        "previews=false",
+        "budget=false",
+        "reference=mc",
+        "+reference_params.mc_photons=6000",
+        "+reference_params.mc_batches=4",
+        f"reference_cache={tmp_path / 'refs'}",
+    ]
+    store = tmp_path / "store.sqlite"
+    for method in ("reference", "identity"):
+        spec = app.compose_spec(f"method={method}", *common, store=store)
+        assert spec.reference == "mc" and spec.mc_params == {"mc_photons": 6000, "mc_batches": 4}
+        assert spec.reference_params == {}  # the MC options are not the exact reference's
+        out = runner.execute(spec, tmp_path / method)
+        assert out.status == "ok", out.message
+        m = out.metrics
+        for key in ("rel_rms_mc", "rel_rms_mc_se", "reference_vs_mc", "identity_vs_mc"):
+            assert math.isfinite(m[key]), key
+        # the run's image is the reference (identity): its error against the MC is the
+        # reference's (the baseline's), computed independently of the run's own metric
+        twin = "reference_vs_mc" if method == "reference" else "identity_vs_mc"
+        assert m["rel_rms_mc"] == pytest.approx(m[twin], rel=1e-9)
+    rows = RunStore(store).runs()
+    assert len(rows) == 2
+    assert all(r["metrics"]["rel_rms_mc_se"] > 0 for r in rows)
+    assert all(r["config"]["reference"] == "mc" for r in rows)
+    # reference=mc is part of the point: the same run against the profile is another point
+    a = app.compose_spec("method=identity", *common, store=store).point()
+    b = app.compose_spec("method=identity", *common[:-4], store=store).point()
+    assert a != b and "reference" not in b
+
+
+def test_app_reference_mc_needs_a_scene_with_a_model():
+    from sssbench import app
+
+    with pytest.raises(ValueError, match="reference=mc needs a scene with a Monte Carlo model"):
+        app.compose_spec("scene=pores", "reference=mc")
+    with pytest.raises(ValueError, match="need reference=mc"):
+        app.compose_spec("scene=sphere", "+reference_params.mc_photons=10")
+    assert "reference must be one of" in app.check_overrides(["reference=exact"])
