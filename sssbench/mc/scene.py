@@ -269,10 +269,13 @@ def _job(args: tuple) -> tuple[torch.Tensor, int, float]:
 
 
 def _run_batches(jobs: list[tuple], workers: int) -> list[tuple[torch.Tensor, int, float]]:
-    """Run independent walks, in ``workers`` processes (spawned) when > 1."""
+    """Run independent walks, in ``workers`` processes when > 1: forked where the platform
+    can (no re-import of the caller's script; each worker runs torch on one thread, so the
+    parent's thread pool is never used after the fork), else spawned."""
     if workers <= 1 or len(jobs) <= 1:
         return [_job(j) for j in jobs]
-    ctx = multiprocessing.get_context("spawn")
+    methods = multiprocessing.get_all_start_methods()
+    ctx = multiprocessing.get_context("fork" if "fork" in methods else "spawn")
     with concurrent.futures.ProcessPoolExecutor(min(workers, len(jobs)), mp_context=ctx) as ex:
         return list(ex.map(_job, jobs))
 
