@@ -368,20 +368,52 @@ def sphere_pixel_area(model, sub: int = AREA_SUBSAMPLES) -> torch.Tensor:  # noq
     return area.view(h, sub, w, sub).sum((1, 3))
 
 
+def _sphere_jobs(model, medium, per, batches, seed, progress):  # noqa: ANN001, ANN202
+    """The batches' walks of the sphere (arguments of :func:`_job`)."""
+    h, w = model.resolution
+    r = model.radius
+    phi_dir = model.intensity * math.pi * r * r
+    p_dir = phi_dir / (phi_dir + model.ambient * 4 * math.pi * r * r)
+    source = _SphereSource(r, model.light, p_dir, medium.eta)
+    score = _CameraScore(model.center, h, w, model.fov_y)
+    geometry = Ball((0.0, 0.0, 0.0), r)
+    return [
+        (medium, geometry, source, score, h * w, per, seed * 7919 + b, progress)
+        for b in range(batches)
+    ]
+
+
+def sphere_walk_rate(
+    gbuffer: object,
+    material: str | tuple = "skin1",
+    *,
+    photons: int,
+    batches: int = 4,
+    workers: int = 1,
+    params: dict | None = None,
+) -> tuple[int, float]:
+    """``(collisions, wall seconds)`` of the ``sphere`` scene's walks alone (no cache, no
+    normaliser, no pixel areas): the cost measurement of docs/mc.md."""
+    import time
+
+    from data_synth.mc_scenes import mc_model
+
+    model = mc_model("sphere", gbuffer, params)
+    per = max(3, photons // batches // 3 * 3)
+    jobs = _sphere_jobs(model, medium_for(material), per, batches, 0, False)
+    t0 = time.perf_counter()
+    out = _run_batches(jobs, workers)
+    return sum(o[1] for o in out), time.perf_counter() - t0
+
+
 def _sphere(model, medium, photons, batches, seed, workers, progress):  # noqa: ANN001, ANN202
     h, w = model.resolution
     r = model.radius
     phi_dir = model.intensity * math.pi * r * r  # ∫ I max(0, n·l) dA over the sphere
     phi_amb = model.ambient * 4 * math.pi * r * r
     total_power = phi_dir + phi_amb
-    source = _SphereSource(r, model.light, phi_dir / total_power, medium.eta)
-    score = _CameraScore(model.center, h, w, model.fov_y)
-    geometry = Ball((0.0, 0.0, 0.0), r)
     per = max(3, photons // batches // 3 * 3)
-    jobs = [
-        (medium, geometry, source, score, h * w, per, seed * 7919 + b, progress)
-        for b in range(batches)
-    ]
+    jobs = _sphere_jobs(model, medium, per, batches, seed, progress)
     area = sphere_pixel_area(model)
     covered = area > 0
     out = torch.zeros(batches, 3, h, w, dtype=_F64)
