@@ -57,7 +57,7 @@ import torch
 from sssbench._checks import check_int
 from sssbench.mc.boundary import normal_specular
 from sssbench.mc.cache import cached_entry
-from sssbench.mc.transport import Ball, Medium, Slab, refract_in, transport
+from sssbench.mc.transport import Ball, Medium, Slab, _norm, refract_in, transport
 from sssbench.mc.walk import walk
 from sssbench.profiles.dipole import MATERIALS
 
@@ -78,9 +78,9 @@ ALBEDO_PHOTONS = 1_000_000
 #: sub-rays per pixel side for the sphere's per-pixel area
 AREA_SUBSAMPLES = 8
 #: default photons of a flat scene (per lit face): every photon serves every pixel
-FLAT_PHOTONS = 2_000_000
+FLAT_PHOTONS = 4_000_000
 #: default photons of the sphere per pixel that shows it
-SPHERE_PHOTONS_PER_PIXEL = 4_000
+SPHERE_PHOTONS_PER_PIXEL = 8_000
 #: runs of at least this many photons use two worker processes by default
 PARALLEL_PHOTONS = 1_000_000
 
@@ -224,7 +224,7 @@ def _cosine_hemisphere(normal: torch.Tensor, u1: torch.Tensor, u2: torch.Tensor)
     t = (normal[0].abs() < 0.9).to(normal.dtype)
     helper = torch.stack([t, 1 - t, torch.zeros_like(t)])
     a = torch.linalg.cross(normal, helper, dim=0)
-    a = a / a.norm(dim=0, keepdim=True)
+    a = a / _norm(a)
     b = torch.linalg.cross(normal, a, dim=0)
     rr, phi = u1.sqrt(), 2 * math.pi * u2
     return a * (rr * torch.cos(phi)) + b * (rr * torch.sin(phi)) + normal * (1 - u1).sqrt()

@@ -143,7 +143,12 @@ def refract_in(
     k = 1.0 / eta
     cos_t = torch.sqrt((1 - k * k * (1 - cos_i * cos_i)).clamp_min(0.0))
     t = incoming * k + normal * (k * cos_i - cos_t)
-    return t / t.norm(dim=0, keepdim=True), 1.0 - fresnel_dielectric(cos_i, k)
+    return t / _norm(t), 1.0 - fresnel_dielectric(cos_i, k)
+
+
+def _norm(v: torch.Tensor) -> torch.Tensor:
+    """``|v|`` of the columns of ``(3, n)`` (elementwise: faster than a strided reduction)."""
+    return (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt_()
 
 
 @dataclass
@@ -219,11 +224,11 @@ def transport(
     pos, dirn, w, chan = launch(0, n)
     launched = n
     inv_st, alb = inv_st_c[chan], alb_c[chan]
-    xi = torch.empty(4, n, dtype=_F32)
-    parked = 0  # finished photons left in place until the batch is compacted
+    xi = torch.empty(3, n, dtype=_F32)
+    parked = 0  # finished photons left in place (no flight, no collision) until compaction
     t0 = time.perf_counter()
     while n > parked:
-        x = torch.rand(4, n, generator=gen, out=xi)
+        x = torch.rand(3, n, generator=gen, out=xi)  # flight, cos θ, φ
         # s = −ln(1 − ξ)/σt, in place; finite for every ξ in [0, 1); 0 for parked photons
         s = x[0].neg_().log1p_().mul_(inv_st).neg_()
         db = geometry.exit_distance(pos, dirn)
@@ -231,45 +236,49 @@ def transport(
         torch.minimum(s, db, out=s)
         pos.addcmul_(dirn, s)
         hidx = hit.nonzero().squeeze(1)
-        leave_idx = hidx
-        if hidx.numel():
-            p_h, d_h = pos[:, hidx], dirn[:, hidx]
-            if eta != 1.0:
-                nrm = geometry.normal(p_h)
-                cosn = (d_h * nrm).sum(0)
-                refl = x[1, hidx] < fresnel_dielectric(cosn, eta)
-                if bool(refl.any()):
-                    dirn[:, hidx[refl]] = d_h[:, refl] - 2 * cosn[refl] * nrm[:, refl]
-                    keep = ~refl
-                    leave_idx, p_h, d_h = hidx[keep], p_h[:, keep], d_h[:, keep]
-        coll = ~hit
-        inter += int(coll.sum()) - parked  # parked photons "collide" at s = 0 and stay
-        # implicit capture (MCML, Wang et al. 1995 §3.6): a collision keeps the fraction a of
-        # the weight; below ROULETTE_WEIGHT the photon survives with probability 1/ROULETTE_GAIN
-        # with its weight multiplied by ROULETTE_GAIN (unbiased). Parked photons: a = 1, w = 0.
-        w.mul_(torch.where(coll, alb, 1.0))
-        low = w < ROULETTE_WEIGHT
-        dead = low & (x[1] * ROULETTE_GAIN >= 1.0)
-        w.mul_(torch.where(low, ROULETTE_GAIN, 1.0))
-        dead &= w > 0  # a parked photon (w = 0) is not finished again
-        dead[leave_idx] = True
-        # isotropic scattering: a fresh uniform direction (computed for every photon; only the
-        # ones that collided keep it: absorbed and parked photons' directions do not matter)
-        cost = x[2].mul_(2).sub_(1)
+        inter += n - parked - hidx.numel()  # every other photon collided (parked: s = 0 < db)
+        # boundary events on the subset: reflected (Fresnel, ξ₁) or leaving; their direction
+        # and weight are saved here and restored after the collision updates below
+        leave_idx, p_h, d_h, w_h = hidx, pos[:, hidx], dirn[:, hidx], w[hidx]
+        d_keep = d_h
+        if hidx.numel() and eta != 1.0:
+            nrm = geometry.normal(p_h)
+            cosn = (d_h * nrm).sum(0)
+            u = torch.rand(hidx.numel(), generator=gen, dtype=_F32)
+            refl = u < fresnel_dielectric(cosn, eta)
+            d_keep = torch.where(refl, d_h - 2 * cosn * nrm, d_h)
+            leave_idx, p_h, d_h = hidx[~refl], p_h[:, ~refl], d_h[:, ~refl]
+        # collisions, written for every photon (cheaper than selecting the colliders):
+        # implicit capture (MCML, Wang et al. 1995 §3.6) keeps the fraction a of the weight
+        # (parked photons: a = 1), and isotropic scattering draws a fresh uniform direction
+        w.mul_(alb)
+        cost = x[1].mul_(2).sub_(1)
         sint = (1 - cost * cost).clamp_min_(0.0).sqrt_()
-        phi = x[3].mul_(2 * math.pi)
-        torch.where(coll, cost, dirn[2], out=dirn[2])
-        torch.where(coll, torch.cos(phi).mul_(sint), dirn[0], out=dirn[0])
-        torch.where(coll, phi.sin_().mul_(sint), dirn[1], out=dirn[1])
+        phi = x[2].mul_(2 * math.pi)
+        dirn[2].copy_(cost)
+        torch.cos(phi, out=dirn[0]).mul_(sint)
+        torch.sin(phi, out=dirn[1]).mul_(sint)
+        if hidx.numel():  # photons at the boundary did not collide
+            w[hidx], dirn[:, hidx] = w_h, d_keep
+        # Russian roulette below ROULETTE_WEIGHT: survive with probability 1/ROULETTE_GAIN,
+        # weight multiplied by it (unbiased), repeated until the weight is above the threshold
+        low = (w < ROULETTE_WEIGHT).nonzero().squeeze(1)
+        killed = []
+        while low.numel():
+            u = torch.rand(low.numel(), generator=gen, dtype=_F32) * ROULETTE_GAIN
+            killed.append(low[u >= 1.0])
+            low = low[u < 1.0]
+            w[low] *= ROULETTE_GAIN
+            low = low[w[low] < ROULETTE_WEIGHT]
         if leave_idx.numel():
             bins = score(p_h, d_h)
             ok = bins >= 0
             if bool(ok.any()):
-                wl = w[leave_idx][ok].double()
+                wl = w_h[~refl][ok].double() if eta != 1.0 else w_h[ok].double()
                 flat = chan[leave_idx][ok] * nbins + bins[ok]
                 sums[0].index_add_(0, flat, wl)
                 sums[1].index_add_(0, flat, wl * wl)
-        didx = dead.nonzero().squeeze(1)
+        didx = torch.cat([leave_idx, *killed])
         n_dead = didx.numel()
         if n_dead == 0:
             continue
@@ -285,16 +294,14 @@ def transport(
             continue
         gone = didx[n_new:]
         parked += gone.numel()
+        inv_st[gone], alb[gone], w[gone] = 0.0, 1.0, 1.0  # park: no flight, weight kept at 1
+        pos[:, gone] = _parking(geometry, pos.dtype, gone.numel())
         if 2 * parked >= n:  # drained to half: compact
-            dead[didx[:n_new]] = False
-            keep = ((w > 0) & ~dead).nonzero().squeeze(1)
+            keep = (inv_st > 0).nonzero().squeeze(1)
             pos, dirn, w, chan = pos[:, keep], dirn[:, keep], w[keep], chan[keep]
             inv_st, alb = inv_st[keep], alb[keep]
             n, parked = keep.numel(), 0
-            xi = torch.empty(4, n, dtype=_F32)
-        else:  # park: weight 0, no flight, never at the boundary
-            w[gone], alb[gone], inv_st[gone] = 0.0, 1.0, 0.0
-            pos[:, gone] = _parking(geometry, pos.dtype, gone.numel())
+            xi = torch.empty(3, n, dtype=_F32)
     bar.close()
     seconds = time.perf_counter() - t0
     return TransportTally(photons, sums.view(2, 3, nbins), inter, seconds)
