@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import torch
 
 from data_synth.geometry import to_view, unit
-from data_synth.render import SKIN_ALBEDO, Ctx, gbuffer
+from data_synth.render import Ctx, flat_plane
 from data_synth.scale import focus_depth, resolve_pixel_mm
 from data_synth.scenes import (
     DEFAULT_FOV_Y,
@@ -189,19 +189,9 @@ def backlit_slab(
     ambient = _ambient(ambient)
     light = _light((0.0, 0.0, -1.0), intensity)
     h, w = ctx.height, ctx.width
-    depth = torch.full((1, 1, h, w), z, dtype=torch.float64)
-    lit = _window(depth, fov_y, {"window": window, "intensity": 1.0}) > 0
-    normal = torch.zeros(1, 3, h, w, dtype=torch.float64)
-    normal[:, 2] = 1.0
-    albedo = torch.tensor(SKIN_ALBEDO, dtype=torch.float64).view(1, 3, 1, 1).expand(1, 3, h, w)
-    return gbuffer(
-        ctx,
-        fov_y,
-        light.direction,
-        diffuse=torch.full((1, 3, h, w), ambient, dtype=torch.float64),
-        depth=depth,
-        albedo=albedo,
-        normal=normal,
-        mask=torch.ones_like(depth),
-        thickness=torch.where(lit, thickness, thickness + gap),
-    )
+    g = flat_plane(ctx, fov_y, z, torch.full((1, 1, h, w), ambient, dtype=torch.float64))
+    changes = {"light_dir": unit(light.direction).reshape(1, 3).to(ctx.dtype)}
+    if "thickness" in ctx.want:
+        lit = _window(g.depth.double(), fov_y, {"window": window, "intensity": 1.0}) > 0
+        changes["thickness"] = torch.where(lit, thickness, thickness + gap).to(ctx.dtype)
+    return g.replace(**changes)
