@@ -54,6 +54,8 @@ _F64 = torch.float64
 ROULETTE_WEIGHT = 1e-2
 #: ... survival 1/ROULETTE_GAIN, surviving weight multiplied by it
 ROULETTE_GAIN = 10.0
+#: a photon reflected at a face with |cos θ| below this is ended (see the walk loop)
+GRAZING_COS = 1e-4
 
 
 @dataclass(frozen=True)
@@ -241,12 +243,19 @@ def transport(
         # and weight are saved here and restored after the collision updates below
         leave_idx, p_h, d_h, w_h = hidx, pos[:, hidx], dirn[:, hidx], w[hidx]
         d_keep = d_h
+        grazing = None
         if hidx.numel() and eta != 1.0:
             nrm = geometry.normal(p_h)
             cosn = (d_h * nrm).sum(0)
             u = torch.rand(hidx.numel(), generator=gen, dtype=_F32)
             refl = u < fresnel_dielectric(cosn, eta)
             d_keep = torch.where(refl, d_h - 2 * cosn * nrm, d_h)
+            # a photon gliding along a curved face in total internal reflection would advance
+            # by rounding errors only, forever: it is ended (unscored) instead; fraction of the
+            # flux reaching a face that grazing, ~GRAZING_COS²
+            graze = refl & (cosn.abs() < GRAZING_COS)
+            if bool(graze.any()):
+                grazing = hidx[graze]
             leave_idx, p_h, d_h = hidx[~refl], p_h[:, ~refl], d_h[:, ~refl]
         # collisions, written for every photon (cheaper than selecting the colliders):
         # implicit capture (MCML, Wang et al. 1995 §3.6) keeps the fraction a of the weight
@@ -263,7 +272,13 @@ def transport(
         # Russian roulette below ROULETTE_WEIGHT: survive with probability 1/ROULETTE_GAIN,
         # weight multiplied by it (unbiased), repeated until the weight is above the threshold
         low = (w < ROULETTE_WEIGHT).nonzero().squeeze(1)
-        killed = []
+        killed = [] if grazing is None else [grazing]
+        if low.numel() and (leave_idx.numel() or grazing is not None):
+            live = torch.ones(n, dtype=torch.bool)  # a photon ends once: not rouletted too
+            live[leave_idx] = False
+            if grazing is not None:
+                live[grazing] = False
+            low = low[live[low]]
         while low.numel():
             u = torch.rand(low.numel(), generator=gen, dtype=_F32) * ROULETTE_GAIN
             killed.append(low[u >= 1.0])

@@ -155,3 +155,21 @@ def test_app_reference_mc_needs_a_scene_with_a_model():
     with pytest.raises(ValueError, match="need reference=mc"):
         app.compose_spec("scene=sphere", "+reference_params.mc_photons=10")
     assert "reference must be one of" in app.check_overrides(["reference=exact"])
+
+
+def test_grazing_total_internal_reflection_ends():
+    # a photon launched tangent to a ball in total internal reflection would glide along the
+    # face by rounding errors forever; the walk ends it (regression: the walk must return)
+    from sssbench.mc.transport import Ball, Medium, transport
+
+    def source(n, chan, gen):
+        pos = torch.zeros(3, n, dtype=torch.float64)
+        pos[0] = 5.0 * (1 - 1e-7)
+        dirn = torch.zeros(3, n, dtype=torch.float64)
+        dirn[1] = 1.0
+        return pos, dirn, torch.ones(n, dtype=torch.float64)
+
+    med = Medium((1e-4,) * 3, (0.0,) * 3, 1.5)  # almost no collisions: only TIR
+    t = transport(med, Ball((0.0, 0.0, 0.0), 5.0), source, lambda p, d: torch.zeros(
+        p.shape[1], dtype=torch.long), 1, photons=30, progress=False)  # fmt: skip
+    assert t.photons == 30
