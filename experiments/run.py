@@ -35,6 +35,7 @@ EXPERIMENTS = {
     "stability": "experiments.stability",
     "disk": "experiments.disk",
     "mc_profiles": "experiments.mc_profiles",
+    "mc_gap": "experiments.mc_gap",
     "optimised": "experiments.optimised",
 }
 

@@ -26,7 +26,7 @@ from typing import Any
 
 from sssbench import registry
 from sssbench.runner import execute, run_label
-from sssbench.spec import RunSpec
+from sssbench.spec import REFERENCES, RunSpec
 from sssbench.tracking import RunRecord, RunStore, config_hash
 
 log = logging.getLogger("sssbench")
@@ -105,6 +105,7 @@ SCALAR_KEYS = {
     "force": "bool",
     "timeout_s": "float?",
     "reference_cache": "str?",
+    "reference": "str",
     "previews": "bool",
     "budget": "bool",
 }
@@ -174,6 +175,7 @@ def spec_from_cfg(cfg: Any, overridden: tuple[str, ...] = ()) -> RunSpec:
     for group in STAGE_GROUPS:
         entry = c.get(group) or {}
         stages[group] = dict(entry.get("params") or {}) if entry.get("enabled") else None
+    reference, reference_params, mc_params = _reference_choice(c, c["scene"]["name"])
     cache = c.get("reference_cache")
     tracking = c.get("tracking") or {}
     return RunSpec(
@@ -188,7 +190,9 @@ def spec_from_cfg(cfg: Any, overridden: tuple[str, ...] = ()) -> RunSpec:
         samples=samples,
         stages=stages,
         ignored=ignored,
-        reference_params=dict(c.get("reference") or {}),
+        reference_params=reference_params,
+        reference=reference,
+        mc_params=mc_params,
         budget=bool(c.get("budget", True)),
         resolution=(int(res[0]), int(res[1])),
         seed=c["seed"],
@@ -206,6 +210,31 @@ def spec_from_cfg(cfg: Any, overridden: tuple[str, ...] = ()) -> RunSpec:
         mlflow=_check_type("tracking.mlflow", tracking.get("mlflow", False), "bool"),
         mlflow_uri=tracking.get("mlflow_uri"),
     )
+
+
+def _reference_choice(c: dict[str, Any], scene: str) -> tuple[str, dict[str, Any], dict[str, Any]]:
+    """``(reference, reference_params, mc_params)`` of the config, checked: ``reference`` one
+    of :data:`~sssbench.spec.REFERENCES`, Monte Carlo options (``reference_params.mc_*``)
+    only with ``mc``, ``mc`` only for a scene with a Monte Carlo model."""
+    from sssbench.spec import MC_OPTIONS
+
+    reference = c.get("reference", "profile")
+    if reference not in REFERENCES:
+        raise ValueError(f"reference must be one of {list(REFERENCES)}, got {reference!r}")
+    params = dict(c.get("reference_params") or {})
+    mc_keys = sorted(set(params) & set(MC_OPTIONS))
+    if mc_keys and reference != "mc":
+        raise ValueError(f"reference_params {mc_keys} need reference=mc")
+    if reference == "mc":
+        from data_synth.mc_scenes import MC_SCENES
+
+        if scene not in MC_SCENES:
+            raise ValueError(
+                f"reference=mc needs a scene with a Monte Carlo model ({', '.join(MC_SCENES)}); "
+                f"scene {scene!r} has none"
+            )
+    mc = {k: params.pop(k) for k in mc_keys}
+    return reference, params, mc
 
 
 @functools.lru_cache(maxsize=256)
@@ -562,6 +591,8 @@ def check_overrides(argv: list[str]) -> str | None:
                     _check_type(key, _parse_scalar(v), SCALAR_KEYS[key])
                 except ValueError as exc:
                     return str(exc)
+                if key == "reference" and v not in REFERENCES:
+                    return f"reference must be one of {', '.join(REFERENCES)}, got {v!r}"
     return None
 
 

@@ -84,6 +84,11 @@ METRIC_KEYS = (
     "samples_per_pixel",
     "reference_ms",
     "pixel_mm",
+    "rel_rms_mc",
+    "rel_rms_mc_se",
+    "reference_vs_mc",
+    "reference_vs_mc_se",
+    "identity_vs_mc",
 )
 
 
@@ -304,6 +309,9 @@ def measure(spec: RunSpec, run_dir: Path) -> tuple[dict[str, Any], list[PassStat
         base_rel = rel_rms(identity, reference, mask)
         base_flip, base_flip_local = verdict.visibility_stats(reference, identity, mask)
         budget = _budget(spec, method, profile, gbuffer, reference, mask) if spec.budget else {}
+        mc = {}
+        if spec.reference == "mc":
+            mc = _mc_metrics(spec, gbuffer, result, reference, identity)
     time_ms = float(sum(p.ms_median for p in stats))
     payload: dict[str, Any] = {
         "scene": spec.scene,
@@ -334,6 +342,7 @@ def measure(spec: RunSpec, run_dir: Path) -> tuple[dict[str, Any], list[PassStat
         "visibility_local": base_flip_local,
         "visible": verdict.is_visible(base_flip, base_flip_local),
         **budget,
+        **mc,
         "pixel_mm": _pixel_mm(gbuffer),
         "samples_per_pixel": int(sum(p.samples for p in stats)),
         "plan": [{"stage": e.stage, "runs": e.runs, "reason": e.reason} for e in out.plan],
@@ -467,10 +476,7 @@ def _budget(
         )
     # the budget splits the SSS stage's error: the reference without the specular the
     # pipeline adds after scattering (on the stencil), as the method alone computes it
-    sss_reference = reference
-    if gbuffer.specular is not None:
-        active = (gbuffer.mask_or_ones() > 0).to(reference.dtype)
-        sss_reference = reference - gbuffer.specular.to(reference.dtype) * active
+    sss_reference = _without_specular(reference, gbuffer)
     result = budget.error_budget(
         build,
         spec.samples,
@@ -485,6 +491,67 @@ def _budget(
     return {k: float(result[k]) for k in keys if k != "err_total"} | {
         "converged_samples": int(result["converged_samples"])
     }
+
+
+def _without_specular(image: torch.Tensor, gbuffer: Any) -> torch.Tensor:
+    """``image`` before the specular the pipeline adds after scattering (on the stencil)."""
+    if gbuffer.specular is None:
+        return image
+    active = (gbuffer.mask_or_ones() > 0).to(image.dtype)
+    return image - gbuffer.specular.to(image.dtype) * active
+
+
+def _mc_metrics(
+    spec: RunSpec,
+    gbuffer: Any,
+    result: torch.Tensor,
+    reference: torch.Tensor,
+    identity: torch.Tensor,
+) -> dict[str, Any]:
+    """Errors against Monte Carlo light transport (``reference=mc``; docs/mc.md).
+
+    Quantity compared: the *diffuse* SSS result, i.e. the pipeline's image without the
+    specular it adds after scattering (:func:`_without_specular`), against the MC exitance
+    normalised by the material's diffuse albedo ``ρ = (1 − F(0)) R_d``
+    (:mod:`sssbench.mc.scene`): with texturing off (the default) the pipeline blurs the
+    irradiance with a profile normalised to 1, which on a uniformly, normally lit plane gives
+    back the irradiance, as ``M/ρ`` does. With a texturing stage the pipeline multiplies by
+    the G-buffer's albedo (``pre``, ``post`` and ``sqrt`` agree for the uniform albedo of the
+    MC scenes), so the MC image is multiplied by it too. Translucency needs nothing: the MC
+    carries the light through thin parts physically, with or without the stage.
+
+    The material is the measured one of the run's profile table
+    (:data:`sssbench.mc.scene.PROFILE_MATERIALS`) unless ``reference_params.mc_material``
+    names another. Errors are relative RMS over the stencil where the MC has a value, with
+    the MC noise subtracted (:func:`sssbench.mc.scene.noise_corrected_rel_rms`), each with
+    its jackknife standard error."""
+    from sssbench.mc.scene import noise_corrected_rel_rms, scene_mc
+
+    opts = spec.mc_params
+    material = opts.get("mc_material", spec.profile)
+    mc = scene_mc(
+        spec.scene,
+        gbuffer,
+        spec.scene_params,
+        material,
+        photons=opts.get("mc_photons"),
+        batches=opts.get("mc_batches", 8),
+        seed=opts.get("mc_seed", spec.seed),
+        workers=opts.get("mc_workers"),
+    )
+    batches = mc.batches
+    if spec.stages.get("texturing") is not None and gbuffer.albedo is not None:
+        batches = batches * gbuffer.albedo[:1].double()
+    region = mc.mask & (gbuffer.mask_or_ones()[0, 0] > 0)
+    out: dict[str, Any] = {}
+    for name, image in (("rel_rms_mc", result), ("reference_vs_mc", reference)):
+        value, se = noise_corrected_rel_rms(_without_specular(image, gbuffer)[:1], batches, region)
+        out[name], out[f"{name}_se"] = value, se
+    out["identity_vs_mc"] = noise_corrected_rel_rms(
+        _without_specular(identity, gbuffer)[:1], batches, region
+    )[0]
+    out |= {"mc_photons": mc.photons, "mc_seconds": mc.seconds, "mc_material": str(material)}
+    return out
 
 
 def _write_json(path: Path, payload: dict[str, Any]) -> None:

@@ -12,10 +12,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = ["RunSpec", "REFERENCES"]
+__all__ = ["RunSpec", "REFERENCES", "MC_OPTIONS"]
 
-#: what a run's error is measured against: ``exact`` (:class:`~sssbench.ops.ReferenceSSS`)
-REFERENCES = ("exact",)
+#: what a run's error is measured against: ``profile`` (the exact integral of the diffusion
+#: profile, :class:`~sssbench.ops.ReferenceSSS`) or ``mc`` (that and Monte Carlo light
+#: transport, :func:`sssbench.mc.scene.scene_mc`; docs/mc.md)
+REFERENCES = ("profile", "mc")
+#: keys of ``reference_params`` that configure the Monte Carlo reference (``reference=mc``)
+MC_OPTIONS = ("mc_photons", "mc_batches", "mc_workers", "mc_seed", "mc_material")
 
 
 @dataclass(frozen=True)
@@ -35,7 +39,11 @@ class RunSpec:
             for the baseline in a samples sweep): not passed to the method, but part of the
             point, so two such requests are never merged.
         resolution: ``(H, W)`` pixels.
+        reference: ``profile`` or ``mc`` (:data:`REFERENCES`); in the point only when ``mc``
+            (points stored before the option existed keep their hash).
         reference_params: options of the exact reference (``tol``, ``reconstruction``).
+        mc_params: options of the Monte Carlo reference (:data:`MC_OPTIONS`, given on the
+            command line as ``reference_params.mc_*``); in the point with ``reference``.
         budget: compute the error budget (model / taps / screen space) of the run.
         The rest is run control (not part of the point): repeats, warm-up, threads, backend,
         store, force, timeout, caches, previews.
@@ -56,6 +64,8 @@ class RunSpec:
     stages: dict[str, dict[str, Any] | None] = field(default_factory=dict)
     ignored: dict[str, Any] = field(default_factory=dict)
     reference_params: dict[str, Any] = field(default_factory=dict)
+    reference: str = "profile"
+    mc_params: dict[str, Any] = field(default_factory=dict)
     budget: bool = True
     repeats: int = 5
     warmup: int = 1
@@ -88,6 +98,11 @@ class RunSpec:
             "stages": {k: v for k, v in sorted(self.stages.items()) if v is not None},
             **({"ignored": self.ignored} if self.ignored else {}),
             "reference_params": self.reference_params,
+            **(
+                {"reference": self.reference, "mc_params": self.mc_params}
+                if self.reference != "profile"
+                else {}
+            ),
             "resolution": list(self.resolution),
             "seed": self.seed,
             "dtype": self.dtype,

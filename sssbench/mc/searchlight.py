@@ -26,28 +26,20 @@ this package, so an edited walk never serves an old profile.
 from __future__ import annotations
 
 import hashlib
-import json
 import math
-import os
-import threading
 from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 
 from sssbench._checks import check_int, check_scalar
+from sssbench.mc.cache import cached_entry, mc_cache_dir
 from sssbench.mc.walk import mean_stderr, walk
 from sssbench.profiles.dipole import MATERIALS
 
 __all__ = ["SearchlightResult", "searchlight", "searchlight_result", "mc_cache_dir", "mc_digest"]
 
 _F64 = torch.float64
-
-
-def mc_cache_dir() -> Path:
-    """``$SSSBENCH_CACHE_DIR/mc``, else ``~/.cache/sssbench/mc``."""
-    root = os.environ.get("SSSBENCH_CACHE_DIR")
-    return (Path(root) if root else Path.home() / ".cache" / "sssbench") / "mc"
 
 
 def _source_digest() -> str:
@@ -193,15 +185,24 @@ def searchlight_result(
         "batch": batch,
         "code": mc_digest(),
     }
-    blob = json.dumps(key, sort_keys=True)
-    path = mc_cache_dir() / f"searchlight_{hashlib.sha256(blob.encode()).hexdigest()[:32]}.pt"
-    if cache and path.is_file():
-        try:
-            entry = torch.load(path, weights_only=True)
-            if entry["key"] == blob:
-                return SearchlightResult(radii=radii, **entry["result"])
-        except Exception:  # noqa: BLE001 - a corrupt entry is recomputed
-            pass
+
+    def compute() -> dict:
+        return _walk_channels(ss, sa, eta, radii, photons, seed, batch, progress)
+
+    return SearchlightResult(radii=radii, **cached_entry("searchlight", key, compute, cache))
+
+
+def _walk_channels(
+    ss: torch.Tensor,
+    sa: torch.Tensor,
+    eta: float,
+    radii: torch.Tensor,
+    photons: int,
+    seed: int,
+    batch: int,
+    progress: bool | None,
+) -> dict:
+    """One walk per channel; the fields of :class:`SearchlightResult` but ``radii``."""
     st = ss + sa
     frac, frac_se, tot, tot_se, esc = [], [], [], [], []
     inter, secs = 0, 0.0
@@ -236,12 +237,7 @@ def searchlight_result(
         "interactions": inter,
         "seconds": secs,
     }
-    if cache:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f"{path.name}.{os.getpid()}.{threading.get_ident()}.tmp")
-        torch.save({"key": blob, "result": result}, tmp)
-        os.replace(tmp, path)
-    return SearchlightResult(radii=radii, **result)
+    return result
 
 
 def searchlight(
