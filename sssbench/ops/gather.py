@@ -55,7 +55,7 @@ from dataclasses import dataclass
 import torch
 
 from sssbench._checks import check_choice, check_scalar, check_tensor
-from sssbench._memo import memo_scope
+from sssbench._memo import call_scoped, memo_scope
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.kernel1d import Kernel1D
 from sssbench.ops import native
@@ -325,6 +325,20 @@ def _inverse_scale(surface_scale: float | torch.Tensor | None, dtype: torch.dtyp
     return inv
 
 
+def _pass_constants(
+    kernel: Kernel1D, surface_scale: float | torch.Tensor | None, dtype: torch.dtype
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """:func:`_taps` and :func:`_inverse_scale`, shared by the passes of one operator call
+    (:func:`~sssbench._memo.call_scoped` on the kernel's tensors: built anew in every call)."""
+    scale_t = surface_scale if isinstance(surface_scale, torch.Tensor) else None
+    tag = ("pass-constants", dtype, None if scale_t is not None else surface_scale)
+    return call_scoped(
+        (kernel.offsets, kernel.weights, scale_t),
+        tag,
+        lambda: (*_taps(kernel, dtype), _inverse_scale(surface_scale, dtype)),
+    )
+
+
 def separable_pass(
     image: torch.Tensor,
     kernel: Kernel1D,
@@ -428,8 +442,7 @@ def separable_pass(
         correction, maxdd = float(stretch.correction), float(stretch.maxdd)
     per_pixel = width if isinstance(width, torch.Tensor) else None
     width_scalar = 0.0 if per_pixel is not None else float(width)
-    offsets, weights = _taps(kernel, dtype)
-    inv_scale = _inverse_scale(surface_scale, dtype)
+    offsets, weights, inv_scale = _pass_constants(kernel, surface_scale, dtype)
     follow = FOLLOW_SURFACE.index(follow_surface)
     if inplace:
         check_writable("image", image, {
