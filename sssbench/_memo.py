@@ -6,16 +6,25 @@ Lives below the G-buffer (which memoises its field checks) and the operators (st
 A cache must never trade correctness for speed, and a tensor's identity, data pointer and
 version counter do not prove its contents unchanged: a write through ``.data``, a NumPy view,
 under ``torch.inference_mode`` (no version counter) or by a C library leaves all three as they
-were. So an entry keeps a bitwise snapshot of its key tensors and is used only when the tensors
-still hold exactly those bits (one compare, a read of the key tensor: about 1 ms for a 1080p
-mask, against some 30 ms for the stencil it saves). Within one operator call
-(:func:`memo_scope`) an entry verified once is trusted for the rest of the call, on the same
-tensor object at the same version: the call's own writes go to its output, which the gather
-refuses to alias with the G-buffer (:func:`sssbench.ops.gather.check_writable`).
+were. So an entry of :func:`memoised` keeps a bitwise snapshot of its key tensors and is used
+only when the tensors still hold exactly those bits (one ``memcmp`` of the key tensor and its
+snapshot: 0.2 ms for a 1080p float32 mask on this machine, where ``numpy.array_equal`` took
+0.5 ms and allocated a 2 MB temporary). That compare reads the whole tensor, so it is a fixed
+cost per call proportional to the image, not to the covered pixels: what is cheaper to rebuild
+from the tensor than to verify (the native loop's stencil runs: one read of the mask, half the
+bytes of a compare, no snapshot kept) is not memoised across calls at all but rebuilt per call
+and shared within it (:func:`call_scoped`).
+
+Within one operator call (:func:`memo_scope`) a value verified or built once is trusted for
+the rest of the call, on the same tensor object at the same data pointer and version: the
+call's own writes go to its output, which the gather refuses to alias with the G-buffer
+(:func:`sssbench.ops.gather.check_writable`), and nothing else runs between its passes.
 """
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import threading
 import weakref
 from collections import OrderedDict
@@ -27,7 +36,7 @@ from typing import TypeVar
 import numpy as np
 import torch
 
-__all__ = ["memoised", "memo_scope"]
+__all__ = ["memoised", "memo_scope", "call_scoped"]
 
 #: key -> (bitwise snapshots of the key tensors, value), least recently used first
 _MEMO: OrderedDict[tuple, tuple[tuple, object]] = OrderedDict()
@@ -52,11 +61,27 @@ def _bits(t: torch.Tensor) -> torch.Tensor:
     return t.reshape(-1).view(_BITS[t.element_size()])
 
 
+def _libc_memcmp() -> Callable[[int, int, int], int] | None:
+    """The C library's ``memcmp`` through ctypes, or ``None`` where it cannot be loaded."""
+    try:
+        fn = ctypes.CDLL(ctypes.util.find_library("c") or None).memcmp
+    except (OSError, AttributeError, TypeError):
+        return None
+    fn.restype = ctypes.c_int
+    fn.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_size_t]
+    return fn
+
+
+_MEMCMP = _libc_memcmp()
+
+
 def _same_bits(snapshot: torch.Tensor | None, t: torch.Tensor | None) -> bool:
     """Whether ``t`` holds exactly the bits of ``snapshot`` (same shape and dtype).
 
-    On the CPU through NumPy: ``torch.equal`` runs on torch's thread pool and took 16–28 ms
-    for a 2 MB mask on this (2-core, shared) machine where ``numpy.array_equal`` took 0.06 ms.
+    On the CPU by ``memcmp`` of the two contiguous byte ranges (NumPy without a C library):
+    ``torch.equal`` runs on torch's thread pool and took 16–28 ms for a 2 MB mask on this
+    (2-core, shared) machine; for an 8 MB 1080p mask ``memcmp`` took 0.2 ms and
+    ``numpy.array_equal`` 0.5 ms (it allocates a boolean temporary).
     """
     if snapshot is None or t is None:
         return snapshot is None and t is None
@@ -64,6 +89,11 @@ def _same_bits(snapshot: torch.Tensor | None, t: torch.Tensor | None) -> bool:
         return False
     a, b = _bits(snapshot), _bits(t)
     if a.device.type == "cpu" and a.dtype in _BITS.values():
+        if _MEMCMP is not None:
+            return (
+                a.numel() == 0
+                or _MEMCMP(a.data_ptr(), b.data_ptr(), a.numel() * a.element_size()) == 0
+            )
         return bool(np.array_equal(a.numpy(), b.numpy()))
     return torch.equal(a, b)
 
@@ -130,6 +160,39 @@ def memo_scope() -> Iterator[None]:
             _SCOPE.reset(token)
 
 
+def _in_scope(scope: dict | None, ident: tuple, tensors: tuple) -> tuple[bool, object]:
+    """``(True, value)`` if ``scope`` holds a value for ``ident`` on these very tensor objects
+    (their ids are theirs: the scope keeps them alive), else ``(False, None)``."""
+    hit = None if scope is None else scope.get(ident)
+    if hit is not None and all(a is b for a, b in zip(hit[0], tensors, strict=True)):
+        return True, hit[1]
+    return False, None
+
+
+def call_scoped(
+    tensors: tuple[torch.Tensor | None, ...], tag: Hashable, compute: Callable[[], T]
+) -> T:
+    """``compute()``, shared within the current :func:`memo_scope` (one operator call) while
+    ``tensors`` are the same objects at the same data pointer and version, and never kept
+    beyond it: outside a scope every call computes.
+
+    For what is cheaper to rebuild from the tensors' contents than to verify against a
+    snapshot (the native loop's stencil runs: one read of the mask, where a bitwise check
+    reads the mask and its snapshot), so that no value outlives the call it was built in and
+    none can go stale. ``compute`` must depend only on the contents of ``tensors`` and on
+    ``tag``.
+    """
+    scope = _SCOPE.get()
+    if scope is None:
+        return compute()
+    ident = ("call", tag, *(_ident(t) for t in tensors))
+    found, value = _in_scope(scope, ident, tensors)
+    if not found:
+        value = compute()
+        scope[ident] = (tensors, value)  # keeps the tensors alive: their ids stay theirs
+    return value  # type: ignore[return-value]
+
+
 def _snapshot_bytes() -> int:
     unique = {id(s): s for snaps, _ in _MEMO.values() for s in snaps if s is not None}
     return sum(s.numel() * s.element_size() for s in unique.values())
@@ -152,10 +215,9 @@ def memoised(
     """
     scope = _SCOPE.get()
     ident = (tag, *(_ident(t) for t in tensors))
-    if scope is not None:
-        hit = scope.get(ident)
-        if hit is not None and all(a is b for a, b in zip(hit[0], tensors, strict=True)):
-            return hit[1]  # type: ignore[return-value]
+    found, value = _in_scope(scope, ident, tensors)
+    if found:
+        return value  # type: ignore[return-value]
     key = (tag, *(_meta(t) for t in tensors))
     hit = _MEMO.get(key)
     if hit is not None and all(_matches(s, t, scope) for s, t in zip(hit[0], tensors, strict=True)):

@@ -31,7 +31,7 @@ from sssbench.ops import native
 from sssbench.ops._gather_torch import gather_torch
 from sssbench.ops._stencil import image_spans
 
-__all__ = ["gather", "gather_", "blend_", "native_pass"]
+__all__ = ["gather", "gather_", "blend_", "native_pass", "run_pass"]
 
 Tensor = torch.Tensor
 
@@ -90,31 +90,33 @@ def native_pass(lib: object, image: Tensor, out: Tensor, args: tuple, copy: bool
     return n_total
 
 
-def _gather(image: Tensor, *args) -> Tensor:
-    """``torch.ops.sssbench.gather``: one gather pass over a batch, a new ``(B, 3, H, W)``
-    contiguous tensor, the active pixels blurred and the others ``image``'s. Arguments as
-    :func:`~sssbench.ops._gather_torch.gather_torch` (validated by
-    :func:`~sssbench.ops.gather.separable_pass`, the public entry)."""
+def run_pass(image: Tensor, args: tuple, inplace: bool) -> tuple[Tensor, int]:
+    """One gather pass over a batch without autograd: ``(result, active pixel count)``.
+
+    ``inplace``: the result is written into ``image`` (contiguous, overlapping no other
+    argument: :func:`~sssbench.ops.gather.check_writable`), only the active pixels touched;
+    otherwise a new ``(B, 3, H, W)`` contiguous tensor, the active pixels blurred and the
+    others ``image``'s. ``args`` as :func:`~sssbench.ops._gather_torch.gather_torch`'s after
+    ``image`` (validated by :func:`~sssbench.ops.gather.separable_pass`, the public entry).
+    The torch loop without the C library. Bumps no version counter: the operators below
+    (and :func:`~sssbench.ops.gather.separable_pass` when it calls this directly) do."""
     lib = native.library()
     if lib is None:
         with torch.no_grad():
-            return gather_torch(image, *args)[0]
-    out = torch.empty(image.shape, dtype=image.dtype, device=image.device)
-    native_pass(lib, image, out, args, copy=True)
-    return out
+            return gather_torch(image, *args, out=image if inplace else None)
+    out = image if inplace else torch.empty(image.shape, dtype=image.dtype, device=image.device)
+    return out, native_pass(lib, image, out, args, copy=not inplace)
+
+
+def _gather(image: Tensor, *args) -> Tensor:
+    """``torch.ops.sssbench.gather``: :func:`run_pass`, a new tensor."""
+    return run_pass(image, args, inplace=False)[0]
 
 
 def _gather_inplace(image: Tensor, *args) -> None:
-    """``torch.ops.sssbench.gather_``: :func:`_gather` written into ``image`` (contiguous,
-    overlapping no other argument: :func:`~sssbench.ops.gather.check_writable`); only the
-    active pixels are touched. Bumps ``image``'s version counter (``mutates_args``). No
-    autograd: not for a tensor autograd records."""
-    lib = native.library()
-    if lib is None:
-        with torch.no_grad():
-            gather_torch(image, *args, out=image)
-        return
-    native_pass(lib, image, image, args, copy=False)
+    """``torch.ops.sssbench.gather_``: :func:`run_pass` in place. Bumps ``image``'s version
+    counter (``mutates_args``). No autograd: not for a tensor autograd records."""
+    run_pass(image, args, inplace=True)
 
 
 gather = torch.library.custom_op(

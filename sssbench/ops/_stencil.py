@@ -11,7 +11,8 @@ from collections.abc import Callable, Sequence
 
 import torch
 
-from sssbench._memo import memoised
+from sssbench._memo import call_scoped, memoised
+from sssbench.ops import native
 
 __all__ = ["active_pixels", "apply_on_active", "image_spans", "image_stencils"]
 
@@ -48,8 +49,12 @@ def image_spans(mask: torch.Tensor | None, shape: tuple[int, int, int]) -> list[
     """Per image, the runs of active pixels, row by row: ``(S, 3)`` int64 ``(row, first
     column, end column)`` sorted by row then column, the stencil as the native loop walks it.
 
-    Derived from :func:`image_stencils` and memoised with it; without a mask every row is one
-    run.
+    Rebuilt from the mask's contents on every operator call by one read of the mask in C
+    (``sss_spans``; ``torch.nonzero`` without the native library) and shared by the
+    call's passes (:func:`~sssbench._memo.call_scoped`): rebuilding reads the mask once,
+    half the bytes of a bitwise check against a kept snapshot, so a cross-call memo would
+    cost more than it saves, and a stencil that is never kept cannot go stale. Without a mask
+    every row is one run.
 
     Args:
         mask: ``(B, 1, H, W)`` stencil / strength, or ``None``.
@@ -60,18 +65,40 @@ def image_spans(mask: torch.Tensor | None, shape: tuple[int, int, int]) -> list[
         rows = torch.arange(h, dtype=torch.int64)
         full = torch.stack([rows, torch.zeros_like(rows), torch.full_like(rows, w)], 1)
         return [full] * b
+    return call_scoped((mask,), "spans", lambda: [_runs(m[0], w) for m in mask])
 
-    def runs(lin: torch.Tensor) -> torch.Tensor:
-        if lin.numel() == 0:
-            return torch.zeros(0, 3, dtype=torch.int64)
-        row, col = lin // w, lin % w
-        start = torch.ones_like(lin, dtype=torch.bool)  # a run starts where the next pixel
-        start[1:] = (lin[1:] != lin[:-1] + 1) | (row[1:] != row[:-1])  # is not the previous + 1
-        first = torch.nonzero(start).squeeze(1)
-        last = torch.cat([first[1:], first.new_tensor([lin.numel()])]) - 1
-        return torch.stack([row[first], col[first], col[last] + 1], 1).contiguous()
 
-    return memoised((mask,), "spans", lambda: [runs(lin) for lin in image_stencils(mask)])
+def _runs(mask: torch.Tensor, w: int) -> torch.Tensor:
+    """The ``(S, 3)`` runs of one ``(H, W)`` mask (see :func:`image_spans`)."""
+    lib = native.library()
+    fn = _SPANS.get(mask.dtype)
+    if lib is None or fn is None or mask.device.type != "cpu":
+        return _runs_of_indices(torch.nonzero(mask.reshape(-1) > 0).squeeze(1), w)
+    m = mask.detach().contiguous()
+    h = m.shape[0]
+    cap = 4 * h + 1024  # a few runs per row; counted exactly when there are more
+    while True:
+        out = torch.empty(cap, 3, dtype=torch.int64)
+        n = getattr(lib, fn)(m.data_ptr(), h, w, out.data_ptr(), cap)
+        if n <= cap:
+            return out[:n]
+        cap = n
+
+
+#: the C scan per mask dtype
+_SPANS = {torch.float32: "sss_spans_f32", torch.float64: "sss_spans_f64"}
+
+
+def _runs_of_indices(lin: torch.Tensor, w: int) -> torch.Tensor:
+    """The runs of sorted flat indices ``lin`` (int64, into ``H·W``) of an image ``w`` wide."""
+    if lin.numel() == 0:
+        return torch.zeros(0, 3, dtype=torch.int64)
+    row, col = lin // w, lin % w
+    start = torch.ones_like(lin, dtype=torch.bool)  # a run starts where the next pixel
+    start[1:] = (lin[1:] != lin[:-1] + 1) | (row[1:] != row[:-1])  # is not the previous + 1
+    first = torch.nonzero(start).squeeze(1)
+    last = torch.cat([first[1:], first.new_tensor([lin.numel()])]) - 1
+    return torch.stack([row[first], col[first], col[last] + 1], 1).contiguous()
 
 
 def apply_on_active(

@@ -15,8 +15,13 @@ itself has one specification, the differentiable torch loop
 (:mod:`sssbench.ops._gather_torch`), and a fast C counterpart registered as the torch
 operators ``torch.ops.sssbench.gather`` / ``gather_`` (:mod:`sssbench.ops._gather_native`,
 sources in ``native/``). Pixels with ``mask > 0`` are compacted into one list per image
-(stencil: masked-out pixels are never computed, 002 §4 / 003 §7.3.1), memoised per mask
-contents (:func:`~sssbench._memo.memoised`), so time follows covered pixels.
+(stencil: masked-out pixels are never computed, 002 §4 / 003 §7.3.1), so time follows covered
+pixels: the native loop's runs are rebuilt from the mask once per call (one read of it,
+:func:`~sssbench.ops._stencil.image_spans`), the torch loop's index lists memoised per mask
+contents (:func:`~sssbench._memo.memoised`). Without autograd the native pass is called
+directly rather than through the dispatcher (whose argument binding cost more per pass than
+a small object's work); the operators are used when autograd records the pass or a graph is
+compiled.
 
 Backends (:data:`BACKENDS`, chosen per block with :func:`backend`, default ``"native"``):
 
@@ -50,13 +55,11 @@ from dataclasses import dataclass
 import torch
 
 from sssbench._checks import check_choice, check_scalar, check_tensor
-from sssbench._memo import memo_scope
+from sssbench._memo import call_scoped, memo_scope
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.kernel1d import Kernel1D
-from sssbench.ops import (
-    _gather_native,  # noqa: F401 - registers torch.ops.sssbench.*
-    native,
-)
+from sssbench.ops import native
+from sssbench.ops._gather_native import run_pass  # also registers torch.ops.sssbench.*
 from sssbench.ops._gather_torch import SampleWeight, compiled_accumulate, gather_torch
 from sssbench.ops._stencil import image_spans, image_stencils
 from sssbench.ops.timing import PassRecord, add_record
@@ -322,6 +325,20 @@ def _inverse_scale(surface_scale: float | torch.Tensor | None, dtype: torch.dtyp
     return inv
 
 
+def _pass_constants(
+    kernel: Kernel1D, surface_scale: float | torch.Tensor | None, dtype: torch.dtype
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """:func:`_taps` and :func:`_inverse_scale`, shared by the passes of one operator call
+    (:func:`~sssbench._memo.call_scoped` on the kernel's tensors: built anew in every call)."""
+    scale_t = surface_scale if isinstance(surface_scale, torch.Tensor) else None
+    tag = ("pass-constants", dtype, None if scale_t is not None else surface_scale)
+    return call_scoped(
+        (kernel.offsets, kernel.weights, scale_t),
+        tag,
+        lambda: (*_taps(kernel, dtype), _inverse_scale(surface_scale, dtype)),
+    )
+
+
 def separable_pass(
     image: torch.Tensor,
     kernel: Kernel1D,
@@ -425,8 +442,7 @@ def separable_pass(
         correction, maxdd = float(stretch.correction), float(stretch.maxdd)
     per_pixel = width if isinstance(width, torch.Tensor) else None
     width_scalar = 0.0 if per_pixel is not None else float(width)
-    offsets, weights = _taps(kernel, dtype)
-    inv_scale = _inverse_scale(surface_scale, dtype)
+    offsets, weights, inv_scale = _pass_constants(kernel, surface_scale, dtype)
     follow = FOLLOW_SURFACE.index(follow_surface)
     if inplace:
         check_writable("image", image, {
@@ -443,8 +459,10 @@ def separable_pass(
             width_scalar, correction, maxdd, axis == 2, follow)  # fmt: skip
 
     start = time.perf_counter()
-    with memo_scope():  # the stencil is verified once per call (see sssbench._memo)
-        if name_ == "native":
+    with memo_scope():  # the stencil is built once per call (see sssbench._memo)
+        if name_ == "native" and (grads or torch.compiler.is_compiling()):
+            # through the dispatcher: autograd records the operator (its backward is the
+            # torch loop's), a compiled graph traces it
             if inplace:
                 torch.ops.sssbench.gather_(image, *args)
                 out = image
@@ -452,6 +470,13 @@ def separable_pass(
                 out = torch.ops.sssbench.gather(image, *args)
             spans = image_spans(strength, (b_, h_, w_))
             n_total = int(sum(int((s[:, 2] - s[:, 1]).sum()) for s in spans))
+        elif name_ == "native":
+            # no autograd: the operator's implementation called directly (the dispatcher and
+            # its argument binding cost ~65 us per pass, more than a small object's work),
+            # bumping the version counter of an in-place target as the operator would
+            out, n_total = run_pass(image, args, inplace)
+            if inplace and not image.is_inference():
+                torch.autograd.graph.increment_version(image)
         else:
             rot = None
             if rotation is not None:

@@ -89,6 +89,9 @@ def _declare(lib: ctypes.CDLL) -> None:
     for fn in (lib.sss_blend_f32, lib.sss_blend_f64):
         fn.restype = ctypes.c_int64  # active pixels
         fn.argtypes = [p] * 4 + [i64] * 3 + [i32]
+    for fn in (lib.sss_spans_f32, lib.sss_spans_f64):
+        fn.restype = ctypes.c_int64  # runs of active pixels
+        fn.argtypes = [p, i64, i64, p, i64]
 
 
 def _load(path: Path) -> ctypes.CDLL:

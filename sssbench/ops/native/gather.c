@@ -28,6 +28,7 @@
 #include "pool.h"
 
 #define SCALAR float
+#define LANE int32_t
 #define SUFFIX f32
 #define SCALAR_MAX FLT_MAX
 #define EXPF expf
@@ -36,6 +37,7 @@
 #define VMAX VMAX_F32
 #include "gather_body.h"
 #undef SCALAR
+#undef LANE
 #undef SUFFIX
 #undef SCALAR_MAX
 #undef EXPF
@@ -44,6 +46,7 @@
 #undef VMAX
 
 #define SCALAR double
+#define LANE int64_t
 #define SUFFIX f64
 #define SCALAR_MAX DBL_MAX
 #define EXPF exp

@@ -3,7 +3,8 @@
  * Mirrors sssbench.ops._gather_torch (pixel_scales, _accumulate) operation by operation
  * (same float operations in the same order: bitwise equal results but for exp, see
  * BACKEND_AGREEMENT in sssbench/ops/gather.py); see those functions for the formulas and
- * their citations. Expects SCALAR, SCALAR_MAX, SUFFIX, EXPF, FABSF, VMIN and VMAX.
+ * their citations. Expects SCALAR, LANE (the signed integer of its size), SCALAR_MAX, SUFFIX,
+ * EXPF, FABSF, VMIN and VMAX.
  *
  * Work is done per line: a row of the image for an x pass, a strip of columns for a y pass (a
  * y tap stays in its column). For each line the active pixels' scales are computed
@@ -40,6 +41,9 @@ typedef struct {
 } CAT(job_, SUFFIX);
 
 typedef SCALAR CAT(vec_, SUFFIX) __attribute__((vector_size(4 * sizeof(SCALAR))));
+/* 16 bytes (one SSE register) of SCALARs and the lane masks of comparing two: the stencil scan */
+typedef SCALAR CAT(vec16_, SUFFIX) __attribute__((vector_size(16)));
+typedef LANE CAT(lanes16_, SUFFIX) __attribute__((vector_size(16)));
 
 /* y-pass strip widths (columns): one cache line of each plane row when few pixels are active
  * (a narrow strip packs no column it does not need), 512 bytes of each when many are or the
@@ -330,6 +334,54 @@ int64_t CAT(sss_blend_, SUFFIX)(SCALAR *out, const SCALAR *end, const int64_t *s
         jobs[t] = jb;
     }
     pool_run(CAT(run_blend_, SUFFIX), (char *)jobs, sizeof jobs[0], threads);
+    return n;
+}
+
+/* The stencil as runs: (row, first column, end column) of every run of pixels with
+ * mask > 0 (NaN is not > 0, as in torch), row after row, written to out (3 int64 per run)
+ * while fewer than cap; returns the number of runs (the caller calls again with a larger out
+ * when it exceeds cap). One read of the (h, w) mask, a block of 16 pixels at a time where a
+ * block is all off or all on: the stencil of a call is rebuilt from the mask's contents on
+ * every call (sssbench.ops._stencil.image_spans), so it can never be stale. */
+int64_t CAT(sss_spans_, SUFFIX)(const SCALAR *mask, int64_t h, int64_t w, int64_t *out,
+                                int64_t cap) {
+    typedef CAT(vec16_, SUFFIX) vec;
+    typedef CAT(lanes16_, SUFFIX) lanes;
+    enum { BLOCK = 4 * 16 / sizeof(SCALAR) }; /* pixels: four vectors */
+    const vec zero = {0};
+    int64_t n = 0;
+    for (int64_t r = 0; r < h; ++r) {
+        const SCALAR *m = mask + r * w;
+        int64_t c = 0;
+        while (c < w) {
+            for (; c + BLOCK <= w; c += BLOCK) { /* skip blocks with no active pixel */
+                vec v[4];
+                __builtin_memcpy(v, m + c, sizeof v);
+                const lanes on = (v[0] > zero) | (v[1] > zero) | (v[2] > zero) | (v[3] > zero);
+                uint64_t bits[2]; /* the lane masks as words: no lane extracts */
+                __builtin_memcpy(bits, &on, sizeof on);
+                if (bits[0] | bits[1]) break;
+            }
+            while (c < w && !(m[c] > 0)) ++c;
+            if (c >= w) break;
+            const int64_t c0 = c;
+            for (; c + BLOCK <= w; c += BLOCK) { /* skip blocks of active pixels only */
+                vec v[4];
+                __builtin_memcpy(v, m + c, sizeof v);
+                const lanes on = (v[0] > zero) & (v[1] > zero) & (v[2] > zero) & (v[3] > zero);
+                uint64_t bits[2];
+                __builtin_memcpy(bits, &on, sizeof on);
+                if ((bits[0] & bits[1]) != ~(uint64_t)0) break;
+            }
+            while (c < w && m[c] > 0) ++c;
+            if (n < cap) {
+                out[3 * n] = r;
+                out[3 * n + 1] = c0;
+                out[3 * n + 2] = c;
+            }
+            ++n;
+        }
+    }
     return n;
 }
 
