@@ -409,11 +409,15 @@ def gather(
     ``g``, per channel of ``q``: ``(G, T, C)``.
 
     With ``ratio``: the moment expansion of the blocks of :func:`_cuts` plus Gauss–Legendre
-    points on the cells too large to expand (steep or wide against σ). Without (Gaussians
+    points on the cells too large to expand (steep or wide against σ), all of them sources
+    of one :func:`far_field` per tile of targets (:func:`_sources`). Without (Gaussians
     narrower than a pixel): graded Gauss–Legendre points on every cell
     (:func:`_graded_rule`). Sources are taken from the window of :func:`_window_px` around
-    each tile of ``tile²`` targets: the cells within ``R_g = σ_g √(2 ln(1/tols_g))`` in 3D
-    (the 2D Gaussian holds ``exp(−R²/2v) = tol_g`` of its mass beyond ``R``).
+    each tile of targets: the cells within ``R_g = σ_g √(2 ln(1/tols_g))`` in 3D (the 2D
+    Gaussian holds ``exp(−R²/2v) = tol_g`` of its mass beyond ``R``). ``tile``: the tile
+    side in pixels of the graded path; the moment path takes tiles of about ``R_g / 4``
+    (at least 16 pixels): a tile much smaller than the window it reads costs calls, one
+    much larger costs sources per target.
     """
     out = torch.zeros(len(variances), rows.numel(), s.q.shape[0], dtype=s.z.dtype)
     if rows.numel() == 0:
@@ -422,81 +426,161 @@ def gather(
     geo = torch.stack([s.x, s.y, s.z, s.half, s.sx, s.sy])
     fields = torch.nn.functional.pad(geo[None], (1, 1, 1, 1), mode="replicate")[0]
     q = torch.nn.functional.pad(s.q[None], (1, 1, 1, 1), mode="replicate")[0]
-    if ratio is not None:
-        levels = _levels(max(variances), ratio, hp, wp)
-        pyr = surface_pyramid(s, reconstruction, levels)
-        cuts = [_cuts(pyr, v, ratio) for v in variances]
-    else:
-        h_max = float(s.half.max())
-        rules = [_graded_rule(h_max / math.sqrt(v)) for v in variances]
     tgt = torch.stack([s.x[rows, cols], s.y[rows, cols], s.z[rows, cols]], 1)
+    if ratio is None:
+        h_max = float(s.half.max())
+        for gi, v in enumerate(variances):
+            rule = _graded_rule(h_max / math.sqrt(v))
+            reach = math.sqrt(v) * math.sqrt(2 * math.log(1 / tols[gi]))
+            for sel, (ra, rb, ca, cb) in _tiles(s, rows, cols, tgt, tile, reach):
+                fw, qw = fields[:, ra : rb + 2, ca : cb + 2], q[:, ra : rb + 2, ca : cb + 2]
+                pts, mass = cell_nodes(fw, qw, fw[3, 1:-1, 1:-1] > 0, *rule, reconstruction)
+                if pts.shape[0]:
+                    out[gi, sel] = point_field(tgt[sel], pts, mass, v)
+                if progress is not None:
+                    progress.update(sel.numel())
+        return out
+    pyr = surface_pyramid(s, reconstruction, _levels(max(variances), ratio, hp, wp))
+    for gi, v in enumerate(variances):
+        reach = math.sqrt(v) * math.sqrt(2 * math.log(1 / tols[gi]))
+        side = max(tile, 1 << max(0, math.floor(math.log2(reach / 4))))
+        src = _sources(pyr, *_cuts(pyr, v, ratio), fields, q, reconstruction, side)
+        for sel, window in _tiles(s, rows, cols, tgt, side, reach):
+            x = tgt[sel]
+            out[gi, sel] = src.field(x, v, reach, window)
+            if progress is not None:
+                progress.update(sel.numel())
+    return out
+
+
+def _tiles(
+    s: Surface,
+    rows: torch.Tensor,
+    cols: torch.Tensor,
+    tgt: torch.Tensor,
+    tile: int,
+    reach: float,
+):
+    """The targets by tiles of ``tile²`` pixels: per tile the target indices and the pixel
+    window ``(ra, rb, ca, cb)`` (rows ``ra:rb``, cols ``ca:cb``) of :func:`_window_px`."""
+    hp, wp = s.z.shape
     ntc = (wp + tile - 1) // tile
     tid = (rows // tile) * ntc + cols // tile
     order = torch.argsort(tid, stable=True)
     uniq, counts = torch.unique_consecutive(tid[order], return_counts=True)
     starts = torch.cumsum(counts, 0) - counts
-    for t_idx, st, cnt in zip(uniq.tolist(), starts.tolist(), counts.tolist(), strict=True):
-        sel = order[st : st + cnt]
+    zmins = torch.segment_reduce(tgt[order, 2], "min", lengths=counts).tolist()
+    for t_idx, st, cnt, zmin in zip(
+        uniq.tolist(), starts.tolist(), counts.tolist(), zmins, strict=True
+    ):
         r0, c0 = (t_idx // ntc) * tile, (t_idx % ntc) * tile
-        x = tgt[sel]
-        zmin = float(x[:, 2].min())
-        for gi, v in enumerate(variances):
-            reach = math.sqrt(v) * math.sqrt(2 * math.log(1 / tols[gi]))
-            rpx = _window_px(s, reach, zmin)
-            ra, rb = max(0, int(r0 - rpx)), min(hp, int(r0 + tile + rpx) + 1)
-            ca, cb = max(0, int(c0 - rpx)), min(wp, int(c0 + tile + rpx) + 1)
-            fw, qw = fields[:, ra : rb + 2, ca : cb + 2], q[:, ra : rb + 2, ca : cb + 2]
-            res = out.new_zeros(cnt, s.q.shape[0])
-            if ratio is None:
-                pts, mass = cell_nodes(fw, qw, fw[3, 1:-1, 1:-1] > 0, *rules[gi], reconstruction)
-                if pts.shape[0]:
-                    res += point_field(x, pts, mass, v)
-            else:
-                cut, n_gl = cuts[gi]
-                res += _blocks(pyr, cut, x, v, reach, (ra, rb, ca, cb))
-                nw = n_gl[ra:rb, ca:cb]
-                for n in torch.unique(nw[nw > 0]).tolist():
-                    pts, mass = cell_nodes(fw, qw, nw == n, *_gl01(n), reconstruction)
-                    res += point_field(x, pts, mass, v)
-            out[gi, sel] = res
-        if progress is not None:
-            progress.update(cnt)
-    return out
+        rpx = _window_px(s, reach, zmin)
+        ra, rb = max(0, int(r0 - rpx)), min(hp, int(r0 + tile + rpx) + 1)
+        ca, cb = max(0, int(c0 - rpx)), min(wp, int(c0 + tile + rpx) + 1)
+        yield order[st : st + cnt], (ra, rb, ca, cb)
 
 
-def _blocks(
+@dataclass
+class _Sources:
+    """The sources of one Gaussian, bucketed by ``side``-pixel squares of their pixel: ``pos``
+    ``(N, 3)`` expansion centres, ``mom`` ``(N, C, 10)`` moments, ``rad`` ``(N,)`` ball radii
+    (0 for the point masses of Gauss–Legendre nodes); bucket ``(i, j)`` holds the sources
+    ``start[i · ncols + j] : start[i · ncols + j + 1]``; ``margin``: the largest distance in
+    pixels from a source's pixel to a pixel of its block."""
+
+    pos: torch.Tensor
+    mom: torch.Tensor
+    rad: torch.Tensor
+    start: list[int]
+    ncols: int
+    nrows: int
+    side: int
+    margin: int
+
+    def field(
+        self, x: torch.Tensor, v: float, reach: float, window: tuple[int, int, int, int]
+    ) -> torch.Tensor:
+        """:func:`far_field` at the targets ``x`` ``(T, 3)`` of the sources of a block
+        touching the pixel window ``(ra, rb, ca, cb)`` whose ball comes within ``reach`` of
+        the 3D bounding box of the targets (the others hold less than the tolerance of the
+        Gaussian)."""
+        ra, rb, ca, cb = window
+        m, sd = self.margin, self.side
+        r1, r2 = max(0, (ra - m) // sd), min(self.nrows - 1, (rb - 1 + m) // sd)
+        c1, c2 = max(0, (ca - m) // sd), min(self.ncols - 1, (cb - 1 + m) // sd)
+        spans = [
+            (self.start[i * self.ncols + c1], self.start[i * self.ncols + c2 + 1])
+            for i in range(r1, r2 + 1)
+        ]
+        idx = torch.cat([torch.arange(a, b) for a, b in spans if b > a] or [torch.arange(0)])
+        p = self.pos[idx]
+        lo, hi = x.amin(0), x.amax(0)
+        gap = (p - hi).clamp_min(0) + (lo - p).clamp_min(0)
+        keep = idx[(gap * gap).sum(1) <= (reach + self.rad[idx]) ** 2]
+        return far_field(x, self.pos[keep], self.mom[keep], v)
+
+
+def _sources(
     pyr: Pyramid,
     cut: list[torch.Tensor],
-    x: torch.Tensor,
-    v: float,
-    reach: float,
-    window: tuple[int, int, int, int],
-) -> torch.Tensor:
-    """:func:`far_field` of the cut blocks overlapping the pixel window ``(ra, rb, ca, cb)``
-    (rows ``ra:rb``, cols ``ca:cb``) whose ball comes within ``reach`` of the 3D bounding box
-    of the targets ``x`` (the others hold less than the tolerance of the Gaussian)."""
-    ra, rb, ca, cb = window
-    pos, mom, rad = [], [], []
+    n_gl: torch.Tensor,
+    fields: torch.Tensor,
+    q: torch.Tensor,
+    reconstruction: str,
+    side: int,
+) -> _Sources:
+    """The blocks of ``cut`` and the Gauss–Legendre nodes (order ``n_gl`` per quadrant) of the
+    cells too large to expand, as :class:`_Sources` (``fields``, ``q``: the padded surface with
+    a one-pixel border, as :func:`cell_nodes` takes it)."""
+    hp, wp = fields.shape[-2] - 2, fields.shape[-1] - 2
+    n_gl = n_gl[:hp, :wp]
+    pos, mom, rad, pix = [], [], [], []
     for lev, c in enumerate(cut):
         b = 1 << lev
-        r1, r2, c1, c2 = (
-            ra // b,
-            min(c.shape[0], (rb - 1) // b + 1),
-            ca // b,
-            min(c.shape[1], (cb - 1) // b + 1),
-        )
-        m = c[r1:r2, c1:c2]
-        if bool(m.any()):
-            pos.append(pyr.pos[lev][:, r1:r2, c1:c2][:, m])
-            mom.append(pyr.mom[lev][:, :, r1:r2, c1:c2][:, :, m])
-            rad.append(pyr.rad[lev][r1:r2, c1:c2][m])
+        idx = torch.nonzero(c)
+        if idx.numel() == 0:
+            continue
+        pos.append(pyr.pos[lev][:, c].t())
+        mom.append(pyr.mom[lev][:, :, c].permute(2, 0, 1))
+        rad.append(pyr.rad[lev][c])
+        pix.append(idx * b + b // 2)
+    margin = max([1 << lev for lev, c in enumerate(cut) if bool(c.any())] or [1])
+    nch = q.shape[0]
+    for n in torch.unique(n_gl[n_gl > 0]).tolist():
+        select = n_gl == n
+        pts, mass = cell_nodes(fields, q, select, *_gl01(n), reconstruction)
+        cells = torch.nonzero(select)
+        pos.append(pts)
+        m = mass.new_zeros(mass.shape[0], nch, _NMOM)
+        m[:, :, 0] = mass
+        mom.append(m)
+        rad.append(mass.new_zeros(mass.shape[0]))
+        pix.append(cells.repeat(4, 1).repeat_interleave(n * n, 0))  # quadrant, cell, node
     if not pos:
-        return x.new_zeros(x.shape[0], pyr.mom[0].shape[0])
-    p = torch.cat(pos, 1).t()
-    lo, hi = x.amin(0), x.amax(0)
-    gap = (p - hi).clamp_min(0) + (lo - p).clamp_min(0)
-    keep = (gap * gap).sum(1) <= (reach + torch.cat(rad)) ** 2
-    return far_field(x, p[keep], torch.cat(mom, 2).permute(2, 0, 1)[keep], v)
+        pos, mom, rad, pix = (
+            [q.new_zeros(0, 3)],
+            [q.new_zeros(0, nch, _NMOM)],
+            [q.new_zeros(0)],
+            [torch.zeros(0, 2, dtype=torch.int64)],
+        )
+    pix_all = torch.cat(pix)
+    nrows, ncols = (hp + side - 1) // side, (wp + side - 1) // side
+    bucket = (pix_all[:, 0] // side).clamp_max(nrows - 1) * ncols + (
+        pix_all[:, 1] // side
+    ).clamp_max(ncols - 1)
+    order = torch.argsort(bucket, stable=True)
+    counts = torch.bincount(bucket, minlength=nrows * ncols)
+    start = [0] + torch.cumsum(counts, 0).tolist()
+    return _Sources(
+        torch.cat(pos)[order].contiguous(),
+        torch.cat(mom)[order].contiguous(),
+        torch.cat(rad)[order].contiguous(),
+        start,
+        ncols,
+        nrows,
+        side,
+        margin,
+    )
 
 
 def _levels(v_max: float, ratio: float, hp: int, wp: int) -> int:
