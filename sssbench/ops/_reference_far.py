@@ -203,17 +203,18 @@ def _gaussian_matrix(
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Targets and sources relative to the targets' mean, and ``exp(−|p − x|²/2v)`` ``(T, S)``.
 
-    The exponent is one product ``[x, 1] · [p/v, −|p|²/2v]ᵀ − |x|²/2v`` (both relative to
-    the origin, so the cancellation is of the window's size, not of the view distance).
+    The exponent is one product ``[x, 1, |x|²] · [p/v, −|p|²/2v, −1/2v]ᵀ`` (both relative to
+    the origin, so the cancellation is of the window's size, not of the view distance; its
+    rounding may leave an exponent of a few ulps above 0, harmless to ``exp``).
     """
     origin = targets.mean(0)
     x = targets - origin
     p = sources - origin
-    lhs = torch.cat([x, torch.ones_like(x[:, :1])], 1)
-    rhs = torch.cat([p / v, (-(p * p).sum(1) / (2 * v))[:, None]], 1)
-    expo = lhs @ rhs.t()
-    expo -= ((x * x).sum(1) / (2 * v))[:, None]
-    return x, p, torch.exp_(expo.clamp_max_(0.0))
+    lhs = torch.cat([x, torch.ones_like(x[:, :1]), (x * x).sum(1, keepdim=True)], 1)
+    rhs = torch.cat(
+        [p / v, (-(p * p).sum(1) / (2 * v))[:, None], torch.full_like(p[:, :1], -0.5 / v)], 1
+    )
+    return x, p, torch.exp_(lhs @ rhs.t())
 
 
 def far_field(
@@ -446,8 +447,7 @@ def gather(
         side = max(tile, 1 << max(0, math.floor(math.log2(reach / 4))))
         src = _sources(pyr, *_cuts(pyr, v, ratio), fields, q, reconstruction, side)
         for sel, window in _tiles(s, rows, cols, tgt, side, reach):
-            x = tgt[sel]
-            out[gi, sel] = src.field(x, v, reach, window)
+            out[gi, sel] = src.field(tgt[sel], v, reach, window)
             if progress is not None:
                 progress.update(sel.numel())
     return out
