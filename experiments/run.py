@@ -35,6 +35,7 @@ EXPERIMENTS = {
     "stability": "experiments.stability",
     "disk": "experiments.disk",
     "mc_profiles": "experiments.mc_profiles",
+    "reference_speed": "experiments.reference_speed",
 }
 
 

@@ -18,9 +18,15 @@ the *moments* of ``q dA`` instead of cell by cell:
   ``q`` the sum is moreover a midpoint rule of a smooth integrand, whose error decays like
   ``exp(−2π² σ² / b²)`` (Poisson summation), so the error sits at discontinuities of ``q``
   (measured in the tests against a brute-force surface integral).
-- Per tile of targets the window of blocks is dense: the exponents of all (target, block)
-  pairs are one matrix product, the Taylor terms a second one (the polynomial in the target
-  position is expanded about a tile origin, so both products are small matrices).
+- Per Gaussian, the blocks of its cut and the Gauss–Legendre nodes of the cells too large to
+  expand (point masses: moments ``M`` only) are listed once as sources, bucketed by squares
+  of pixels (:func:`_sources`); per tile of targets (about a quarter of the Gaussian's reach
+  wide, at least 16 pixels) the sources of the buckets under its window are dense: the
+  exponents of all (target, source) pairs are one matrix product, the Taylor terms a second
+  one (the polynomial in the target position is expanded about a tile origin, so both
+  products are small matrices). Selecting the blocks per tile and Gaussian from the
+  pyramid's levels instead was ~20× slower than the arithmetic on a 480×270 face close-up
+  (skin_deon6, 0.07 mm per pixel; measured).
 
 All lengths are divided by a unit ``L`` (a pixel footprint) first, so the weights
 ``area · G`` are dimensionless and the same at every scale of the scene.

@@ -396,7 +396,8 @@ def _multipole(
             acc, wsum = _gather_sog(sub, surf.table, centre, wp, k_n, r_n, progress=near_bar)
     if not groups:
         return acc, wsum
-    bar = tqdm(total=e * len(groups), desc="reference (moments)", unit="px", disable=not show)
+    n_far = sum(len(ids) for ids, _ in groups)
+    bar = tqdm(total=e * n_far, desc="reference (moments)", unit="px·G", disable=not show)
     foot = 2 * math.tan(g.fov_y / 2) / h
     for i in range(b):
         sel = torch.nonzero(active // (h * w) == i).squeeze(1)
@@ -455,6 +456,8 @@ def _gather_generic(
 
 #: offsets × centres gathered per batch by :func:`_gather_sog`
 _BATCH_ELEMS = 1 << 18
+#: centres per chunk of :func:`_gather_sog` (a chunk's batches stay in cache)
+_CENTRES = 1 << 15
 #: a Gauss–Legendre Gaussian is left out of an offset whose cells all lie where it is below
 #: exp(-_SOG_SKIP) of its peak (see :func:`_gather_sog`; ``cell_integral`` uses 40)
 _SOG_SKIP = 25.0
@@ -573,10 +576,11 @@ def _gather_sog(
     """:func:`_gather_generic` for a sum of Gaussians, many offsets per batch (``progress``:
     a tqdm bar, advanced by the offsets done).
 
-    Offsets are visited nearest first in batches of ``_BATCH_ELEMS // centres``; each offset
+    Centres are taken in chunks of ``_CENTRES`` (bands of rows, so a batch stays in cache),
+    offsets nearest first in batches of ``_BATCH_ELEMS // centres``; each offset of a chunk
     keeps its own support test and its own :func:`cell_rules` (as if it were one
-    :meth:`SumOfGaussians.cell_integral` call), and offsets with the same rule are integrated
-    together. Equal to the offset loop to rounding (tested).
+    :meth:`SumOfGaussians.cell_integral` call on the chunk's cells), and offsets with the same
+    rule are integrated together. Equal to the offset loop to rounding (tested).
 
     Sums of Gaussians (with the library's cell integral) take a batched path: many offsets
     at a time, each with the rule :meth:`SumOfGaussians.cell_integral` picks for it alone
@@ -604,10 +608,32 @@ def _gather_sog(
     # is on the surface iff its cell has a size (depth > 0 is validated by GBuffer), and a
     # zero-size cell has weight exactly 0 in every rule
     fields = table[:, [0, 1, 2, 3, 4, 5, 7, 8, 9]].t().contiguous()
+    if progress is not None:
+        progress.reset(total=shift.numel() * math.ceil(e / _CENTRES))
+    for i in range(0, e, _CENTRES):
+        part = slice(i, i + _CENTRES)
+        acc[part], wsum[part] = _sog_chunk(
+            profile, v, fields, centre[part], shift, radius_mm, progress
+        )
+    return acc, wsum
+
+
+def _sog_chunk(
+    profile: SumOfGaussians,
+    v: list[float],
+    fields: torch.Tensor,
+    centre: torch.Tensor,
+    shift: torch.Tensor,
+    radius_mm: float,
+    progress: object,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`_gather_sog` of at most ``_CENTRES`` centres (``fields``: field-major
+    neighbour table, ``shift``: flat offsets nearest first)."""
+    e = centre.numel()
+    acc = torch.zeros(e, 3, dtype=torch.float64)
+    wsum = torch.zeros_like(acc)
     xc, yc, zc = fields[0, centre], fields[1, centre], fields[2, centre]
     per = max(1, _BATCH_ELEMS // e)
-    if progress is not None:
-        progress.reset(total=shift.numel())
     for a in range(0, shift.numel(), per):
         sh = shift[a : a + per]
         c = sh.numel()
@@ -637,8 +663,8 @@ def _gather_sog(
                 sub = [t.index_select(-2, sel) for t in sub]
             wgt = _sog_cell_weights(profile, rule, *(t.reshape(-1) for t in sub[:6]))
             wgt = wgt.view(3, -1, e)
-            acc = acc + (wgt * sub[6]).sum(1).t()
-            wsum = wsum + wgt.sum(1).t()
+            acc += (wgt * sub[6]).sum(1).t()
+            wsum += wgt.sum(1).t()
         if progress is not None:
             progress.update(c)
     return acc, wsum
