@@ -274,18 +274,20 @@ def _pad_to(t: torch.Tensor, mult: int) -> torch.Tensor:
 
 
 def surface_pyramid(s: Surface, reconstruction: str, levels: int) -> Pyramid:
-    """:func:`cell_moments` of the surface merged up to ``levels``."""
+    """:func:`cell_moments` of the surface merged up to ``levels`` (the image zero-padded to
+    multiples of ``2^levels``: cells of size 0, no moments)."""
+    mult = 1 << levels
     if reconstruction == "bilinear":
         fields = torch.stack([s.half, s.sx, s.sy])
         fields = torch.nn.functional.pad(fields[None], (1, 1, 1, 1), mode="replicate")[0]
         q = torch.nn.functional.pad(s.q[None], (1, 1, 1, 1), mode="replicate")[0]
-        mom = cell_moments(fields[0], fields[1], fields[2], q, "bilinear")
-    else:
-        mom = cell_moments(s.half, s.sx, s.sy, s.q, "box")
-    mult = 1 << levels
+        mom = _pad_to(cell_moments(fields[0], fields[1], fields[2], q, "bilinear"), mult)
+    else:  # padded before: the moments, the largest array, are not copied
+        half, sx, sy = _pad_to(torch.stack([s.half, s.sx, s.sy]), mult)
+        mom = cell_moments(half, sx, sy, _pad_to(s.q, mult), "box")
     pos = _pad_to(torch.stack([s.x, s.y, s.z]), mult)
     rad = _pad_to(cell_radius(s.half, s.sx, s.sy), mult)
-    return build_pyramid(pos, _pad_to(mom, mult), rad, levels)
+    return build_pyramid(pos, mom, rad, levels)
 
 
 def _graded_rule(ratio: float, order: int = 6) -> tuple[torch.Tensor, torch.Tensor]:
@@ -322,7 +324,7 @@ def _gl01(order: int) -> tuple[torch.Tensor, torch.Tensor]:
 def cell_nodes(
     f: torch.Tensor,
     q: torch.Tensor,
-    select: torch.Tensor,
+    select: torch.Tensor | tuple[torch.Tensor, torch.Tensor],
     u: torch.Tensor,
     wu: torch.Tensor,
     reconstruction: str,
@@ -330,22 +332,22 @@ def cell_nodes(
     """Quadrature points of the reconstructed field over selected cells of a window.
 
     ``f`` ``(6, h, w)`` = x, y, z, half, slope_x, slope_y and ``q`` ``(C, h, w)`` of a window
-    with a one-pixel border, ``select`` ``(h − 2, w − 2)`` the interior cells to integrate.
+    with a one-pixel border, ``select`` ``(h − 2, w − 2)`` the interior cells to integrate
+    (a mask, or their interior rows and columns).
     Each cell is split into its four quadrants (where the bilinear weights are bilinear) and
     each quadrant gets the tensor rule ``(u, wu)`` on ``[0, 1]²`` scaled by the half-size.
     Returns points ``(S, 3)`` and masses ``(S, C)`` (reconstructed ``q`` × area element ×
     weights).
     """
-    h, w = f.shape[-2:]
-    cen = f[:, 1 : h - 1, 1 : w - 1]
-    if not bool(select.any()):
+    r, c = select if isinstance(select, tuple) else torch.nonzero(select, as_tuple=True)
+    if r.numel() == 0:
         return f.new_zeros(0, 3), q.new_zeros(0, q.shape[0])
-    x, y, z, hh, sx, sy = (t[select] for t in cen)  # (N,)
+    x, y, z, hh, sx, sy = f[:, r + 1, c + 1]  # (N,) each
     area = torch.sqrt(1 + sx * sx + sy * sy) * hh * hh
     n = u.numel()
 
     def nb(a: int, b: int) -> torch.Tensor:  # q of the neighbour at column +a, row −b
-        return q[:, 1 - b : h - 1 - b, 1 + a : w - 1 + a][:, select][:, :, None, None]
+        return q[:, r + 1 - b, c + 1 + a][:, :, None, None]
 
     fa = u / 2 if reconstruction == "bilinear" else torch.zeros_like(u)
     a_s, a_t = fa[:, None], fa[None, :]  # weight of the neighbour across each edge
@@ -502,6 +504,7 @@ class _Sources:
     nrows: int
     side: int
     margin: int
+    cells: _BigCells
 
     def field(
         self, x: torch.Tensor, v: float, reach: float, window: tuple[int, int, int, int]
@@ -510,20 +513,61 @@ class _Sources:
         touching the pixel window ``(ra, rb, ca, cb)`` whose ball comes within ``reach`` of
         the 3D bounding box of the targets (the others hold less than the tolerance of the
         Gaussian)."""
-        ra, rb, ca, cb = window
-        m, sd = self.margin, self.side
-        r1, r2 = max(0, (ra - m) // sd), min(self.nrows - 1, (rb - 1 + m) // sd)
-        c1, c2 = max(0, (ca - m) // sd), min(self.ncols - 1, (cb - 1 + m) // sd)
-        spans = [
-            (self.start[i * self.ncols + c1], self.start[i * self.ncols + c2 + 1])
-            for i in range(r1, r2 + 1)
-        ]
-        idx = torch.cat([torch.arange(a, b) for a, b in spans if b > a] or [torch.arange(0)])
-        p = self.pos[idx]
         lo, hi = x.amin(0), x.amax(0)
-        gap = (p - hi).clamp_min(0) + (lo - p).clamp_min(0)
-        keep = idx[(gap * gap).sum(1) <= (reach + self.rad[idx]) ** 2]
-        return far_field(x, self.pos[keep], self.mom[keep], v)
+        keep = _near(self.pos, self.rad, self.start, self, window, self.margin, lo, hi, reach)
+        out = far_field(x, self.pos[keep], self.mom[keep], v)
+        cl = self.cells
+        keep = _near(cl.pos, cl.rad, cl.start, self, window, 0, lo, hi, reach)
+        order = cl.order[keep]
+        for n in torch.unique(order).tolist():
+            sel = keep[order == n]
+            cells = (cl.rows[sel], cl.cols[sel])
+            pts, mass = cell_nodes(cl.fields, cl.q, cells, *_gl01(n), cl.reconstruction)
+            out += point_field(x, pts, mass, v)
+        return out
+
+
+@dataclass
+class _BigCells:
+    """The cells of one Gaussian too large to expand, bucketed like :class:`_Sources`:
+    centres ``pos`` ``(N, 3)``, ball radii ``rad``, padded ``rows``, ``cols`` and
+    Gauss–Legendre ``order`` per quadrant; ``fields``, ``q``: the surface with a one-pixel
+    border (:func:`cell_nodes` integrates them per tile: their nodes are too many to keep)."""
+
+    pos: torch.Tensor
+    rad: torch.Tensor
+    rows: torch.Tensor
+    cols: torch.Tensor
+    order: torch.Tensor
+    start: list[int]
+    fields: torch.Tensor
+    q: torch.Tensor
+    reconstruction: str
+
+
+def _near(
+    pos: torch.Tensor,
+    rad: torch.Tensor,
+    start: list[int],
+    grid: _Sources,
+    window: tuple[int, int, int, int],
+    margin: int,
+    lo: torch.Tensor,
+    hi: torch.Tensor,
+    reach: float,
+) -> torch.Tensor:
+    """Indices of the bucketed balls (``pos``, ``rad``; buckets ``start`` on the grid of
+    ``grid``) of a bucket under the pixel window ``(ra, rb, ca, cb)`` widened by ``margin``
+    pixels that come within ``reach`` of the box ``[lo, hi]``."""
+    ra, rb, ca, cb = window
+    sd, nc = grid.side, grid.ncols
+    r1, r2 = max(0, (ra - margin) // sd), min(grid.nrows - 1, (rb - 1 + margin) // sd)
+    c1, c2 = max(0, (ca - margin) // sd), min(nc - 1, (cb - 1 + margin) // sd)
+    spans = [(start[i * nc + c1], start[i * nc + c2 + 1]) for i in range(r1, r2 + 1)]
+    idx = torch.cat([torch.arange(a, b) for a, b in spans if b > a] or [torch.arange(0)])
+    p = pos[idx]
+    gap = (p - hi).clamp_min(0) + (lo - p).clamp_min(0)
+    return idx[(gap * gap).sum(1) <= (reach + rad[idx]) ** 2]
 
 
 def _sources(
@@ -535,58 +579,41 @@ def _sources(
     reconstruction: str,
     side: int,
 ) -> _Sources:
-    """The blocks of ``cut`` and the Gauss–Legendre nodes (order ``n_gl`` per quadrant) of the
-    cells too large to expand, as :class:`_Sources` (``fields``, ``q``: the padded surface with
+    """The blocks of ``cut`` and the cells too large to expand (Gauss–Legendre order
+    ``n_gl`` per quadrant) as :class:`_Sources` (``fields``, ``q``: the padded surface with
     a one-pixel border, as :func:`cell_nodes` takes it)."""
     hp, wp = fields.shape[-2] - 2, fields.shape[-1] - 2
-    n_gl = n_gl[:hp, :wp]
-    pos, mom, rad, pix = [], [], [], []
+    nrows, ncols = (hp + side - 1) // side, (wp + side - 1) // side
+
+    def bucketed(pix: torch.Tensor, *payload: torch.Tensor) -> list:
+        bucket = (pix[:, 0] // side).clamp_max(nrows - 1) * ncols
+        bucket += (pix[:, 1] // side).clamp_max(ncols - 1)
+        order = torch.argsort(bucket, stable=True)
+        start = [0, *torch.cumsum(torch.bincount(bucket, minlength=nrows * ncols), 0).tolist()]
+        return [start, *(t[order].contiguous() for t in payload)]
+
+    pos, mom = [q.new_zeros(0, 3)], [q.new_zeros(0, q.shape[0], _NMOM)]
+    rad, pix = [q.new_zeros(0)], [torch.zeros(0, 2, dtype=torch.int64)]
     for lev, c in enumerate(cut):
         b = 1 << lev
         idx = torch.nonzero(c)
-        if idx.numel() == 0:
-            continue
         pos.append(pyr.pos[lev][:, c].t())
         mom.append(pyr.mom[lev][:, :, c].permute(2, 0, 1))
         rad.append(pyr.rad[lev][c])
         pix.append(idx * b + b // 2)
     margin = max([1 << lev for lev, c in enumerate(cut) if bool(c.any())] or [1])
-    nch = q.shape[0]
-    for n in torch.unique(n_gl[n_gl > 0]).tolist():
-        select = n_gl == n
-        pts, mass = cell_nodes(fields, q, select, *_gl01(n), reconstruction)
-        cells = torch.nonzero(select)
-        pos.append(pts)
-        m = mass.new_zeros(mass.shape[0], nch, _NMOM)
-        m[:, :, 0] = mass
-        mom.append(m)
-        rad.append(mass.new_zeros(mass.shape[0]))
-        pix.append(cells.repeat(4, 1).repeat_interleave(n * n, 0))  # quadrant, cell, node
-    if not pos:
-        pos, mom, rad, pix = (
-            [q.new_zeros(0, 3)],
-            [q.new_zeros(0, nch, _NMOM)],
-            [q.new_zeros(0)],
-            [torch.zeros(0, 2, dtype=torch.int64)],
-        )
-    pix_all = torch.cat(pix)
-    nrows, ncols = (hp + side - 1) // side, (wp + side - 1) // side
-    bucket = (pix_all[:, 0] // side).clamp_max(nrows - 1) * ncols + (
-        pix_all[:, 1] // side
-    ).clamp_max(ncols - 1)
-    order = torch.argsort(bucket, stable=True)
-    counts = torch.bincount(bucket, minlength=nrows * ncols)
-    start = [0] + torch.cumsum(counts, 0).tolist()
-    return _Sources(
-        torch.cat(pos)[order].contiguous(),
-        torch.cat(mom)[order].contiguous(),
-        torch.cat(rad)[order].contiguous(),
-        start,
-        ncols,
-        nrows,
-        side,
-        margin,
+    start, p_all, m_all, r_all = bucketed(
+        torch.cat(pix), torch.cat(pos), torch.cat(mom), torch.cat(rad)
     )
+    n_gl = n_gl[:hp, :wp]
+    big = torch.nonzero(n_gl > 0)
+    rows, cols = big[:, 0], big[:, 1]
+    f = fields[:, rows + 1, cols + 1]
+    c_start, c_pos, c_rad, c_rows, c_cols, c_order = bucketed(
+        big, f[:3].t(), cell_radius(f[3], f[4], f[5]), rows, cols, n_gl[rows, cols]
+    )
+    cells = _BigCells(c_pos, c_rad, c_rows, c_cols, c_order, c_start, fields, q, reconstruction)
+    return _Sources(p_all, m_all, r_all, start, ncols, nrows, side, margin, cells)
 
 
 def _levels(v_max: float, ratio: float, hp: int, wp: int) -> int:
