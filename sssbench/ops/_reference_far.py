@@ -432,8 +432,9 @@ def gather(
     if rows.numel() == 0:
         return out
     hp, wp = s.z.shape
-    geo = torch.stack([s.x, s.y, s.z, s.half, s.sx, s.sy])
-    fields = torch.nn.functional.pad(geo[None], (1, 1, 1, 1), mode="replicate")[0]
+    geo = torch.stack([s.x, s.y, s.z, s.half, s.sx, s.sy])[None]
+    fields = torch.nn.functional.pad(geo, (1, 1, 1, 1), mode="replicate")[0]
+    del geo
     q = torch.nn.functional.pad(s.q[None], (1, 1, 1, 1), mode="replicate")[0]
     tgt = torch.stack([s.x[rows, cols], s.y[rows, cols], s.z[rows, cols]], 1)
     if ratio is None:
@@ -585,32 +586,49 @@ def _sources(
     hp, wp = fields.shape[-2] - 2, fields.shape[-1] - 2
     nrows, ncols = (hp + side - 1) // side, (wp + side - 1) // side
 
-    def bucketed(pix: torch.Tensor, *payload: torch.Tensor) -> list:
+    def bucketed(pix: torch.Tensor, *payload: list[torch.Tensor]) -> list:
+        """Bucket starts and the payloads (lists of parts, emptied) in bucket order."""
         bucket = (pix[:, 0] // side).clamp_max(nrows - 1) * ncols
         bucket += (pix[:, 1] // side).clamp_max(ncols - 1)
         order = torch.argsort(bucket, stable=True)
         start = [0, *torch.cumsum(torch.bincount(bucket, minlength=nrows * ncols), 0).tolist()]
-        return [start, *(t[order].contiguous() for t in payload)]
+        out: list = [start, order]
+        for parts in payload:
+            whole = torch.cat(parts)
+            parts.clear()  # the parts are freed before the sorted copy is made
+            out.append(whole[order])
+            del whole
+        return out
 
-    pos, mom = [q.new_zeros(0, 3)], [q.new_zeros(0, q.shape[0], _NMOM)]
-    rad, pix = [q.new_zeros(0)], [torch.zeros(0, 2, dtype=torch.int64)]
+    pos, rad = [q.new_zeros(0, 3)], [q.new_zeros(0)]
+    pix, flat = [torch.zeros(0, 2, dtype=torch.int64)], []
     for lev, c in enumerate(cut):
         b = 1 << lev
         idx = torch.nonzero(c)
         pos.append(pyr.pos[lev][:, c].t())
-        mom.append(pyr.mom[lev][:, :, c].permute(2, 0, 1))
         rad.append(pyr.rad[lev][c])
         pix.append(idx * b + b // 2)
+        flat.append(idx[:, 0] * c.shape[1] + idx[:, 1])
     margin = max([1 << lev for lev, c in enumerate(cut) if bool(c.any())] or [1])
-    start, p_all, m_all, r_all = bucketed(
-        torch.cat(pix), torch.cat(pos), torch.cat(mom), torch.cat(rad)
-    )
+    start, order, p_all, r_all = bucketed(torch.cat(pix), pos, rad)
+    # the moments (the largest payload) copied into their sorted places a slice at a time
+    rank = torch.empty_like(order)
+    rank[order] = torch.arange(order.numel())
+    m_all = q.new_empty(order.numel(), q.shape[0], _NMOM)
+    first = 0
+    for lev, fl in enumerate(flat):
+        mom = pyr.mom[lev].flatten(2)
+        for a in range(0, fl.numel(), 1 << 16):
+            part = fl[a : a + (1 << 16)]
+            dst = rank[first + a : first + a + part.numel()]
+            m_all.index_copy_(0, dst, mom[:, :, part].permute(2, 0, 1))
+        first += fl.numel()
     n_gl = n_gl[:hp, :wp]
     big = torch.nonzero(n_gl > 0)
     rows, cols = big[:, 0], big[:, 1]
     f = fields[:, rows + 1, cols + 1]
-    c_start, c_pos, c_rad, c_rows, c_cols, c_order = bucketed(
-        big, f[:3].t(), cell_radius(f[3], f[4], f[5]), rows, cols, n_gl[rows, cols]
+    c_start, _, c_pos, c_rad, c_rows, c_cols, c_order = bucketed(
+        big, [f[:3].t()], [cell_radius(f[3], f[4], f[5])], [rows], [cols], [n_gl[rows, cols]]
     )
     cells = _BigCells(c_pos, c_rad, c_rows, c_cols, c_order, c_start, fields, q, reconstruction)
     return _Sources(p_all, m_all, r_all, start, ncols, nrows, side, margin, cells)

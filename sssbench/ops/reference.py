@@ -306,7 +306,6 @@ def reference_sss(
             "method='gather' integrates piecewise-constant cells; use reconstruction='box' or "
             "method='multipole' / 'fft' for 'bilinear'"
         )
-    surf = _surface(g, k)
     active = torch.nonzero(mask.reshape(-1) > 0).squeeze(1)
     bi, rem = active // (h * w), active % (h * w)
     hp, wp = h + 2 * k, w + 2 * k
@@ -314,11 +313,11 @@ def reference_sss(
     radius_mm = profile.radius(tol)
     with timed_pass("reference", (2 * k + 1) ** 2, int(active.numel())):
         if method == "multipole":
-            acc, wsum = _multipole(g, profile, surf, k, active, tol, reconstruction, progress)
+            acc, wsum = _multipole(g, profile, k, active, tol, reconstruction, progress)
         elif _is_sum_of_gaussians(profile):
-            acc, wsum = _gather_sog(profile, surf.table, centre, wp, k, radius_mm)
+            acc, wsum = _gather_sog(profile, _surface(g, k).table, centre, wp, k, radius_mm)
         else:
-            acc, wsum = _gather_generic(profile, surf.table, centre, wp, k, radius_mm)
+            acc, wsum = _gather_generic(profile, _surface(g, k).table, centre, wp, k, radius_mm)
     num = torch.zeros(b * h * w, 3, dtype=torch.float64).index_copy(0, active, acc)
     den = torch.ones(b * h * w, 3, dtype=torch.float64).index_copy(0, active, wsum)
     num = num.reshape(b, h, w, 3).permute(0, 3, 1, 2)
@@ -329,11 +328,15 @@ def reference_sss(
 @dataclass(frozen=True)
 class _Padded:
     """The surface padded by ``k`` pixels: ``fields`` ``(B, 10, Hp, Wp)`` = x, y, z, half,
-    slope_x, slope_y, stencil, irradiance·stencil (3); ``table`` the same channels-last,
-    ``(B·Hp·Wp, 10)``."""
+    slope_x, slope_y, stencil, irradiance·stencil (3); :attr:`table` the same channels-last
+    (a copy, made when asked for)."""
 
     fields: torch.Tensor
-    table: torch.Tensor
+
+    @property
+    def table(self) -> torch.Tensor:
+        """``(B·Hp·Wp, 10)``: one row of everything a neighbour contributes per cell."""
+        return self.fields.permute(0, 2, 3, 1).reshape(-1, self.fields.shape[1])
 
 
 def _surface(g: GBuffer, k: int) -> _Padded:
@@ -349,16 +352,12 @@ def _surface(g: GBuffer, k: int) -> _Padded:
     half = 0.5 * pixel_size_mm(zp, g.fov_y, h) * src_mask
     slope_x = _minmod_slope(zp, xp, 3)
     slope_y = _minmod_slope(zp, yp, 2)
-    # one channels-last table of everything a neighbour contributes, fetched per offset
-    fields = torch.cat([xp, yp, zp, half, slope_x, slope_y, src_mask, src], 1)
-    table = fields.permute(0, 2, 3, 1).reshape(-1, fields.shape[1])
-    return _Padded(fields, table)
+    return _Padded(torch.cat([xp, yp, zp, half, slope_x, slope_y, src_mask, src], 1))
 
 
 def _multipole(
     g: GBuffer,
     profile: SumOfGaussians,
-    surf: _Padded,
     k: int,
     active: torch.Tensor,
     tol: float,
@@ -366,7 +365,8 @@ def _multipole(
     progress: bool | None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Numerator and denominator ``(E, 3)`` of the active pixels by the ``"multipole"``
-    method of :func:`reference_sss`."""
+    method of :func:`reference_sss` (the padded surface is built here and dropped once its
+    scaled copies exist: the far field's pyramid is the peak of memory)."""
     b, h, w = g.shape
     e = active.numel()
     acc = torch.zeros(e, 3, dtype=torch.float64)
@@ -387,6 +387,7 @@ def _multipole(
     # skin_deon6: ~2e5 px·Gaussians per CPU second)
     show = e * len(var) > 500_000 if progress is None else progress
     hp, wp = h + 2 * k, w + 2 * k
+    surf = _surface(g, k)
     if narrow and reconstruction == "box":
         sub = SumOfGaussians(profile.variances[narrow], wts[narrow])
         r_n = sub.radius(tol)
@@ -400,23 +401,26 @@ def _multipole(
     n_far = sum(len(ids) for ids, _ in groups)
     bar = tqdm(total=e * n_far, desc="reference (moments)", unit="px·G", disable=not show)
     foot = 2 * math.tan(g.fov_y / 2) / h
-    for i in range(b):
-        sel = torch.nonzero(active // (h * w) == i).squeeze(1)
-        rem = active[sel] % (h * w)
-        rows, cols = rem // w + k, rem % w + k
-        f = surf.fields[i]
-        s = Surface(
+    surfaces = [
+        Surface(
             f[0] / unit,
             f[1] / unit,
             f[2] / unit,
             f[3] / unit,
-            f[4],
-            f[5],
+            f[4].clone(),
+            f[5].clone(),
             torch.cat([f[7:10], f[6:7]]),
             k,
             foot,
             float((torch.stack([f[0], f[1]]).abs() / f[2]).amax()),
         )
+        for f in surf.fields
+    ]
+    del surf
+    for i, s in enumerate(surfaces):
+        sel = torch.nonzero(active // (h * w) == i).squeeze(1)
+        rem = active[sel] % (h * w)
+        rows, cols = rem // w + k, rem % w + k
         for ids, ratio in groups:
             v_g = [var[j] for j in ids]
             # each Gaussian's own share of the tolerance: it may leave out tol × the smallest
