@@ -459,6 +459,7 @@ def gather(
             out[gi, sel] = src.field(tgt[sel], v, reach, window)
             if progress is not None:
                 progress.update(sel.numel())
+        del src  # before the next Gaussian's sources are made
     return out
 
 
