@@ -453,7 +453,7 @@ def gather(
     pyr = surface_pyramid(s, reconstruction, _levels(max(variances), ratio, hp, wp))
     for gi, v in enumerate(variances):
         reach = math.sqrt(v) * math.sqrt(2 * math.log(1 / tols[gi]))
-        side = max(tile, 1 << max(0, math.floor(math.log2(reach / 4))))
+        side = max(tile, min(max(hp, wp), 1 << max(0, math.floor(math.log2(reach / 4)))))
         src = _sources(pyr, *_cuts(pyr, v, ratio), fields, q, reconstruction, side)
         for sel, window in _tiles(s, rows, cols, tgt, side, reach):
             out[gi, sel] = src.field(tgt[sel], v, reach, window)
