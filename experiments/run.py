@@ -37,6 +37,7 @@ EXPERIMENTS = {
     "mc_profiles": "experiments.mc_profiles",
     "mc_gap": "experiments.mc_gap",
     "optimised": "experiments.optimised",
+    "reference_speed": "experiments.reference_speed",
 }
 
 

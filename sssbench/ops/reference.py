@@ -265,7 +265,7 @@ def reference_sss(
         method: ``"auto"``, ``"gather"``, ``"fft"`` or ``"multipole"`` (see above).
         reconstruction: ``"box"`` or ``"bilinear"`` (see above).
         progress: show a progress bar (tqdm) on stderr; ``None``: when the multipole
-            evaluation has more than a million target pixels × Gaussians.
+            evaluation has more than 500 000 target pixels × Gaussians (a few seconds).
 
     Returns:
         ``(B, 3, H, W)`` in the G-buffer's dtype (computed in float64).
@@ -306,7 +306,6 @@ def reference_sss(
             "method='gather' integrates piecewise-constant cells; use reconstruction='box' or "
             "method='multipole' / 'fft' for 'bilinear'"
         )
-    surf = _surface(g, k)
     active = torch.nonzero(mask.reshape(-1) > 0).squeeze(1)
     bi, rem = active // (h * w), active % (h * w)
     hp, wp = h + 2 * k, w + 2 * k
@@ -314,11 +313,11 @@ def reference_sss(
     radius_mm = profile.radius(tol)
     with timed_pass("reference", (2 * k + 1) ** 2, int(active.numel())):
         if method == "multipole":
-            acc, wsum = _multipole(g, profile, surf, k, active, tol, reconstruction, progress)
+            acc, wsum = _multipole(g, profile, k, active, tol, reconstruction, progress)
         elif _is_sum_of_gaussians(profile):
-            acc, wsum = _gather_sog(profile, surf.table, centre, wp, k, radius_mm)
+            acc, wsum = _gather_sog(profile, _surface(g, k).table, centre, wp, k, radius_mm)
         else:
-            acc, wsum = _gather_generic(profile, surf.table, centre, wp, k, radius_mm)
+            acc, wsum = _gather_generic(profile, _surface(g, k).table, centre, wp, k, radius_mm)
     num = torch.zeros(b * h * w, 3, dtype=torch.float64).index_copy(0, active, acc)
     den = torch.ones(b * h * w, 3, dtype=torch.float64).index_copy(0, active, wsum)
     num = num.reshape(b, h, w, 3).permute(0, 3, 1, 2)
@@ -329,11 +328,15 @@ def reference_sss(
 @dataclass(frozen=True)
 class _Padded:
     """The surface padded by ``k`` pixels: ``fields`` ``(B, 10, Hp, Wp)`` = x, y, z, half,
-    slope_x, slope_y, stencil, irradiance·stencil (3); ``table`` the same channels-last,
-    ``(B·Hp·Wp, 10)``."""
+    slope_x, slope_y, stencil, irradiance·stencil (3); :attr:`table` the same channels-last
+    (a copy, made when asked for)."""
 
     fields: torch.Tensor
-    table: torch.Tensor
+
+    @property
+    def table(self) -> torch.Tensor:
+        """``(B·Hp·Wp, 10)``: one row of everything a neighbour contributes per cell."""
+        return self.fields.permute(0, 2, 3, 1).reshape(-1, self.fields.shape[1])
 
 
 def _surface(g: GBuffer, k: int) -> _Padded:
@@ -349,16 +352,12 @@ def _surface(g: GBuffer, k: int) -> _Padded:
     half = 0.5 * pixel_size_mm(zp, g.fov_y, h) * src_mask
     slope_x = _minmod_slope(zp, xp, 3)
     slope_y = _minmod_slope(zp, yp, 2)
-    # one channels-last table of everything a neighbour contributes, fetched per offset
-    fields = torch.cat([xp, yp, zp, half, slope_x, slope_y, src_mask, src], 1)
-    table = fields.permute(0, 2, 3, 1).reshape(-1, fields.shape[1])
-    return _Padded(fields, table)
+    return _Padded(torch.cat([xp, yp, zp, half, slope_x, slope_y, src_mask, src], 1))
 
 
 def _multipole(
     g: GBuffer,
     profile: SumOfGaussians,
-    surf: _Padded,
     k: int,
     active: torch.Tensor,
     tol: float,
@@ -366,7 +365,8 @@ def _multipole(
     progress: bool | None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Numerator and denominator ``(E, 3)`` of the active pixels by the ``"multipole"``
-    method of :func:`reference_sss`."""
+    method of :func:`reference_sss` (the padded surface is built here and dropped once its
+    scaled copies exist: the far field's pyramid is the peak of memory)."""
     b, h, w = g.shape
     e = active.numel()
     acc = torch.zeros(e, 3, dtype=torch.float64)
@@ -383,9 +383,11 @@ def _multipole(
     narrow = [i for i in range(len(var)) if i not in wide]
     nodes = narrow if reconstruction == "bilinear" else []
     groups = [(ids, ratio) for ids, ratio in ((wide, FAR_RATIO), (nodes, None)) if ids]
-    # a bar when the run takes more than a few seconds (measured: ~1e4 px·Gaussians / s)
-    show = e * len(var) > 50_000 if progress is None else progress
+    # a bar when the run takes more than a few seconds (measured on the face close-up,
+    # skin_deon6: ~2e5 px·Gaussians per CPU second)
+    show = e * len(var) > 500_000 if progress is None else progress
     hp, wp = h + 2 * k, w + 2 * k
+    surf = _surface(g, k)
     if narrow and reconstruction == "box":
         sub = SumOfGaussians(profile.variances[narrow], wts[narrow])
         r_n = sub.radius(tol)
@@ -396,25 +398,29 @@ def _multipole(
             acc, wsum = _gather_sog(sub, surf.table, centre, wp, k_n, r_n, progress=near_bar)
     if not groups:
         return acc, wsum
-    bar = tqdm(total=e * len(groups), desc="reference (moments)", unit="px", disable=not show)
+    n_far = sum(len(ids) for ids, _ in groups)
+    bar = tqdm(total=e * n_far, desc="reference (moments)", unit="px·G", disable=not show)
     foot = 2 * math.tan(g.fov_y / 2) / h
-    for i in range(b):
-        sel = torch.nonzero(active // (h * w) == i).squeeze(1)
-        rem = active[sel] % (h * w)
-        rows, cols = rem // w + k, rem % w + k
-        f = surf.fields[i]
-        s = Surface(
+    surfaces = [
+        Surface(
             f[0] / unit,
             f[1] / unit,
             f[2] / unit,
             f[3] / unit,
-            f[4],
-            f[5],
+            f[4].clone(),
+            f[5].clone(),
             torch.cat([f[7:10], f[6:7]]),
             k,
             foot,
             float((torch.stack([f[0], f[1]]).abs() / f[2]).amax()),
         )
+        for f in surf.fields
+    ]
+    del surf
+    for i, s in enumerate(surfaces):
+        sel = torch.nonzero(active // (h * w) == i).squeeze(1)
+        rem = active[sel] % (h * w)
+        rows, cols = rem // w + k, rem % w + k
         for ids, ratio in groups:
             v_g = [var[j] for j in ids]
             # each Gaussian's own share of the tolerance: it may leave out tol × the smallest
@@ -455,6 +461,8 @@ def _gather_generic(
 
 #: offsets × centres gathered per batch by :func:`_gather_sog`
 _BATCH_ELEMS = 1 << 18
+#: centres per chunk of :func:`_gather_sog` (a chunk's batches stay in cache)
+_CENTRES = 1 << 15
 #: a Gauss–Legendre Gaussian is left out of an offset whose cells all lie where it is below
 #: exp(-_SOG_SKIP) of its peak (see :func:`_gather_sog`; ``cell_integral`` uses 40)
 _SOG_SKIP = 25.0
@@ -573,10 +581,11 @@ def _gather_sog(
     """:func:`_gather_generic` for a sum of Gaussians, many offsets per batch (``progress``:
     a tqdm bar, advanced by the offsets done).
 
-    Offsets are visited nearest first in batches of ``_BATCH_ELEMS // centres``; each offset
+    Centres are taken in chunks of ``_CENTRES`` (bands of rows, so a batch stays in cache),
+    offsets nearest first in batches of ``_BATCH_ELEMS // centres``; each offset of a chunk
     keeps its own support test and its own :func:`cell_rules` (as if it were one
-    :meth:`SumOfGaussians.cell_integral` call), and offsets with the same rule are integrated
-    together. Equal to the offset loop to rounding (tested).
+    :meth:`SumOfGaussians.cell_integral` call on the chunk's cells), and offsets with the same
+    rule are integrated together. Equal to the offset loop to rounding (tested).
 
     Sums of Gaussians (with the library's cell integral) take a batched path: many offsets
     at a time, each with the rule :meth:`SumOfGaussians.cell_integral` picks for it alone
@@ -604,10 +613,32 @@ def _gather_sog(
     # is on the surface iff its cell has a size (depth > 0 is validated by GBuffer), and a
     # zero-size cell has weight exactly 0 in every rule
     fields = table[:, [0, 1, 2, 3, 4, 5, 7, 8, 9]].t().contiguous()
+    if progress is not None:
+        progress.reset(total=shift.numel() * math.ceil(e / _CENTRES))
+    for i in range(0, e, _CENTRES):
+        part = slice(i, i + _CENTRES)
+        acc[part], wsum[part] = _sog_chunk(
+            profile, v, fields, centre[part], shift, radius_mm, progress
+        )
+    return acc, wsum
+
+
+def _sog_chunk(
+    profile: SumOfGaussians,
+    v: list[float],
+    fields: torch.Tensor,
+    centre: torch.Tensor,
+    shift: torch.Tensor,
+    radius_mm: float,
+    progress: object,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`_gather_sog` of at most ``_CENTRES`` centres (``fields``: field-major
+    neighbour table, ``shift``: flat offsets nearest first)."""
+    e = centre.numel()
+    acc = torch.zeros(e, 3, dtype=torch.float64)
+    wsum = torch.zeros_like(acc)
     xc, yc, zc = fields[0, centre], fields[1, centre], fields[2, centre]
     per = max(1, _BATCH_ELEMS // e)
-    if progress is not None:
-        progress.reset(total=shift.numel())
     for a in range(0, shift.numel(), per):
         sh = shift[a : a + per]
         c = sh.numel()
@@ -637,8 +668,8 @@ def _gather_sog(
                 sub = [t.index_select(-2, sel) for t in sub]
             wgt = _sog_cell_weights(profile, rule, *(t.reshape(-1) for t in sub[:6]))
             wgt = wgt.view(3, -1, e)
-            acc = acc + (wgt * sub[6]).sum(1).t()
-            wsum = wsum + wgt.sum(1).t()
+            acc += (wgt * sub[6]).sum(1).t()
+            wsum += wgt.sum(1).t()
         if progress is not None:
             progress.update(c)
     return acc, wsum
