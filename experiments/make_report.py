@@ -25,6 +25,7 @@ ORDER = [
     "sampling",
     "cost",
     "perf",
+    "reference_speed",
     "layers",
     "extensions",
     "benchmark",
@@ -32,6 +33,8 @@ ORDER = [
     "stability",
     "disk",
     "mc_profiles",
+    "mc_gap",
+    "optimised",
 ]
 
 HEADER = """# sssbench — reproduction report
