@@ -91,6 +91,7 @@ class BurleyNormalized(Profile):
 
     name = "burley"
     _preintegrated_cost = 1
+    singular_at_origin = True
 
     def __init__(
         self, d: torch.Tensor | float | list[float], albedo: torch.Tensor | float | list[float]
@@ -147,6 +148,18 @@ class BurleyNormalized(Profile):
         rt = as_r(rho).abs()[..., None]
         d = self.d
         return self.albedo * (torch.exp(-rt / d) + 3 * torch.exp(-rt / (3 * d))) / 4
+
+    def radial_mass(self, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+        """``∫_a^b R(r) r dr = A/(8π) [e^{−a/d} − e^{−b/d} + 3 (e^{−a/(3d)} − e^{−b/(3d)})]``
+        per channel for ``0 <= a <= b`` (mm), ``(..., 3)``; each difference as
+        ``−e^{−a/s} expm1(−(b − a)/s)``, so thin far annuli keep their relative precision.
+        The exact ``1/r`` is integrated (no clamp): :meth:`cell_integral` (base class, polar
+        about the singular point) uses it for the cells at the singularity."""
+        at = a[..., None]
+        d, gap = self.d, (b - a)[..., None]
+        near = -torch.exp(-at / d) * torch.expm1(-gap / d)
+        far = -torch.exp(-at / (3 * d)) * torch.expm1(-gap / (3 * d))
+        return self.albedo / (8 * math.pi) * (near + 3 * far)
 
     def preintegrated(self, x: torch.Tensor | float) -> torch.Tensor:
         """``a_p(x) = A/(4πd) [K₀(|x|/d) + K₀(|x|/(3d))]`` (module doc), ``(..., 3)``."""
