@@ -12,10 +12,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = ["RunSpec", "REFERENCES"]
+__all__ = ["RunSpec", "REFERENCES", "DEFAULT_SEEDS"]
 
 #: what a run's error is measured against: ``exact`` (:class:`~sssbench.ops.ReferenceSSS`)
 REFERENCES = ("exact",)
+#: method seeds a stochastic method is evaluated with per run (bias / noise split)
+DEFAULT_SEEDS = 4
 
 
 @dataclass(frozen=True)
@@ -37,6 +39,10 @@ class RunSpec:
         resolution: ``(H, W)`` pixels.
         reference_params: options of the exact reference (``tol``, ``reconstruction``).
         budget: compute the error budget (model / taps / screen space) of the run.
+        seeds: how many method seeds a stochastic method (the disk, stochastic rotation) is
+            evaluated with, its error split into bias and noise (:func:`sssbench.runner.
+            bias_noise`); in the point only when not :data:`DEFAULT_SEEDS`, so the points of
+            deterministic methods and earlier runs keep their hash.
         The rest is run control (not part of the point): repeats, warm-up, threads, backend,
         store, force, timeout, caches, previews.
     """
@@ -57,6 +63,7 @@ class RunSpec:
     ignored: dict[str, Any] = field(default_factory=dict)
     reference_params: dict[str, Any] = field(default_factory=dict)
     budget: bool = True
+    seeds: int = DEFAULT_SEEDS
     repeats: int = 5
     warmup: int = 1
     threads: int | None = None
@@ -88,6 +95,7 @@ class RunSpec:
             "stages": {k: v for k, v in sorted(self.stages.items()) if v is not None},
             **({"ignored": self.ignored} if self.ignored else {}),
             "reference_params": self.reference_params,
+            **({"seeds": self.seeds} if self.seeds != DEFAULT_SEEDS else {}),
             "resolution": list(self.resolution),
             "seed": self.seed,
             "dtype": self.dtype,
