@@ -23,7 +23,7 @@ from sssbench._checks import check_choice, check_magnitude, check_range, check_s
 from sssbench.profiles.base import Profile, as_r
 from sssbench.profiles.dipole import _rgb
 
-__all__ = ["BurleyNormalized", "BURLEY_FITS", "burley_scaling"]
+__all__ = ["BurleyNormalized", "BURLEY_FITS", "burley_scaling", "burley_albedo_mfp"]
 
 #: the shape-scaling fits of Christensen & Burley 2015 (``s(A)``, ``d = ℓ / s``):
 #: ``mfp``: searchlight configuration with the volume mean free path ℓ,
@@ -198,3 +198,17 @@ class BurleyNormalized(Profile):
 
             hi = max(hi, scipy.optimize.brentq(f, 0.0, 3 * dc * (math.log(1 / tol) + 2)))
         return hi
+
+
+def burley_albedo_mfp(
+    name: str,
+    albedo: float | list[float],
+    mfp_mm: float | list[float],
+    fit: str = "dmfp",
+) -> BurleyNormalized:
+    """The profile kind ``burley_albedo_mfp`` of the app (``conf/profile/*.yaml``: ``kind:
+    burley_albedo_mfp``, ``params: {albedo, mfp_mm, fit}``, ``fit`` one of
+    :data:`BURLEY_FITS`): :meth:`BurleyNormalized.from_albedo_mfp`, named ``name``."""
+    profile = BurleyNormalized.from_albedo_mfp(albedo, mfp_mm, fit)
+    profile.name = name
+    return profile
