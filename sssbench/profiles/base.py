@@ -186,14 +186,29 @@ class Profile:
         plane) in polar coordinates about that point (:func:`_polar_patch_integral`, exact up
         to a smooth angular quadrature and :meth:`radial_mass`).
         """
-        out = self._tensor_cell_integral(dx, dy, dz, half_x, half_y, slope_x, slope_y)
+        x, w = _gauss_legendre(8)
+        xt = torch.from_numpy(x).to(dx)
+        wt = torch.from_numpy(w).to(dx)
+        s = half_x[..., None] * xt  # (..., 8) offsets along x within the cell
+        t = half_y[..., None] * xt
+        px = dx[..., None] + s
+        py = dy[..., None] + t
+        pz = dz[..., None, None].expand(*px.shape, 8).clone()
+        area = torch.ones_like(dx)
+        if slope_x is not None or slope_y is not None:
+            sx = torch.zeros_like(dx) if slope_x is None else slope_x.to(dx)
+            sy = torch.zeros_like(dx) if slope_y is None else slope_y.to(dx)
+            pz = pz + sx[..., None, None] * s[..., :, None] + sy[..., None, None] * t[..., None, :]
+            area = torch.sqrt(1.0 + sx * sx + sy * sy)
+        rr = torch.sqrt(px[..., :, None] ** 2 + py[..., None, :] ** 2 + pz**2)
+        vals = self.evaluate(rr.double()).to(dx)  # (..., 8, 8, 3)
+        ww = (wt[:, None] * wt[None, :])[..., None]
+        out = (vals * ww).sum((-3, -2)) * (half_x * half_y * area)[..., None]
         if not self.singular_at_origin:
             return out
+        cells = (dx, dy, dz, half_x, half_y, slope_x, slope_y)
         args = torch.broadcast_tensors(
-            *(
-                torch.zeros_like(dx) if v is None else v.to(dx)
-                for v in (dx, dy, dz, half_x, half_y, slope_x, slope_y)
-            )
+            *(torch.zeros_like(dx) if v is None else v.to(dx) for v in cells)
         )
         flat = [a.reshape(-1).double() for a in args]
         foot = _foot_point(*flat[:3], *flat[5:])
@@ -220,36 +235,6 @@ class Profile:
         r = ((a + b) / 2)[..., None] + half * xt
         vals = self.evaluate(r) * r[..., None]  # (..., Q, 3)
         return (vals * (half * wt)[..., None]).sum(-2)
-
-    def _tensor_cell_integral(
-        self,
-        dx: torch.Tensor,
-        dy: torch.Tensor,
-        dz: torch.Tensor,
-        half_x: torch.Tensor,
-        half_y: torch.Tensor,
-        slope_x: torch.Tensor | None,
-        slope_y: torch.Tensor | None,
-    ) -> torch.Tensor:
-        """:meth:`cell_integral` by an 8×8 Gauss–Legendre rule (no singularity handling)."""
-        x, w = _gauss_legendre(8)
-        xt = torch.from_numpy(x).to(dx)
-        wt = torch.from_numpy(w).to(dx)
-        s = half_x[..., None] * xt  # (..., 8) offsets along x within the cell
-        t = half_y[..., None] * xt
-        px = dx[..., None] + s
-        py = dy[..., None] + t
-        pz = dz[..., None, None].expand(*px.shape, 8).clone()
-        area = torch.ones_like(dx)
-        if slope_x is not None or slope_y is not None:
-            sx = torch.zeros_like(dx) if slope_x is None else slope_x.to(dx)
-            sy = torch.zeros_like(dx) if slope_y is None else slope_y.to(dx)
-            pz = pz + sx[..., None, None] * s[..., :, None] + sy[..., None, None] * t[..., None, :]
-            area = torch.sqrt(1.0 + sx * sx + sy * sy)
-        rr = torch.sqrt(px[..., :, None] ** 2 + py[..., None, :] ** 2 + pz**2)
-        vals = self.evaluate(rr.double()).to(dx)  # (..., 8, 8, 3)
-        ww = (wt[:, None] * wt[None, :])[..., None]
-        return (vals * ww).sum((-3, -2)) * (half_x * half_y * area)[..., None]
 
     def radius(self, tol: float = 1e-4) -> float:
         """Support radius (mm) beyond which the profile can be neglected.

@@ -129,16 +129,25 @@ def _seeds(method_kwargs, g, profile, seeds):
     return torch.stack([DiskSSS(profile, seed=s, **method_kwargs)(g) for s in range(seeds)])
 
 
-def test_flat_plane_oracle_equals_reference_within_standard_error():
+@pytest.mark.parametrize(
+    "profile",
+    [
+        SumOfGaussians.from_table("skin_deon6"),
+        # shape lengths of half to two pixels: much of the weight in the singular centre cell
+        BurleyNormalized([1.0, 0.5, 0.25], [0.8, 0.6, 0.4]),
+    ],
+    ids=["skin_deon6", "burley"],
+)
+def test_flat_plane_oracle_equals_reference_within_standard_error(profile):
     # textured irradiance on a fronto-parallel plane, full stencil, clamp-to-edge borders;
     # the mean of 8 seeds' estimates (64 samples × 4 frames each) vs the exact reference: the
     # standardised error z = (mean − ref) / (std / √8) is Student-t with 7 dof per pixel,
-    # E z² = 7/5; a bias of one standard error would double it
-    p = SumOfGaussians.from_table("skin_deon6")
+    # E z² = 7/5; a bias of one standard error would double it (the Burley reference with an
+    # 8×8 rule on its singular centre cell gave 16)
     h = 16
     g = plane(h, h, z=40.0)  # 0.5 mm pixels: the red kernel spans several pixels
-    ref = ReferenceSSS(p)(g)
-    outs = _seeds(dict(samples=64, frames=4, normalise=False), g, p, 8)
+    ref = ReferenceSSS(profile)(g)
+    outs = _seeds(dict(samples=64, frames=4, normalise=False), g, profile, 8)
     mean, se = outs.mean(0), outs.std(0) / math.sqrt(8)
     z2 = ((mean - ref) / se) ** 2
     assert float(z2.mean()) < 2.0, float(z2.mean())
@@ -385,22 +394,6 @@ def test_burley_exact_reference_integrates_the_singular_centre_cell():
     ref = ReferenceSSS(p)(_lit_plane(h))[0]
     lo = h // 2 - n // 2
     assert torch.allclose(ref[:, lo : lo + n, lo : lo + n], exact, rtol=2e-6, atol=1e-12)
-
-
-def test_burley_flat_plane_oracle_against_the_exact_reference():
-    # textured irradiance on a fronto-parallel plane, Burley with shape lengths of half to two
-    # pixels (a large share of the weight in the singular centre cell): the converged disk
-    # (8 seeds × 64 samples × 4 frames) equals ReferenceSSS within its standard error
-    # (Student-t, 7 dof per pixel: E z² = 7/5)
-    p = BurleyNormalized([1.0, 0.5, 0.25], [0.8, 0.6, 0.4])
-    h = 16
-    g = plane(h, h, z=40.0)  # 0.5 mm pixels
-    ref = ReferenceSSS(p)(g)
-    outs = _seeds(dict(samples=64, frames=4, normalise=False), g, p, 8)
-    mean, se = outs.mean(0), outs.std(0) / math.sqrt(8)
-    z2 = ((mean - ref) / se) ** 2
-    assert float(z2.mean()) < 2.0, float(z2.mean())
-    assert float((g.diffuse - ref).abs().mean()) > 10 * float(se.mean())
 
 
 @pytest.mark.parametrize("profile", ["burley_skin1", "skin_deon6"])
