@@ -25,8 +25,9 @@ from pathlib import Path
 from typing import Any
 
 from sssbench import registry
+from sssbench._checks import check_int
 from sssbench.runner import execute, run_label
-from sssbench.spec import REFERENCES, RunSpec
+from sssbench.spec import DEFAULT_SEEDS, REFERENCES, RunSpec
 from sssbench.tracking import RunRecord, RunStore, config_hash
 
 log = logging.getLogger("sssbench")
@@ -108,6 +109,7 @@ SCALAR_KEYS = {
     "reference": "str",
     "previews": "bool",
     "budget": "bool",
+    "seeds": "int",
 }
 
 
@@ -194,6 +196,7 @@ def spec_from_cfg(cfg: Any, overridden: tuple[str, ...] = ()) -> RunSpec:
         reference=reference,
         mc_params=mc_params,
         budget=bool(c.get("budget", True)),
+        seeds=check_int("seeds", c.get("seeds", DEFAULT_SEEDS), 2),
         resolution=(int(res[0]), int(res[1])),
         seed=c["seed"],
         dtype=c["dtype"],

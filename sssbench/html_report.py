@@ -178,7 +178,7 @@ def write_html(table: pd.DataFrame, out_dir: Path, source: str, plots: list[Path
     shown = table.assign(flags=[_flags(r, markdown=False) for _, r in table.iterrows()])
     cols = ["scene", "scale", "resolution", "stages", "method", "sampling", "samples",
             "time_ms", "rel_rms", "skill", "flip", "err_model", "err_taps", "err_screen",
-            "status", "flags"]  # fmt: skip
+            "bias_rel_rms", "noise_rel_rms", "status", "flags"]  # fmt: skip
     parts += ["<h2>Summary</h2>", _table(shown, cols)]
     for path in plots:
         parts.append(f"<h2>{html.escape(path.stem.replace('_', ' '))}</h2>")

@@ -86,9 +86,16 @@ def _sog_table(name: str, **params: Any) -> Any:
     return SumOfGaussians.from_table(name)
 
 
+def _burley(name: str, **params: Any) -> Any:
+    from sssbench.profiles.burley import burley_albedo_mfp
+
+    return burley_albedo_mfp(name, **params)
+
+
 #: profile ``kind`` (``conf/profile/*.yaml``) -> constructor ``f(name, **params)``
 PROFILE_KINDS: dict[str, Callable[..., Any]] = {
     "sum_of_gaussians_table": _sog_table,
+    "burley_albedo_mfp": _burley,
 }
 
 #: the scene name of a user's own G-buffer file (``scene=file scene.params.path=...``)

@@ -61,6 +61,10 @@ DECISION_COLUMNS = [
     "contribution_screen",
     "contribution_recon",
     "error_scale",
+    # stochastic methods (sssbench.runner.bias_noise): rel_rms is the mean over seeds
+    "bias_rel_rms",
+    "noise_rel_rms",
+    "seeds",
 ]
 #: columns the report adds per ranking group (:func:`annotate`)
 FLAG_COLUMNS = ["pareto", "best", "worse_than_nothing", "note"]
@@ -440,6 +444,8 @@ MD_COLUMNS = [
     "err_model",
     "err_taps",
     "err_screen",
+    "bias_rel_rms",
+    "noise_rel_rms",
     "status",
     "flags",
 ]
@@ -471,7 +477,9 @@ def summary_markdown(table: pd.DataFrame, source: str) -> str:
         "rel_rms = RMS error / RMS reference; psnr in dB (∞ = exact); delta_e = mean CIE ΔE76 "
         "of tone-mapped sRGB; flip = mean LDR-FLIP; skill = 1 − rel_rms / rel_rms of doing "
         "nothing (the `identity` baseline: > 0 beats it); err_* = the error budget "
-        f"(docs/error_budget.md). {MISSING} = not applicable.",
+        "(docs/error_budget.md); for stochastic methods rel_rms is the mean over seeds, "
+        "bias_rel_rms the error of the seed mean and noise_rel_rms the std across seeds "
+        f"(relative to the reference RMS). {MISSING} = not applicable.",
     ]
     recs = recommendations(table)
     table = table.assign(flags=[_flags(r) for _, r in table.iterrows()])

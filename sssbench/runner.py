@@ -10,7 +10,9 @@ of a sweep, and the experiments call it for their grids. It
 3. loads the exact reference from the cache (:mod:`sssbench.refcache`) or computes it;
 4. computes the metrics (:mod:`sssbench.metrics`) over the SSS region (mask > 0), the
    do-nothing baseline's errors on the same scene and the run's skill against it
-   (:mod:`sssbench.verdict`), and the error budget (:mod:`sssbench.budget`);
+   (:mod:`sssbench.verdict`), and the error budget (:mod:`sssbench.budget`) — or, for a
+   stochastic method, its error split into bias and noise over ``seeds`` method seeds
+   (:func:`bias_noise`);
 5. writes ``metrics.json``, ``passes.csv``, ``point.json`` and previews into the run directory
    and records the run in the store.
 
@@ -53,7 +55,9 @@ log = logging.getLogger("sssbench")
 __all__ = [
     "RunOutcome",
     "RunTimeout",
+    "bias_noise",
     "execute",
+    "is_stochastic",
     "measure",
     "pass_stats",
     "time_limit",
@@ -81,6 +85,9 @@ METRIC_KEYS = (
     "contribution_taps",
     "contribution_screen",
     "contribution_recon",
+    "bias_rel_rms",
+    "noise_rel_rms",
+    "seeds",
     "samples_per_pixel",
     "reference_ms",
     "pixel_mm",
@@ -312,6 +319,10 @@ def measure(spec: RunSpec, run_dir: Path) -> tuple[dict[str, Any], list[PassStat
         mc = {}
         if spec.reference == "mc":
             mc = _mc_metrics(spec, gbuffer, result, reference, identity)
+        with torch.inference_mode():
+            split = _seed_split(spec, method, profile, gbuffer, result, reference, mask)
+        if split:  # a stochastic method: its rel RMS is the mean over the seeds
+            values["rel_rms"] = split.pop("rel_rms")
     time_ms = float(sum(p.ms_median for p in stats))
     payload: dict[str, Any] = {
         "scene": spec.scene,
@@ -343,6 +354,7 @@ def measure(spec: RunSpec, run_dir: Path) -> tuple[dict[str, Any], list[PassStat
         "visible": verdict.is_visible(base_flip, base_flip_local),
         **budget,
         **mc,
+        **split,
         "pixel_mm": _pixel_mm(gbuffer),
         "samples_per_pixel": int(sum(p.samples for p in stats)),
         "plan": [{"stage": e.stage, "runs": e.runs, "reason": e.reason} for e in out.plan],
@@ -371,6 +383,101 @@ def measure(spec: RunSpec, run_dir: Path) -> tuple[dict[str, Any], list[PassStat
             payload["previews"].append(f"{name}.exr")
         payload["error_scale"] = _error_scale(result, reference)
     return payload, stats
+
+
+def is_stochastic(method_name: str, method: Any) -> bool:
+    """Whether a method's result depends on its seed: registered ``deterministic=False`` (the
+    disk) or a separable method with stochastic rotation on (``rotation`` not ``None``)."""
+    entry = registry.METHODS[method_name]
+    return not entry.deterministic or getattr(method, "rotation", None) is not None
+
+
+def bias_noise(
+    images: list[torch.Tensor], reference: torch.Tensor, mask: torch.Tensor | None = None
+) -> dict[str, float]:
+    """A stochastic method's error over ``K = len(images)`` seeds, split into bias and noise.
+
+    All relative to the reference's RMS over the mask (as :func:`sssbench.metrics.rel_rms`),
+    per image of the batch, then averaged over it:
+
+    - ``rel_rms``: the mean over seeds of each seed's rel RMS error;
+    - ``noise_rel_rms``: the RMS over pixels and channels of the standard deviation across
+      seeds (unbiased, ``K − 1``), i.e. one frame's noise;
+    - ``bias_rel_rms``: the rel RMS error of the seed mean, whose square still holds
+      ``noise² / K`` of averaged noise, removed: ``√max(err(mean)² − noise² / K, 0)``
+      (unbiased for ``bias²``; clamped at 0 when the noise hides the bias).
+
+    For a large image each seed's squared error is ``≈ bias² + noise²``.
+
+    Args:
+        images: ``K >= 2`` results ``(B, 3, H, W)`` of the same method with different seeds.
+        reference: ``(B, 3, H, W)``.
+        mask: ``(B, 1, H, W)`` region (> 0) or ``None`` for all pixels.
+
+    Returns:
+        ``{"rel_rms", "bias_rel_rms", "noise_rel_rms", "seeds"}``.
+    """
+    from sssbench.metrics import rel_rms
+
+    if len(images) < 2:
+        raise ValueError(f"images must hold >= 2 seeds' results, got {len(images)}")
+    k = len(images)
+    stack = torch.stack([im.double() for im in images])  # (K, B, C, H, W)
+    ref = reference.double()
+    m = None if mask is None else (mask > 0).double()
+
+    def mean_px(v: torch.Tensor) -> torch.Tensor:  # (B, C, H, W) -> (B,), over the mask
+        if m is None:
+            return v.flatten(1).mean(1)
+        return (v * m).flatten(1).sum(1) / (m.flatten(1).sum(1) * v.shape[1])
+
+    ref_rms = mean_px(ref**2).sqrt()
+    noise = mean_px(stack.var(0)).sqrt() / ref_rms
+    err_mean = mean_px((stack.mean(0) - ref) ** 2).sqrt() / ref_rms
+    bias = (err_mean**2 - noise**2 / k).clamp_min(0.0).sqrt()
+    per_seed = [rel_rms(im, ref, None if m is None else m) for im in stack]
+    return {
+        "rel_rms": sum(per_seed) / k,
+        "bias_rel_rms": float(bias.mean()),
+        "noise_rel_rms": float(noise.mean()),
+        "seeds": k,
+    }
+
+
+def _seed_split(
+    spec: RunSpec,
+    method: Any,
+    profile: Any,
+    gbuffer: Any,
+    first: torch.Tensor,
+    reference: torch.Tensor,
+    mask: torch.Tensor | None,
+) -> dict[str, float]:
+    """:func:`bias_noise` of a stochastic method over ``spec.seeds`` seeds: ``first`` (the
+    timed result, the run's seed ``s``) and ``s + 1 … s + K − 1`` (``s`` = the method's own
+    ``seed`` option if given, else the run's seed; the scene keeps the run's seed). Empty for
+    deterministic methods and ``seeds == 1``."""
+    seeds = spec.seeds
+    if isinstance(seeds, bool) or not isinstance(seeds, int) or seeds < 1:
+        raise ValueError(f"seeds must be an integer >= 1, got {seeds!r}")
+    if seeds == 1 or not is_stochastic(spec.method, method):
+        return {}
+    base = int(spec.method_params.get("seed", spec.seed))
+    images = [first]
+    for k in range(1, seeds):
+        params = dict(spec.method_params)
+        if "seed" in params:
+            params["seed"] = base + k
+        other = registry.build_method(
+            spec.method,
+            profile,
+            samples=spec.samples,
+            sampling=spec.sampling,
+            seed=base + k,
+            params=params,
+        )
+        images.append(registry.build_pipeline(other, profile, spec.stages).run(gbuffer).image)
+    return bias_noise(images, reference, mask)
 
 
 def _error_scale(result: torch.Tensor, reference: torch.Tensor) -> float:

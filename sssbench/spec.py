@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = ["RunSpec", "REFERENCES", "MC_OPTIONS"]
+__all__ = ["RunSpec", "REFERENCES", "MC_OPTIONS", "DEFAULT_SEEDS"]
 
 #: what a run's error is measured against: ``profile`` (the exact integral of the diffusion
 #: profile, :class:`~sssbench.ops.ReferenceSSS`) or ``mc`` (that and Monte Carlo light
@@ -20,6 +20,8 @@ __all__ = ["RunSpec", "REFERENCES", "MC_OPTIONS"]
 REFERENCES = ("profile", "mc")
 #: keys of ``reference_params`` that configure the Monte Carlo reference (``reference=mc``)
 MC_OPTIONS = ("mc_photons", "mc_batches", "mc_workers", "mc_seed", "mc_material")
+#: method seeds a stochastic method is evaluated with per run (bias / noise split)
+DEFAULT_SEEDS = 4
 
 
 @dataclass(frozen=True)
@@ -45,6 +47,10 @@ class RunSpec:
         mc_params: options of the Monte Carlo reference (:data:`MC_OPTIONS`, given on the
             command line as ``reference_params.mc_*``); in the point with ``reference``.
         budget: compute the error budget (model / taps / screen space) of the run.
+        seeds: how many method seeds a stochastic method (the disk, stochastic rotation) is
+            evaluated with, its error split into bias and noise (:func:`sssbench.runner.
+            bias_noise`); in the point only when not :data:`DEFAULT_SEEDS`, so the points of
+            deterministic methods and earlier runs keep their hash.
         The rest is run control (not part of the point): repeats, warm-up, threads, backend,
         store, force, timeout, caches, previews.
     """
@@ -67,6 +73,7 @@ class RunSpec:
     reference: str = "profile"
     mc_params: dict[str, Any] = field(default_factory=dict)
     budget: bool = True
+    seeds: int = DEFAULT_SEEDS
     repeats: int = 5
     warmup: int = 1
     threads: int | None = None
@@ -103,6 +110,7 @@ class RunSpec:
                 if self.reference != "profile"
                 else {}
             ),
+            **({"seeds": self.seeds} if self.seeds != DEFAULT_SEEDS else {}),
             "resolution": list(self.resolution),
             "seed": self.seed,
             "dtype": self.dtype,

@@ -27,14 +27,23 @@ frame ``f``, sample ``i`` of ``N``:
   form for Burley, tabulated inverse CDF otherwise); the offset ``r_i (cos θ_i, sin θ_i)``
   mm is turned into pixels at the centre's depth (:func:`~sssbench.gbuffer.pixel_size_mm`)
   — the disk lies in the screen-parallel plane through the centre, as in HDRP without its
-  tangent-plane option (no area element on tilted surfaces);
+  tangent-plane option (no area element on tilted surfaces; see ``surface_area``);
 - fetch (``fetch="point"``, HDRP: a load at the rounded position) of irradiance ``E_i`` and
   depth ``z_i`` from the pixel containing the sample, or ``fetch="bilinear"`` (the four
   corners, weighted by bilinear weight × stencil, renormalised);
 - the sample's surface point: ``x_i = x_p z_i / z_p + Δ pixel_size(z_i)`` (the view ray
   through the sample's continuous, unclamped screen position at the fetched depth), so
   ``d_i = |x_i − x_p|`` equals ``r_i`` on a fronto-parallel plane;
-- weight per channel ``w_ic = R_c(d_i) / pdf_i / ‖R_c‖₁``.
+- weight per channel ``w_ic = R_c(d_i) / pdf_i / ‖R_c‖₁``, times, with
+  ``surface_area=True``, the area the sample's pixel covers on the surface over the area it
+  covers in the disk's plane, ``a_i = (z_i / z_p)² √(1 + s_x² + s_y²)`` (``s``: the depth
+  slopes of the sample's pixel, minmod of the one-sided differences clamped at 85°, as the
+  exact reference's cells). The engines (default ``False``) leave it out: the disk then
+  integrates over the screen-parallel plane, not the surface. On a plane (``a`` constant up
+  to perspective) the normalised estimator does not see the difference; on a curved surface
+  it weighs the neighbours facing the camera more than the reference, which weighs each by
+  its surface area — the disk's bias on curved scenes (measured on ``head_close``, see
+  experiments/disk.py).
 
 Rules (our choices, documented because the sources leave them to the engine):
 
@@ -94,6 +103,7 @@ from sssbench.ops._gather_torch import _bilinear_corners
 from sssbench.ops._repr import options_repr
 from sssbench.ops._stencil import active_pixels
 from sssbench.ops.functional import functional
+from sssbench.ops.reference import _minmod_slope
 from sssbench.ops.timing import timed_pass
 from sssbench.profiles.base import Profile
 
@@ -192,6 +202,8 @@ class DiskSSS(nn.Module):
         adaptive_target: target relative standard error of the adaptive rule.
         cross_profile: with a list of profiles: ``"reject"`` or ``"accept"`` samples on
             another profile's pixels (module doc).
+        surface_area: weight each sample by its pixel's surface area (module doc; the
+            engines: ``False``).
         seed: seed of the rotation hash (frame f of seed s differs from frame f of s + 1).
 
     Shape:
@@ -222,6 +234,7 @@ class DiskSSS(nn.Module):
         adaptive: Sequence[int] | None = None,
         adaptive_target: float = 0.05,
         cross_profile: str = "reject",
+        surface_area: bool = False,
         seed: int = 0,
     ) -> None:
         super().__init__()
@@ -245,8 +258,11 @@ class DiskSSS(nn.Module):
             raise TypeError(f"normalise must be a bool, got {type(normalise).__name__}")
         if not isinstance(jitter_radius, bool):
             raise TypeError(f"jitter_radius must be a bool, got {type(jitter_radius).__name__}")
+        if not isinstance(surface_area, bool):
+            raise TypeError(f"surface_area must be a bool, got {type(surface_area).__name__}")
         self.normalise = normalise
         self.jitter_radius = jitter_radius
+        self.surface_area = surface_area
         self.fetch = check_choice("fetch", fetch, DISK_FETCHES)
         if adaptive is not None:
             if not isinstance(adaptive, Sequence) or len(adaptive) != 2:
@@ -267,7 +283,7 @@ class DiskSSS(nn.Module):
         return (
             f"DiskSSS({self.profile!r}, samples={self.samples}, pattern={self.pattern!r}, "
             f"rotation={self.rotation!r}, frames={self.frames}, normalise={self.normalise}, "
-            f"adaptive={self.adaptive})"
+            f"adaptive={self.adaptive}, surface_area={self.surface_area})"
         )
 
     # ------------------------------------------------------------------ one batch of samples
@@ -311,7 +327,7 @@ class DiskSSS(nn.Module):
             theta = theta0[i] + 2 * math.pi * phase
             dcol = (r * torch.cos(theta)).to(dt) * step
             drow = -(r * torch.sin(theta)).to(dt) * step  # screen y is up, rows go down
-            rgb, z_s, ok = ctx.fetch(base, row + drow, col + dcol, self.fetch, accept)
+            rgb, z_s, ok, area = ctx.fetch(base, row + drow, col + dcol, self.fetch, accept)
             lateral = pixel_size_mm(z_s, ctx.fov_y, ctx.h)
             p_s = torch.stack(
                 [
@@ -323,6 +339,8 @@ class DiskSSS(nn.Module):
             )
             dist = (p_s - pos_c).norm(dim=1)
             w = kernel.profile.evaluate(dist.double()) * inv_pdf[:, None] / kernel.total
+            if area is not None:  # surface area over the disk plane's pixel area
+                w = w * (area / pixel_size_mm(z_c, ctx.fov_y, ctx.h) ** 2).double()[:, None]
             w = w.to(dt) * ok[:, None]
             f = w * rgb
             num += f
@@ -404,7 +422,7 @@ class DiskSSS(nn.Module):
         """Scattered diffuse ``(B, 3, H, W)`` (``inplace``: written into ``gbuffer.diffuse``)."""
         if not isinstance(gbuffer, GBuffer):
             raise TypeError(f"gbuffer must be a GBuffer, got {type(gbuffer).__name__}")
-        ctx = _Pixels(gbuffer)
+        ctx = _Pixels(gbuffer, surface_area=self.surface_area)
         m = ctx.index.numel()
         acc = torch.zeros(m, 3, dtype=gbuffer.dtype)
         self.last_counts = None if self.adaptive is None else torch.zeros(m, dtype=torch.long)
@@ -444,7 +462,7 @@ class _Kernel:
 class _Pixels:
     """Channels-last flat views of one G-buffer and its active pixels (for :class:`DiskSSS`)."""
 
-    def __init__(self, g: GBuffer) -> None:
+    def __init__(self, g: GBuffer, surface_area: bool = False) -> None:
         b, h, w = g.shape
         self.h, self.w, self.hw, self.fov_y, self.dtype = h, w, h * w, g.fov_y, g.dtype
         mask = g.mask_or_ones()
@@ -453,6 +471,14 @@ class _Pixels:
         self.on = (self.mask > 0).to(g.dtype)
         self.pos = view_positions(g.depth, g.fov_y).permute(0, 2, 3, 1).reshape(b * h * w, 3)
         self.depth = self.pos[:, 2]
+        #: per pixel, its surface area (mm²): lateral footprint² × √(1 + s_x² + s_y²)
+        self.area: torch.Tensor | None = None
+        if surface_area:
+            view = self.pos.reshape(b, h, w, 3).permute(0, 3, 1, 2)
+            sx = _minmod_slope(g.depth, view[:, :1], 3)
+            sy = _minmod_slope(g.depth, view[:, 1:2], 2)
+            foot = pixel_size_mm(g.depth, g.fov_y, h)
+            self.area = (foot**2 * torch.sqrt(1 + sx * sx + sy * sy)).reshape(-1)
         index = active_pixels(g.mask, b * h * w)
         self.index = torch.arange(b * h * w) if index is None else index
         rem = self.index % self.hw
@@ -466,30 +492,36 @@ class _Pixels:
         col: torch.Tensor,
         mode: str,
         accept: torch.Tensor,
-    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Irradiance ``(M, 3)``, depth ``(M,)`` and acceptance (1 / 0, from the flat
-        ``accept``) at fractional ``(row, col)`` in the images starting at flat index
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """Irradiance ``(M, 3)``, depth ``(M,)``, acceptance (1 / 0, from the flat
+        ``accept``) and surface area (``(M,)`` mm², ``None`` unless built with
+        ``surface_area``) at fractional ``(row, col)`` in the images starting at flat index
         ``base``, clamped to the edge."""
         if mode == "point":
             ri = torch.floor(row + 0.5).clamp(0, self.h - 1).long()
             ci = torch.floor(col + 0.5).clamp(0, self.w - 1).long()
             j = base + ri * self.w + ci
-            return self.rgb[j], self.depth[j], accept[j]
+            area = None if self.area is None else self.area[j]
+            return self.rgb[j], self.depth[j], accept[j], area
         idx, wts = _bilinear_corners(row, col, self.h, self.w)  # the gather's rotated taps
         rgb = torch.zeros(row.shape[0], 3, dtype=self.dtype)
         z = torch.zeros_like(row)
         total = torch.zeros_like(row)
+        area = None if self.area is None else torch.zeros_like(row)
         for i, wt in zip(idx, wts, strict=True):
             j = base + i
             wt = wt * accept[j]
             rgb += wt[:, None] * self.rgb[j]
             z += wt * self.depth[j]
+            if area is not None:
+                area += wt * self.area[j]
             total += wt
         ok = (total > 0).to(self.dtype)
         safe = torch.where(total > 0, total, 1.0)
         # all corners off the stencil: the sample is rejected; its depth is the nearest corner's
         z = torch.where(total > 0, z / safe, self.depth[base + idx[0]])
-        return rgb / safe[:, None], z, ok
+        area = None if area is None else area / safe
+        return rgb / safe[:, None], z, ok, area
 
 
 #: the functional twin: every argument of :class:`DiskSSS`, kernels reused

@@ -23,7 +23,7 @@ from sssbench._checks import check_choice, check_magnitude, check_range, check_s
 from sssbench.profiles.base import Profile, as_r
 from sssbench.profiles.dipole import _rgb
 
-__all__ = ["BurleyNormalized", "BURLEY_FITS", "burley_scaling"]
+__all__ = ["BurleyNormalized", "BURLEY_FITS", "burley_scaling", "burley_albedo_mfp"]
 
 #: the shape-scaling fits of Christensen & Burley 2015 (``s(A)``, ``d = ℓ / s``):
 #: ``mfp``: searchlight configuration with the volume mean free path ℓ,
@@ -91,6 +91,7 @@ class BurleyNormalized(Profile):
 
     name = "burley"
     _preintegrated_cost = 1
+    singular_at_origin = True
 
     def __init__(
         self, d: torch.Tensor | float | list[float], albedo: torch.Tensor | float | list[float]
@@ -148,6 +149,18 @@ class BurleyNormalized(Profile):
         d = self.d
         return self.albedo * (torch.exp(-rt / d) + 3 * torch.exp(-rt / (3 * d))) / 4
 
+    def radial_mass(self, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+        """``∫_a^b R(r) r dr = A/(8π) [e^{−a/d} − e^{−b/d} + 3 (e^{−a/(3d)} − e^{−b/(3d)})]``
+        per channel for ``0 <= a <= b`` (mm), ``(..., 3)``; each difference as
+        ``−e^{−a/s} expm1(−(b − a)/s)``, so thin far annuli keep their relative precision.
+        The exact ``1/r`` is integrated (no clamp): :meth:`cell_integral` (base class, polar
+        about the singular point) uses it for the cells at the singularity."""
+        at = a[..., None]
+        d, gap = self.d, (b - a)[..., None]
+        near = -torch.exp(-at / d) * torch.expm1(-gap / d)
+        far = -torch.exp(-at / (3 * d)) * torch.expm1(-gap / (3 * d))
+        return self.albedo / (8 * math.pi) * (near + 3 * far)
+
     def preintegrated(self, x: torch.Tensor | float) -> torch.Tensor:
         """``a_p(x) = A/(4πd) [K₀(|x|/d) + K₀(|x|/(3d))]`` (module doc), ``(..., 3)``."""
         xt = as_r(x).abs()[..., None]
@@ -185,3 +198,17 @@ class BurleyNormalized(Profile):
 
             hi = max(hi, scipy.optimize.brentq(f, 0.0, 3 * dc * (math.log(1 / tol) + 2)))
         return hi
+
+
+def burley_albedo_mfp(
+    name: str,
+    albedo: float | list[float],
+    mfp_mm: float | list[float],
+    fit: str = "dmfp",
+) -> BurleyNormalized:
+    """The profile kind ``burley_albedo_mfp`` of the app (``conf/profile/*.yaml``: ``kind:
+    burley_albedo_mfp``, ``params: {albedo, mfp_mm, fit}``, ``fit`` one of
+    :data:`BURLEY_FITS`): :meth:`BurleyNormalized.from_albedo_mfp`, named ``name``."""
+    profile = BurleyNormalized.from_albedo_mfp(albedo, mfp_mm, fit)
+    profile.name = name
+    return profile

@@ -3,6 +3,7 @@ and statistics across seeds."""
 
 from __future__ import annotations
 
+import functools
 import math
 
 import pytest
@@ -128,16 +129,25 @@ def _seeds(method_kwargs, g, profile, seeds):
     return torch.stack([DiskSSS(profile, seed=s, **method_kwargs)(g) for s in range(seeds)])
 
 
-def test_flat_plane_oracle_equals_reference_within_standard_error():
+@pytest.mark.parametrize(
+    "profile",
+    [
+        SumOfGaussians.from_table("skin_deon6"),
+        # shape lengths of half to two pixels: much of the weight in the singular centre cell
+        BurleyNormalized([1.0, 0.5, 0.25], [0.8, 0.6, 0.4]),
+    ],
+    ids=["skin_deon6", "burley"],
+)
+def test_flat_plane_oracle_equals_reference_within_standard_error(profile):
     # textured irradiance on a fronto-parallel plane, full stencil, clamp-to-edge borders;
     # the mean of 8 seeds' estimates (64 samples × 4 frames each) vs the exact reference: the
     # standardised error z = (mean − ref) / (std / √8) is Student-t with 7 dof per pixel,
-    # E z² = 7/5; a bias of one standard error would double it
-    p = SumOfGaussians.from_table("skin_deon6")
+    # E z² = 7/5; a bias of one standard error would double it (the Burley reference with an
+    # 8×8 rule on its singular centre cell gave 16)
     h = 16
     g = plane(h, h, z=40.0)  # 0.5 mm pixels: the red kernel spans several pixels
-    ref = ReferenceSSS(p)(g)
-    outs = _seeds(dict(samples=64, frames=4, normalise=False), g, p, 8)
+    ref = ReferenceSSS(profile)(g)
+    outs = _seeds(dict(samples=64, frames=4, normalise=False), g, profile, 8)
     mean, se = outs.mean(0), outs.std(0) / math.sqrt(8)
     z2 = ((mean - ref) / se) ** 2
     assert float(z2.mean()) < 2.0, float(z2.mean())
@@ -318,20 +328,28 @@ def test_profile_id_validation():
         DiskSSS([BurleyNormalized(1.0, 0.5)], cross_profile="blend")
 
 
-def test_burley_flat_plane_oracle_against_cell_quadrature():
-    # one lit pixel on a dark plane: the exact output at offset (i, j) is the profile's
-    # integral over the lit pixel's cell seen from there, / A (scipy quadrature, the 1/r
-    # singularity of the centre cell at a corner of each quarter); the disk's mean over seeds
-    # must agree within its standard error (Student-t, 5 dof: E z² = 5/3)
-    from scipy import integrate
+#: one lit pixel on a dark plane: 2 mm pixels, Burley albedos, the exact response on the 9 × 9
+#: pixels around it
+_LIT = dict(pix=2.0, albedo=[0.8, 0.6, 0.4], n=9)
 
-    h, pix = 9, 2.0
-    z = pix * h / (2 * math.tan(FOV / 2))
-    p = BurleyNormalized([3.0, 1.5, 0.8], [0.8, 0.6, 0.4])
+
+def _lit_plane(h: int) -> GBuffer:
+    pix = _LIT["pix"]
     e = torch.zeros(1, 3, h, h, dtype=DT)
     e[..., h // 2, h // 2] = 1.0
-    g = plane(h, h, z=z, image=e)
-    exact = torch.zeros(3, h, h, dtype=DT)
+    return plane(h, h, z=pix * h / (2 * math.tan(FOV / 2)), image=e)
+
+
+@functools.cache
+def _lit_pixel_exact(d: tuple[float, ...]) -> tuple[BurleyNormalized, torch.Tensor]:
+    """The exact output at offset (i, j) from the lit pixel: the profile's integral over the
+    lit pixel's cell seen from there, / A (scipy's adaptive quadrature, the cell split at the
+    1/r singularity so that it sits at a corner of each part): ``(profile, (3, n, n))``."""
+    from scipy import integrate
+
+    n, pix = _LIT["n"], _LIT["pix"]
+    p = BurleyNormalized(list(d), _LIT["albedo"])
+    exact = torch.zeros(3, n, n, dtype=DT)
     for c in range(3):
         d, a = float(p.d[c]), float(p.albedo[c])
 
@@ -339,18 +357,94 @@ def test_burley_flat_plane_oracle_against_cell_quadrature():
             rr = math.hypot(x, y)
             return a * (math.exp(-rr / d) + math.exp(-rr / (3 * d))) / (8 * math.pi * d * rr)
 
-        for i in range(h):
-            for j in range(h):
-                x0, y0 = (j - h // 2) * pix, (i - h // 2) * pix
+        for i in range(n):
+            for j in range(n):
+                x0, y0 = (j - n // 2) * pix, (i - n // 2) * pix
                 edges_x = sorted({x0 - pix / 2, x0 + pix / 2, *([0.0] if abs(x0) < pix else [])})
                 edges_y = sorted({y0 - pix / 2, y0 + pix / 2, *([0.0] if abs(y0) < pix else [])})
                 total = 0.0
                 for xa, xb in zip(edges_x[:-1], edges_x[1:], strict=True):
                     for ya, yb in zip(edges_y[:-1], edges_y[1:], strict=True):
-                        total += integrate.dblquad(r, xa, xb, ya, yb, epsabs=1e-10)[0]
+                        total += integrate.dblquad(r, xa, xb, ya, yb, epsabs=1e-12)[0]
                 exact[c, i, j] = total / a
-    outs = _seeds(dict(samples=64, frames=8, normalise=False), g, p, 6)[:, 0]
+    return p, exact
+
+
+def test_burley_flat_plane_oracle_against_cell_quadrature():
+    # the disk's mean over seeds must agree with the exact one-lit-pixel response within its
+    # standard error (Student-t, 5 dof: E z² = 5/3); shape lengths 3/1.5/0.8 mm, so samples
+    # reach every pixel of the 9 × 9 image
+    p, exact = _lit_pixel_exact((3.0, 1.5, 0.8))
+    n = _LIT["n"]
+    outs = _seeds(dict(samples=64, frames=8, normalise=False), _lit_plane(n), p, 6)[:, 0]
     mean, se = outs.mean(0), outs.std(0) / math.sqrt(6)
     z2 = ((mean - exact) / se.clamp_min(1e-12)) ** 2
     assert float(z2.mean()) < 2.5, float(z2.mean())
-    assert float(exact[0, h // 2, h // 2]) < 0.5  # most light leaves the lit pixel
+    assert float(exact[0, n // 2, n // 2]) < 0.5  # most light leaves the lit pixel
+
+
+def test_burley_exact_reference_integrates_the_singular_centre_cell():
+    # the exact reference reproduces the quadrature, the lit pixel's own weight included (its
+    # 1/r singularity: an 8×8 Gauss–Legendre cell rule was 9–15% low there, and 23% of the
+    # energy of a profile a tenth of a pixel wide was lost); a 61-pixel image holds the whole
+    # support, so the normalisation by the gathered weight is exact up to its tolerance 1e-6
+    # (shape lengths 1/0.5/0.25 mm: support radius 25 pixels)
+    p, exact = _lit_pixel_exact((1.0, 0.5, 0.25))
+    h, n = 61, _LIT["n"]
+    ref = ReferenceSSS(p)(_lit_plane(h))[0]
+    lo = h // 2 - n // 2
+    assert torch.allclose(ref[:, lo : lo + n, lo : lo + n], exact, rtol=2e-6, atol=1e-12)
+
+
+@pytest.mark.parametrize("profile", ["burley_skin1", "skin_deon6"])
+def test_app_runs_the_disk_with_burley_and_gaussian_profiles(tmp_path, profile):
+    # `sssbench method=disk profile=...` (32 samples, the yaml's default): Burley from albedo
+    # and diffuse mean free path (conf/profile/burley_skin1.yaml, profile kind
+    # burley_albedo_mfp) and the six-Gaussian skin; the run beats doing nothing and records
+    # its error split into bias and noise over the default 4 seeds
+    import json
+
+    from sssbench import runner
+    from sssbench.app import compose_spec
+
+    spec = compose_spec(
+        "method=disk",
+        f"profile={profile}",
+        "scene=step_edge",
+        "resolution=[16,16]",
+        "repeats=1",
+        "warmup=0",
+        "previews=false",
+        f"reference_cache={tmp_path / 'cache'}",
+        store=tmp_path / "s.sqlite",
+    )
+    assert spec.samples == 32
+    built = runner.registry.build_profile(spec.profile, spec.profile_kind, **spec.profile_params)
+    if profile == "burley_skin1":
+        want = BurleyNormalized.from_albedo_mfp([0.436, 0.2273, 0.131], [3.673, 1.367, 0.683])
+        assert torch.equal(built.d, want.d) and torch.equal(built.albedo, want.albedo)
+    assert runner.execute(spec, tmp_path / "run").status == "ok"
+    m = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert m["seeds"] == 4 and m["noise_rel_rms"] > 0
+    assert m["rel_rms"] < m["rel_rms_identity"]
+    assert m["bias_rel_rms"] <= m["rel_rms"]
+
+
+def test_surface_area_weights_integrate_the_tilted_surface():
+    # constant irradiance on a plane tilted 45° about the view's y axis, unnormalised: the
+    # profile integrated over the (whole) plane is its total whatever the tilt, so with the
+    # surface area element the estimate is 1; without it the disk integrates over the screen-
+    # parallel plane and loses ≈ 1 − cos 45° (29%). Tolerance: the point fetch reads each
+    # pixel's centre depth (pixel = d/2 here: 2.5% measured with 4096 samples per pixel)
+    h, fov, z0, slope = 64, 0.4, 20.0, 1.0
+    u = (torch.arange(h, dtype=DT) + 0.5 - h / 2) / (h / 2)
+    z = (z0 / (1 - slope * u * math.tan(fov / 2))).view(1, 1, 1, h).expand(1, 1, h, h)
+    g = GBuffer(torch.ones(1, 3, h, h, dtype=DT), z.contiguous(), fov)
+    p = BurleyNormalized(0.25, 0.8)
+    c = slice(h // 2 - 2, h // 2 + 2)
+    est = {}
+    for area in (True, False):
+        out = DiskSSS(p, 16, frames=2, normalise=False, surface_area=area)(g)
+        est[area] = float(out[0, 0, c, c].mean())
+    assert est[True] == pytest.approx(1.0, abs=0.05)
+    assert est[False] == pytest.approx(1 / math.sqrt(1 + slope**2), abs=0.05)
