@@ -29,7 +29,7 @@ from sssbench.kernels import optimise as opt
 from sssbench.metrics import rel_rms
 from sssbench.ops import IdentitySSS, PreintegratedSSS
 from sssbench.profiles import SumOfGaussians
-from sssbench.verdict import VISIBLE_FLIP, sss_visibility
+from sssbench.verdict import VISIBLE_FLIP, VISIBLE_LOCAL_FLIP, is_visible, visibility_stats
 
 TITLE = "Beyond the papers: taps optimised through the passes (issue 18)"
 SCALES = {"portrait": 0.3, "medium": 1.0}
@@ -72,8 +72,11 @@ def run(ctx: Context) -> Section:
             g = s.build(px)
             scenes.append((s.name, g, opt.sss_reference(s, g, prof, px)))
         ident = {name: _error(IdentitySSS(), g, ref) for name, g, ref in scenes}
-        # visible: the project's criterion (sssbench.verdict), mean FLIP of input vs reference
-        flips = {name: sss_visibility(ref, g.diffuse, g.mask) for name, g, ref in scenes}
+        # visible: the project's criterion (sssbench.verdict): the FLIP of the input against
+        # the reference, its mean or its 99.9th percentile
+        stats = {name: visibility_stats(ref, g.diffuse, g.mask) for name, g, ref in scenes}
+        flips = {name: st[0] for name, st in stats.items()}
+        seen = {name: is_visible(*st) for name, st in stats.items()}
         for n in taps:
             t0 = time.perf_counter()
             fit = opt.optimise(prof, taps=n, pixel_mm=px, training=training, steps=steps)
@@ -90,9 +93,9 @@ def run(ctx: Context) -> Section:
                 data[f"{scale}/{n}/{name}"] = {
                     "identity": ident[name], **rule_err, "best_rule": best_rule,
                     "optimised": e_opt, "reduction": gain, "flip": flips[name],
-                    "visible": flips[name] >= VISIBLE_FLIP,
+                    "visible": seen[name],
                 }  # fmt: skip
-                rows.append([scale, n, name, "yes" if flips[name] >= VISIBLE_FLIP else "no",
+                rows.append([scale, n, name, "yes" if seen[name] else "no",
                              ident[name], *rule_err.values(),
                              best_rule, e_opt, f"{100 * gain:.0f} %"])  # fmt: skip
 
@@ -147,8 +150,9 @@ def run(ctx: Context) -> Section:
     t7 = ", ".join(f"{k} {v:.0f} s" for k, v in fit_seconds.items())
     n_visible = len({(k.split("/")[0], k.split("/")[2]) for k in visible})
     measured = (
-        f"On {len(held)} held-out scenes at {len(SCALES)} scales, SSS is visible (mean FLIP "
-        f"of the input against the reference ≥ {VISIBLE_FLIP}, sssbench.verdict) in "
+        f"On {len(held)} held-out scenes at {len(SCALES)} scales, SSS is visible (FLIP of "
+        f"the input against the reference ≥ {VISIBLE_FLIP} on average or ≥ "
+        f"{VISIBLE_LOCAL_FLIP} at its 99.9th percentile, sssbench.verdict) in "
         f"{n_visible} scene-scale cases. "
         f"At {' and '.join(map(str, GOAL_TAPS))} taps the optimised "
         f"kernel has {100 * min(gains, default=float('nan')):.0f}–"
