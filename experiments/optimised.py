@@ -167,9 +167,13 @@ def run(ctx: Context) -> Section:
             f"; timed afresh in this run at the portrait scale (training references from the "
             f"cache): {timing[0]:.0f} s wall, "
             f"{timing[1]:.0f} s CPU (≤ 300 s: {'yes' if timing[0] <= 300 else 'no'} wall, "
-            f"{'yes' if timing[1] <= 300 else 'no'} CPU). The machine (2 cores) was shared with "
-            f"5 other agents' jobs (1-minute load average {timing[2]:.1f} at the end of the "
-            "fit), so the wall time is inflated; the CPU time is what one core spends"
+            f"{'yes' if timing[1] <= 300 else 'no'} CPU; 1-minute load average "
+            f"{timing[2]:.1f} on {os.cpu_count()} cores at the end of the fit"
+            + (
+                ", so the wall time is inflated: the CPU time is what one core spends)"
+                if timing[2] > 1.0
+                else ")"
+            )
             if timing
             else ""
         )
