@@ -48,19 +48,18 @@ FAR_RATIO = 2.0
 
 def reference_code_digest() -> str:
     """A digest of the source that computes references (this module and its private
-    ``_reference_*`` modules, the profiles, the camera): caches of reference images add it to
-    their key, so a changed reference is never served from a stale cache."""
+    ``_reference_*`` modules, every profile module, the camera): caches of reference images
+    add it to their key, so a changed reference is never served from a stale cache."""
     import hashlib
     from pathlib import Path
 
     import sssbench.gbuffer
-    import sssbench.profiles.base
-    import sssbench.profiles.sum_of_gaussians
+    import sssbench.profiles
 
     here = Path(__file__)
     files = [here, *sorted(here.parent.glob("_reference_*.py"))]
-    modules = (sssbench.gbuffer, sssbench.profiles.base, sssbench.profiles.sum_of_gaussians)
-    files += [Path(m.__file__) for m in modules]
+    files += sorted(Path(sssbench.profiles.__file__).parent.glob("*.py"))
+    files.append(Path(sssbench.gbuffer.__file__))
     text = "".join(f.name + "\n" + f.read_text() for f in files)
     return hashlib.sha1(text.encode()).hexdigest()[:12]
 

@@ -171,7 +171,10 @@ def test_gauss_legendre_block_equals_the_per_gaussian_rule(order):
     torch.testing.assert_close(got, want, rtol=1e-12, atol=1e-300)
 
 
-@pytest.mark.parametrize("name", ["reference.py", "_reference_far.py", "_reference_flat.py"])
+@pytest.mark.parametrize(
+    "name",
+    ["reference.py", "_reference_far.py", "_reference_flat.py", "burley.py", "base.py"],
+)
 def test_code_digest_covers_every_reference_module(name, monkeypatch):
     # caches of references are keyed by the digest: editing any module that computes them
     # must change it
