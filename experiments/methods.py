@@ -30,13 +30,8 @@ def _spec(name: str) -> RunSpec:
 def build(name: str, profile, samples: int | None = None) -> nn.Module:
     """Method ``name`` with the app's defaults and ``samples`` taps per pass."""
     spec = _spec(name)
-    return registry.build_method(
-        name,
-        profile,
-        samples=spec.samples if samples is None else samples,
-        sampling=spec.sampling,
-        seed=spec.seed,
-        params=spec.method_params,
+    return registry.method_from_spec(
+        spec, profile, samples=spec.samples if samples is None else samples
     )
 
 

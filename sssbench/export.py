@@ -317,8 +317,7 @@ def build_from_overrides(overrides: Sequence[str]) -> tuple[nn.Module, Any]:
         raise ValueError(problem)
     spec = compose_spec(*overrides)
     profile = registry.build_profile(spec.profile, spec.profile_kind, **spec.profile_params)
-    options = {key: getattr(spec, key) for key in ("samples", "sampling", "seed")}
-    return registry.build_method(spec.method, profile, params=spec.method_params, **options), spec
+    return registry.method_from_spec(spec, profile), spec
 
 
 def _parser() -> argparse.ArgumentParser:

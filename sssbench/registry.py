@@ -36,6 +36,7 @@ __all__ = [
     "method_takes",
     "default_option",
     "build_method",
+    "method_from_spec",
     "build_profile",
     "build_scene",
     "build_pipeline",
@@ -198,6 +199,23 @@ def build_method(
         valid = sorted(k for k in accepted if k not in ("self", "profile"))
         raise ValueError(f"method {name!r} has no option(s) {unknown}; valid options are {valid}")
     return cls(profile, **kwargs) if entry.uses_profile else cls(**kwargs)
+
+
+def method_from_spec(spec: Any, profile: Any, **changes: Any) -> nn.Module:
+    """The method a run spec names (:class:`sssbench.spec.RunSpec`: its ``method``,
+    ``samples``, ``sampling``, ``seed`` and ``method_params``), with ``changes`` replacing any
+    of ``samples``, ``sampling``, ``seed`` or ``params`` (e.g. more taps for a converged
+    limit, another seed for a noise estimate)."""
+    options = {
+        "samples": spec.samples,
+        "sampling": spec.sampling,
+        "seed": spec.seed,
+        "params": spec.method_params,
+    }
+    unknown = set(changes) - set(options)
+    if unknown:
+        raise TypeError(f"changes must be among {sorted(options)}, got {sorted(unknown)}")
+    return build_method(spec.method, profile, **{**options, **changes})
 
 
 # ----------------------------------------------------------------------------- profiles

@@ -262,14 +262,7 @@ def measure(spec: RunSpec, run_dir: Path) -> tuple[dict[str, Any], list[PassStat
 
     with torch_settings(spec.threads, spec.backend):
         profile = registry.build_profile(spec.profile, spec.profile_kind, **spec.profile_params)
-        method = registry.build_method(
-            spec.method,
-            profile,
-            samples=spec.samples,
-            sampling=spec.sampling,
-            seed=spec.seed,
-            params=spec.method_params,
-        )
+        method = registry.method_from_spec(spec, profile)
         pipeline = registry.build_pipeline(method, profile, spec.stages)
         from sssbench.ops import ReferenceSSS
 
@@ -468,14 +461,7 @@ def _seed_split(
         params = dict(spec.method_params)
         if "seed" in params:
             params["seed"] = base + k
-        other = registry.build_method(
-            spec.method,
-            profile,
-            samples=spec.samples,
-            sampling=spec.sampling,
-            seed=base + k,
-            params=params,
-        )
+        other = registry.method_from_spec(spec, profile, seed=base + k, params=params)
         images.append(registry.build_pipeline(other, profile, spec.stages).run(gbuffer).image)
     return bias_noise(images, reference, mask)
 
@@ -538,14 +524,8 @@ def _budget(
     limit_sampling = "importance" if spec.sampling == "optimised" else spec.sampling
 
     def build(samples: int) -> Any:
-        return registry.build_method(
-            spec.method,
-            profile,
-            samples=samples,
-            sampling=spec.sampling if samples == spec.samples else limit_sampling,
-            seed=spec.seed,
-            params=spec.method_params,
-        )
+        sampling = spec.sampling if samples == spec.samples else limit_sampling
+        return registry.method_from_spec(spec, profile, samples=samples, sampling=sampling)
 
     key = _scene_key(spec, profile)
     g64 = gbuffer.to(torch.float64)
