@@ -44,7 +44,7 @@ from typing import Any
 
 import torch
 
-from sssbench import registry
+from sssbench import registry, runmemo
 from sssbench.metrics import METRICS
 from sssbench.refcache import cached_reference, reference_key
 from sssbench.spec import RunSpec
@@ -242,6 +242,99 @@ def _scene_key(spec: RunSpec, profile: Any, **extra: Any) -> dict[str, Any]:
     )
 
 
+def _scene(spec: RunSpec, fields: tuple[str, ...]) -> Any:
+    """The run's G-buffer; a synthetic scene is built once per process for all the runs on
+    it (:mod:`sssbench.runmemo`), a user's file is read every time."""
+
+    def build() -> Any:
+        return registry.build_scene(
+            spec.scene,
+            spec.resolution,
+            seed=spec.seed,
+            fields=fields,
+            dtype=spec.dtype,
+            params=spec.scene_params,
+        )
+
+    if spec.scene == registry.FILE_SCENE:
+        return build()
+    key = {
+        "scene": spec.scene,
+        "params": spec.scene_params,
+        "resolution": list(spec.resolution),
+        "seed": spec.seed,
+        "fields": list(fields),
+        "dtype": spec.dtype,
+    }
+    return runmemo.remembered("scene", key, build)
+
+
+def check_untouched(gbuffer: Any, pristine: Any, method: str) -> None:
+    """Raise if the method's run changed its G-buffer (compared bit for bit with
+    ``pristine``, the same scene as built): the reference, the baseline and the budget are
+    computed from that G-buffer, and would silently score a different scene."""
+    from dataclasses import fields as dc_fields
+
+    def same_bits(a: torch.Tensor, b: Any) -> bool:  # NaN == NaN, -0.0 != 0.0
+        if not isinstance(b, torch.Tensor) or (a.shape, a.dtype) != (b.shape, b.dtype):
+            return False
+        if a.is_floating_point():
+            ints = {2: torch.int16, 4: torch.int32, 8: torch.int64}[a.element_size()]
+            a, b = a.contiguous().view(ints), b.contiguous().view(ints)
+        return torch.equal(a, b)
+
+    changed = [
+        f.name
+        for f in dc_fields(gbuffer)
+        if isinstance(getattr(gbuffer, f.name), torch.Tensor)
+        and not same_bits(getattr(gbuffer, f.name), getattr(pristine, f.name))
+    ]
+    if changed:
+        raise RuntimeError(
+            f"method {method!r} wrote into its G-buffer ({', '.join(changed)} changed): a "
+            "method must return a new image and leave its input as it was (the reference, "
+            "the baseline and the error budget are computed from that input)"
+        )
+
+
+def _baseline(
+    spec: RunSpec,
+    gbuffer: Any,
+    profile: Any,
+    reference: torch.Tensor,
+    mask: torch.Tensor | None,
+) -> tuple[torch.Tensor, float, float, float]:
+    """The do-nothing baseline on the run's scene (the SSS stage left out, the other stages
+    as the reference runs them): ``(image, rel RMS, mean FLIP, local FLIP)`` against the
+    reference. The same for every method of a sweep on the scene, so computed once per
+    process (:mod:`sssbench.runmemo`, keyed by the reference's cache key and the stages)."""
+    from sssbench import verdict
+    from sssbench.metrics import rel_rms
+
+    def compute() -> tuple[torch.Tensor, float, float, float]:
+        with torch.inference_mode():
+            identity = (
+                registry.build_pipeline(
+                    registry.build_method("identity", profile),
+                    profile,
+                    spec.stages,
+                    for_reference=True,
+                )
+                .run(gbuffer)
+                .image
+            )
+        identity = identity.clone()  # a normal tensor (deep-copyable outside inference mode)
+        flip_mean, flip_local = verdict.visibility_stats(reference, identity, mask)
+        return identity, rel_rms(identity, reference, mask), flip_mean, flip_local
+
+    if spec.scene == registry.FILE_SCENE:
+        return compute()
+    key = _scene_key(
+        spec, profile, reference_params=spec.reference_params, stages=_reference_stages(spec)
+    ) | {"reference": spec.reference, "baseline_stages": spec.stages}
+    return runmemo.remembered("baseline", key, compute)
+
+
 def _reference_stages(spec: RunSpec) -> dict[str, Any]:
     return {k: v for k, v in spec.stages.items() if v is not None and registry.STAGES[k][1]}
 
@@ -258,7 +351,7 @@ def _mask(gbuffer: Any, dtype: torch.dtype) -> torch.Tensor | None:
 def measure(spec: RunSpec, run_dir: Path) -> tuple[dict[str, Any], list[PassStats]]:
     """Build, time, compare; return the ``metrics.json`` payload and the pass statistics."""
     from sssbench import verdict
-    from sssbench.metrics import compute_all, rel_rms
+    from sssbench.metrics import compute_all
 
     with torch_settings(spec.threads, spec.backend):
         profile = registry.build_profile(spec.profile, spec.profile_kind, **spec.profile_params)
@@ -270,14 +363,7 @@ def measure(spec: RunSpec, run_dir: Path) -> tuple[dict[str, Any], list[PassStat
             ReferenceSSS(profile, **spec.reference_params), profile, spec.stages, for_reference=True
         )
         fields = tuple(sorted(set(pipeline.needs) | set(ref_pipeline.needs)))
-        gbuffer = registry.build_scene(
-            spec.scene,
-            spec.resolution,
-            seed=spec.seed,
-            fields=fields,
-            dtype=spec.dtype,
-            params=spec.scene_params,
-        )
+        gbuffer = _scene(spec, fields)
         is_reference = spec.method == "reference"
         warmup, repeats = (0, 1) if is_reference else (spec.warmup, spec.repeats)
         if is_reference and (spec.warmup, spec.repeats) != (0, 1):
@@ -291,23 +377,15 @@ def measure(spec: RunSpec, run_dir: Path) -> tuple[dict[str, Any], list[PassStat
                 out = pipeline.run(gbuffer)
                 records.append(out.records)
             result = out.image
+        check_untouched(gbuffer, _scene(spec, fields), spec.method)
+        with torch.inference_mode():
             reference, hit, ref_ms = _reference(spec, gbuffer, profile, ref_pipeline, cache_dir)
-            # the do-nothing baseline on the same scene: the SSS stage left out
-            identity = (
-                registry.build_pipeline(
-                    registry.build_method("identity", profile),
-                    profile,
-                    spec.stages,
-                    for_reference=True,
-                )
-                .run(gbuffer)
-                .image
-            )
-        stats = pass_stats(records)
         mask = _mask(gbuffer, result.dtype)
+        identity, base_rel, base_flip, base_flip_local = _baseline(
+            spec, gbuffer, profile, reference, mask
+        )
+        stats = pass_stats(records)
         values = compute_all(result, reference, mask)
-        base_rel = rel_rms(identity, reference, mask)
-        base_flip, base_flip_local = verdict.visibility_stats(reference, identity, mask)
         budget = _budget(spec, method, profile, gbuffer, reference, mask) if spec.budget else {}
         mc = {}
         if spec.reference == "mc":
