@@ -348,6 +348,33 @@ def _mask(gbuffer: Any, dtype: torch.dtype) -> torch.Tensor | None:
     return None
 
 
+def prepare(spec: RunSpec) -> None:
+    """Compute and cache what a run of ``spec`` reads from the reference cache — the
+    reference, and with ``spec.budget`` the converged limit and the bilinear reference of
+    its error budget — without timing anything. A sweep can warm its caches in parallel
+    processes, then time its runs one at a time (``experiments/benchmark.py``); a run that
+    finds nothing cached computes the same entries itself."""
+    with torch_settings(spec.threads, spec.backend), torch.inference_mode():
+        profile = registry.build_profile(spec.profile, spec.profile_kind, **spec.profile_params)
+        pipeline, ref_pipeline = _pipelines(spec, profile)
+        gbuffer = _scene(spec, tuple(sorted(set(pipeline.needs) | set(ref_pipeline.needs))))
+        reference, _, _ = _reference(spec, gbuffer, profile, ref_pipeline, spec.reference_cache)
+        if spec.budget:
+            _budget_inputs(spec, profile, gbuffer, reference)
+
+
+def _pipelines(spec: RunSpec, profile: Any) -> tuple[Any, Any]:
+    """The run's pipeline (its method and stages) and its reference's pipeline."""
+    from sssbench.ops import ReferenceSSS
+
+    method = registry.method_from_spec(spec, profile)
+    pipeline = registry.build_pipeline(method, profile, spec.stages)
+    ref_pipeline = registry.build_pipeline(
+        ReferenceSSS(profile, **spec.reference_params), profile, spec.stages, for_reference=True
+    )
+    return pipeline, ref_pipeline
+
+
 def measure(spec: RunSpec, run_dir: Path) -> tuple[dict[str, Any], list[PassStats]]:
     """Build, time, compare; return the ``metrics.json`` payload and the pass statistics."""
     from sssbench import verdict
@@ -355,13 +382,8 @@ def measure(spec: RunSpec, run_dir: Path) -> tuple[dict[str, Any], list[PassStat
 
     with torch_settings(spec.threads, spec.backend):
         profile = registry.build_profile(spec.profile, spec.profile_kind, **spec.profile_params)
-        method = registry.method_from_spec(spec, profile)
-        pipeline = registry.build_pipeline(method, profile, spec.stages)
-        from sssbench.ops import ReferenceSSS
-
-        ref_pipeline = registry.build_pipeline(
-            ReferenceSSS(profile, **spec.reference_params), profile, spec.stages, for_reference=True
-        )
+        pipeline, ref_pipeline = _pipelines(spec, profile)
+        method = pipeline.method
         fields = tuple(sorted(set(pipeline.needs) | set(ref_pipeline.needs)))
         gbuffer = _scene(spec, fields)
         is_reference = spec.method == "reference"
@@ -386,7 +408,7 @@ def measure(spec: RunSpec, run_dir: Path) -> tuple[dict[str, Any], list[PassStat
         )
         stats = pass_stats(records)
         values = compute_all(result, reference, mask)
-        budget = _budget(spec, method, profile, gbuffer, reference, mask) if spec.budget else {}
+        budget = _budget(spec, profile, gbuffer, reference) if spec.budget else {}
         mc = {}
         if spec.reference == "mc":
             mc = _mc_metrics(spec, gbuffer, result, reference, identity)
@@ -567,21 +589,27 @@ def _pixel_mm(gbuffer: Any) -> float:
 BUDGET_START, BUDGET_MAX = 17, 257
 
 
-def _budget(
-    spec: RunSpec,
-    method: Any,
-    profile: Any,
-    gbuffer: Any,
-    reference: torch.Tensor,
-    mask: torch.Tensor | None,
-) -> dict[str, float]:
-    """The run's error budget (:func:`sssbench.budget.error_budget`, docs/error_budget.md).
+@dataclass
+class _BudgetInputs:
+    """What a run's error budget reads from the reference cache, and how it builds the
+    method at a tap count."""
 
-    Left out (empty) for the reference and the baseline, for stochastic estimators (their
-    error is bias plus noise, not taps), for methods without a tap count and
-    when a stage changes the light (the budget's flat-plane model has no stages). The method
-    converged in taps and the bilinear-reconstruction reference are cached
-    (:mod:`sssbench.refcache`): they do not depend on the run's tap count. ``err_recon`` is
+    build: Any  # samples -> the run's method at that tap count
+    g64: Any  # the G-buffer in float64
+    limit: tuple[torch.Tensor, int, float]  # converged image, its taps, its last change
+    bilinear: torch.Tensor | None  # the bilinear-reconstruction reference (flat scenes)
+
+
+def _budget_inputs(
+    spec: RunSpec, profile: Any, gbuffer: Any, reference: torch.Tensor
+) -> _BudgetInputs | None:
+    """The budget's cached inputs (computed and stored on a miss), or ``None`` when the run
+    has no budget: the reference and the baseline, stochastic estimators (their error is
+    bias plus noise, not taps), methods without a tap count, and runs where a stage changes
+    the light (the budget's flat-plane model has no stages).
+
+    The method converged in taps and the bilinear-reconstruction reference do not depend on
+    the run's tap count: one cached entry serves a whole samples sweep. ``err_recon`` is
     computed on fronto-parallel planes only (the bilinear reference's FFT path); on curved
     surfaces the bilinear reference costs minutes per image, so ``err_recon`` is NaN there
     and the convention's share stays inside ``err_screen`` (docs/error_budget.md)."""
@@ -595,7 +623,7 @@ def _budget(
         or _reference_stages(spec)
         or spec.samples is None
     ):
-        return {}
+        return None
 
     # fitted taps (sampling="optimised") exist for the run's own tap count only; the converged
     # limit is the same continuous kernel, reached by importance sampling at many taps
@@ -612,13 +640,11 @@ def _budget(
         **key,
         "budget_limit": [spec.method, spec.method_params, limit_sampling, BUDGET_START, BUDGET_MAX],
     }
-    cached: dict[str, Any] = {}
 
     def compute_limit() -> torch.Tensor:
         image, n, change = budget.converged(
             build, BUDGET_START, g64, max_samples=BUDGET_MAX, scale=scale
         )
-        cached["n"], cached["change"] = n, change
         return torch.cat([image.reshape(-1), torch.tensor([float(n), change], dtype=image.dtype)])
 
     packed, _, _ = cached_reference(limit_key, compute_limit, spec.reference_cache)
@@ -639,18 +665,34 @@ def _budget(
             spec.reference_cache,
             shape=tuple(gbuffer.diffuse.shape),
         )
+    return _BudgetInputs(build, g64, limit, bil)
+
+
+def _budget(
+    spec: RunSpec,
+    profile: Any,
+    gbuffer: Any,
+    reference: torch.Tensor,
+) -> dict[str, float]:
+    """The run's error budget (:func:`sssbench.budget.error_budget`, docs/error_budget.md);
+    empty where :func:`_budget_inputs` says the run has none."""
+    from sssbench import budget
+
+    inputs = _budget_inputs(spec, profile, gbuffer, reference)
+    if inputs is None:
+        return {}
     # the budget splits the SSS stage's error: the reference without the specular the
     # pipeline adds after scattering (on the stencil), as the method alone computes it
     sss_reference = _without_specular(reference, gbuffer)
     result = budget.error_budget(
-        build,
+        inputs.build,
         spec.samples,
-        g64,
+        inputs.g64,
         profile,
         reference=sss_reference,
-        reference_bilinear=bil,
-        limit=limit,
-        recon=bil is not None,
+        reference_bilinear=inputs.bilinear,
+        limit=inputs.limit,
+        recon=inputs.bilinear is not None,
     ).as_dict()
     keys = [k for k in result if k.startswith(("err_", "contribution_"))] + ["taps_residual"]
     return {k: float(result[k]) for k in keys if k != "err_total"} | {
