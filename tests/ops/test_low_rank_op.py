@@ -8,6 +8,7 @@ import torch
 from oracles import FOV, flat
 from scipy.special import ndtr
 
+from data_synth import make_scene
 from sssbench.gbuffer import GBuffer
 from sssbench.metrics import rel_rms
 from sssbench.ops import LowRankSSS, ReferenceSSS, low_rank_sss, record_passes
@@ -126,3 +127,16 @@ def test_halo_sample_weight_is_refused_with_a_clear_error():
     op = LowRankSSS(SumOfGaussians.from_table("skin_deon6"), 2)
     with pytest.raises(ValueError, match="sample_weight"):
         op(g, guide=guide, sample_weight=weight)
+
+
+def test_an_even_cell_count_is_refused_and_odd_counts_converge():
+    """An even ``n`` puts no cell on the centre: the peak would be moved half a cell out
+    (error growing with the taps). Refused with the argument named; over odd counts the
+    error against the exact reference (an independent surface integral) falls."""
+    p = SumOfGaussians.from_table("skin_deon6")
+    with pytest.raises(ValueError, match=r"n \(cells per side, taps per pass\) must be odd"):
+        LowRankSSS(p, 3, 10)
+    g = make_scene("light_dot", resolution=(48, 48), pixel_mm=0.3, dtype=torch.float64)
+    ref = ReferenceSSS(p)(g)
+    err = [float(rel_rms(LowRankSSS(p, 3, n)(g), ref)) for n in (5, 11, 21, 41)]
+    assert err == sorted(err, reverse=True) and len(set(err)) == len(err), err
