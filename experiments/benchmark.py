@@ -39,7 +39,7 @@ def run_preset(preset: str, store: Path, run_root: Path, *overrides: str) -> pd.
     specs = [compose_spec(*job, "previews=false", *fixed, store=store) for job in jobs]
     # the references and budget limits in parallel (no timing), then each run timed alone
     print(f"warming the caches of {len(specs)} runs in {WARM_WORKERS} processes", flush=True)
-    warm(specs, WARM_WORKERS)
+    warm_s = warm(specs, WARM_WORKERS)
     hashes = []
     t0 = time.perf_counter()
     for k, spec in enumerate(specs):
@@ -52,7 +52,9 @@ def run_preset(preset: str, store: Path, run_root: Path, *overrides: str) -> pd.
             flush=True,
         )
     runs, _ = report.load_runs(store, hashes)
-    return report.summary_table(runs)
+    table = report.summary_table(runs)
+    table.attrs["warm_s"], table.attrs["runs_s"] = warm_s, time.perf_counter() - t0
+    return table
 
 
 #: processes that compute the references and budget limits before the timed runs (the
@@ -102,7 +104,10 @@ def run(ctx: Context) -> Section:
     measured = (
         f"{len(table)} points ({table['method'].nunique()} methods incl. the baseline × "
         f"{table['scene'].nunique()} scenes × {n_scales} scales, "
-        f"{resolutions}), {failed} failed. {len(hidden_groups)} of {n_groups} scene/scale "
+        f"{resolutions}), {failed} failed; the references and budget limits took "
+        f"{table.attrs.get('warm_s', float('nan')):.0f} s in {WARM_WORKERS} processes, the "
+        f"timed runs {table.attrs.get('runs_s', float('nan')):.0f} s one at a time. "
+        f"{len(hidden_groups)} of {n_groups} scene/scale "
         "groups show no visible SSS and are not ranked. Of the "
         f"{len(visible)} ranked screen-space configurations, {len(worse)} are worse than "
         f"doing nothing. Recommended (cheapest within 10 % of the best skill) per group: "
