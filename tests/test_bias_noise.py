@@ -9,6 +9,7 @@ import json
 
 import pytest
 import torch
+from specs import small_spec
 from torch import nn
 
 from sssbench import registry, runner
@@ -45,22 +46,7 @@ def noisy_method(monkeypatch):
 
 
 def _spec(tmp_path, method: str, **kw) -> RunSpec:
-    return RunSpec(
-        scene="step_edge",
-        method=method,
-        profile="skin_jg10",
-        sampling=None,
-        samples=None,
-        resolution=(24, 24),
-        repeats=1,
-        warmup=0,
-        budget=False,
-        previews=False,
-        dtype="float64",
-        store=tmp_path / "s.sqlite",
-        reference_cache=tmp_path / "cache",
-        **kw,
-    )
+    return small_spec(tmp_path, method=method, **kw)
 
 
 def test_a_run_splits_known_bias_and_noise(tmp_path, noisy_method):

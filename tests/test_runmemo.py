@@ -7,10 +7,10 @@ import json
 
 import pytest
 import torch
+from specs import small_spec
 from torch import nn
 
 from sssbench import registry, runmemo, runner
-from sssbench.spec import RunSpec
 
 
 class VandalSSS(nn.Module):
@@ -43,21 +43,7 @@ def fresh_memo():
 
 
 def _run(tmp_path, method: str, name: str, status: str = "ok") -> dict:
-    spec = RunSpec(
-        scene="light_dot",
-        method=method,
-        profile="skin_jg10",
-        sampling=None,
-        samples=None,
-        resolution=(24, 24),
-        repeats=1,
-        warmup=0,
-        budget=False,
-        previews=False,
-        dtype="float64",
-        store=tmp_path / f"{name}.sqlite",
-        reference_cache=tmp_path / "cache",
-    )
+    spec = small_spec(tmp_path, scene="light_dot", method=method, store=tmp_path / f"{name}.sqlite")
     outcome = runner.execute(spec, tmp_path / name)
     assert outcome.status == status, outcome.message
     return {"message": outcome.message} | (

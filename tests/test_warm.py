@@ -7,6 +7,7 @@ import dataclasses
 import json
 
 import pytest
+from specs import small_spec
 
 from sssbench import runmemo, runner
 from sssbench.spec import RunSpec
@@ -14,18 +15,14 @@ from sssbench.warm import group_by_scene, warm
 
 
 def _spec(tmp_path, scene: str, method: str, samples: int | None, cache: str) -> RunSpec:
-    return RunSpec(
+    return small_spec(
+        tmp_path,
         scene=scene,
         method=method,
-        profile="skin_jg10",
         sampling="importance" if method == "preintegrated" else None,
         samples=samples,
         resolution=(20, 20),
-        repeats=1,
-        warmup=0,
         budget=True,
-        previews=False,
-        dtype="float64",
         store=tmp_path / f"{cache}.sqlite",
         reference_cache=tmp_path / cache,
     )
