@@ -57,7 +57,7 @@ import torch
 from sssbench._checks import check_int
 from sssbench.mc.boundary import normal_specular
 from sssbench.mc.cache import cached_entry
-from sssbench.mc.transport import Ball, Medium, Slab, _norm, refract_in, transport
+from sssbench.mc.transport import Ball, Medium, Slab, _norm, refract_in, transport, warm_up
 from sssbench.mc.walk import walk
 from sssbench.profiles.dipole import MATERIALS
 
@@ -159,11 +159,11 @@ class _PlaneSource:
     weight: float
 
     def __call__(self, n: int, chan: torch.Tensor, gen: torch.Generator) -> tuple:
-        xy = torch.rand(2, n, generator=gen, dtype=_F64) * self.cell
-        pos = torch.cat([xy, torch.full((1, n), self.z, dtype=_F64)])
-        dirn = torch.zeros(3, n, dtype=_F64)
+        xy = torch.rand(2, n, generator=gen, dtype=torch.float32) * self.cell
+        pos = torch.cat([xy, torch.full((1, n), self.z, dtype=torch.float32)])
+        dirn = torch.zeros(3, n, dtype=torch.float32)
         dirn[2] = 1.0 if self.down else -1.0
-        return pos, dirn, torch.full((n,), self.weight, dtype=_F64)
+        return pos, dirn, torch.full((n,), self.weight, dtype=torch.float32)
 
 
 @dataclass(frozen=True)
@@ -195,13 +195,15 @@ class _SphereSource:
 
     def __call__(self, n: int, chan: torch.Tensor, gen: torch.Generator) -> tuple:
         r = self.radius
-        u = torch.rand(5, n, generator=gen, dtype=_F64)
+        # float32, the walk's photon state (sssbench.mc.transport); the frame in float64
+        u = torch.rand(5, n, generator=gen, dtype=torch.float32)
         lt = torch.tensor(self.light, dtype=_F64)
         a = torch.linalg.cross(lt, torch.tensor([0.0, 0.0, 1.0], dtype=_F64))
         if float(a.norm()) < 1e-6:
             a = torch.linalg.cross(lt, torch.tensor([1.0, 0.0, 0.0], dtype=_F64))
         a = a / a.norm()
         b = torch.linalg.cross(lt, a)
+        lt, a, b = lt.float(), a.float(), b.float()
         # directional: uniform over the disc of radius R perpendicular to l, onto the lit half
         rho, phi = r * u[0].sqrt(), 2 * math.pi * u[1]
         off = a[:, None] * (rho * torch.cos(phi)) + b[:, None] * (rho * torch.sin(phi))
@@ -274,6 +276,7 @@ def _run_batches(jobs: list[tuple], workers: int) -> list[tuple[torch.Tensor, in
     parent's thread pool is never used after the fork), else spawned."""
     if workers <= 1 or len(jobs) <= 1:
         return [_job(j) for j in jobs]
+    warm_up(jobs[0][1])  # compile the step once, here: the forked workers inherit it
     methods = multiprocessing.get_all_start_methods()
     ctx = multiprocessing.get_context("fork" if "fork" in methods else "spawn")
     with concurrent.futures.ProcessPoolExecutor(min(workers, len(jobs)), mp_context=ctx) as ex:

@@ -139,7 +139,9 @@ def test_app_reference_mc_stores_both_errors(tmp_path, monkeypatch):
         assert m["rel_rms_mc"] == pytest.approx(m[twin], rel=1e-9)
     rows = RunStore(store).runs()
     assert len(rows) == 2
-    assert all(r["metrics"]["rel_rms_mc_se"] > 0 for r in rows)
+    # 6 000 photons cannot resolve these errors: the noise-corrected error may be clamped at 0
+    # in every jackknife sample (se = 0); it is never negative
+    assert all(r["metrics"]["rel_rms_mc_se"] >= 0 for r in rows)
     assert all(r["config"]["reference"] == "mc" for r in rows)
     # reference=mc is part of the point: the same run against the profile is another point
     a = app.compose_spec("method=identity", *common, store=store).point()
