@@ -1,7 +1,8 @@
 """One Monte Carlo step function, fused by ``torch.compile`` where it can be, eager otherwise.
 
 A photon step is ~30 elementwise torch operations over the batch; eagerly, each is a pass
-over memory with its own call overhead. :class:`Fused` hands the same Python function to
+over memory with its own call overhead (measured: ~30 ns per photon and step eagerly,
+~6 ns compiled, one core). :class:`Fused` hands the same Python function to
 ``torch.compile`` (inductor: one generated C++ loop for all of them, compiled with the
 system's C++ compiler) on first use and falls back to calling it eagerly — same function,
 same random numbers, results equal up to float rounding — when
@@ -66,9 +67,9 @@ def torch_threads(threads: int | None) -> Iterator[None]:
 class Fused:
     """``fn(*tensors, *constants)`` compiled on first use, eager as the fallback (module doc).
 
-    The first argument must be a tensor whose last dimension is the batch size. ``fn`` must
-    be pure (no in-place writes to its arguments): a failed compiled call is then simply
-    repeated eagerly.
+    The first argument must be a tensor whose last dimension is the batch size. ``fn`` may
+    write its results into its arguments only after it has read them all (compiled code
+    fails at compilation, before it runs: the call is then simply repeated eagerly).
     """
 
     def __init__(self, fn: Callable) -> None:

@@ -394,9 +394,12 @@ def sphere_walk_rate(
     batches: int = 4,
     workers: int = 1,
     params: dict | None = None,
-) -> tuple[int, float]:
-    """``(collisions, wall seconds)`` of the ``sphere`` scene's walks alone (no cache, no
-    normaliser, no pixel areas): the cost measurement of docs/mc.md."""
+) -> tuple[int, float, float]:
+    """``(collisions, wall seconds, CPU seconds)`` of the ``sphere`` scene's walks alone (no
+    cache, no normaliser, no pixel areas): the cost measurement of docs/mc.md. CPU time is
+    this process's plus that of the worker processes (Unix; this process's only elsewhere);
+    both include compiling the fused step if this process has not yet
+    (:func:`sssbench.mc.transport.warm_up`)."""
     import time
 
     from data_synth.mc_scenes import mc_model
@@ -404,9 +407,21 @@ def sphere_walk_rate(
     model = mc_model("sphere", gbuffer, params)
     per = max(3, photons // batches // 3 * 3)
     jobs = _sphere_jobs(model, medium_for(material), per, batches, 0, False)
-    t0 = time.perf_counter()
+    c0, t0 = _cpu_seconds(), time.perf_counter()
     out = _run_batches(jobs, workers)
-    return sum(o[1] for o in out), time.perf_counter() - t0
+    return sum(o[1] for o in out), time.perf_counter() - t0, _cpu_seconds() - c0
+
+
+def _cpu_seconds() -> float:
+    """User + system CPU seconds of this process and of its waited-for children."""
+    import time
+
+    try:
+        import resource
+    except ImportError:  # pragma: no cover - not Unix
+        return time.process_time()
+    kids = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return time.process_time() + kids.ru_utime + kids.ru_stime
 
 
 def _sphere(model, medium, photons, batches, seed, workers, progress):  # noqa: ANN001, ANN202

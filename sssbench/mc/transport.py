@@ -27,11 +27,16 @@ probability ``F(cos θ, η)`` (mirror about the normal) and otherwise leaves (Bo
 :func:`~sssbench.mc.boundary.fresnel_dielectric`). The exit direction is not needed by the
 scores here (exitance counts all the flux leaving a patch, whatever its direction).
 
-Cost choices (docs/mc.md, "Cost"): photon state in float32 in preallocated buffers updated in
-place; random numbers drawn into one reused buffer; boundary events (a minority of the steps)
-handled on the indexed subset only; a finished photon's slot is refilled in place, and the
-batch is compacted only when it has drained to less than half. ``interactions`` counts
-collisions (scattering + absorption).
+Cost choices (docs/mc.md, "Cost"): photon state in float32, updated in place; the flights and
+collisions of :data:`SUBSTEPS` steps per call in one function (:func:`_fly_and_collide`)
+compiled by ``torch.compile`` into a single loop over the photons (eager when compilation is
+unavailable: :mod:`sssbench.mc.fused`), fed by one 64-bit random draw per photon and step
+(three uniforms, :func:`_uniforms`); boundary events (a minority of the steps) and Russian
+roulette handled between calls on the indexed subset only; photons launched and scored in
+chunks of ``batch`` (one source and one score call per chunk); a finished photon's slot is
+refilled in place, and the batch is compacted only when it has drained to less than half.
+The walk runs on one torch thread (a second core is used by a second walk process,
+:mod:`sssbench.mc.scene`). ``interactions`` counts collisions (scattering + absorption).
 """
 
 from __future__ import annotations
@@ -153,9 +158,14 @@ def refract_in(
     return t / _norm(t), 1.0 - fresnel_dielectric(cos_i, k)
 
 
-def exit_distance(pos: torch.Tensor, dirn: torch.Tensor, geo: torch.Tensor) -> torch.Tensor:
+def exit_distance(
+    pos: torch.Tensor | list[torch.Tensor],
+    dirn: torch.Tensor | list[torch.Tensor],
+    geo: torch.Tensor,
+) -> torch.Tensor:
     """Distance ``(n,)`` along unit ``dirn`` (3, n) from ``pos`` (3, n) inside the medium to its
-    boundary: ``geo`` = :meth:`Slab.params` ``(z0, z1)`` (``inf`` beyond a face it never
+    boundary (``pos``, ``dirn`` may also be given as their three rows): ``geo`` =
+    :meth:`Slab.params` ``(z0, z1)`` (``inf`` beyond a face it never
     reaches) or :meth:`Ball.params` ``(cx, cy, cz, R)`` (the far root of
     ``|p + t d − c|² = R²``, ``t = −b + √(b² − |p − c|² + R²)``, ``b = (p − c)·d``)."""
     if geo.shape[0] == 4:
@@ -176,35 +186,73 @@ def _fly_and_collide(
     alb: torch.Tensor,
     x: torch.Tensor,
     geo: torch.Tensor,
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-    """One step of every photon (fused by :class:`~sssbench.mc.fused.Fused`).
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """:data:`SUBSTEPS` steps of every photon, stopping at the boundary (fused by
+    :class:`~sssbench.mc.fused.Fused`).
 
-    A free flight ``s = −ln(1 − ξ₀)/σt`` (finite for ξ₀ in [0, 1); 0 for a parked photon,
-    ``1/σt = 0``) or up to the boundary when that is nearer (``hit``: the photon stands on the
-    face, direction and weight unchanged, for the caller's boundary event); otherwise a
-    collision: implicit capture keeps the fraction ``α′`` of the weight (MCML, Wang et al.
-    1995 §3.6) and isotropic scattering draws a fresh uniform direction
-    (``cos θ = 2ξ₁ − 1``, ``φ = 2πξ₂``).
+    Each step is a free flight ``s = −ln ξ/σt`` (ξ in (0, 1): finite; 0 for a parked
+    photon, ``1/σt = 0``), or up to the boundary when that is nearer: the photon then stands
+    on the face (``hit``) for the caller's boundary event and is frozen for the remaining
+    steps (direction and weight as it arrived). Otherwise it collides: implicit capture keeps
+    the fraction ``α′`` of the weight (MCML, Wang et al. 1995 §3.6) and isotropic scattering
+    draws a fresh uniform direction (``cos θ = 2ξ − 1``, ``φ = 2πξ``). Several steps per
+    call share one pass over the photon state; Russian roulette, applied by the caller
+    between calls, sees the weights a few collisions late, which changes the work, not the
+    expectation.
 
     Args:
         pos, dirn: ``(3, n)`` position (mm) and unit direction; w, inv_st, alb: ``(n,)``
-            weight, ``1/σt′`` (mm) and ``α′`` per photon; x: ``(3, n)`` uniforms in [0, 1);
+            weight, ``1/σt′`` (mm) and ``α′`` per photon — updated in place;
+            x: ``(SUBSTEPS, n)`` int64 of 63 random bits each, the three uniforms of a step
+            (flight, cos θ, φ; :func:`_uniforms`);
             geo: the geometry's :meth:`params`.
 
     Returns:
-        ``(pos, dirn, w, hit)`` after the step (new tensors; the arguments are not written).
+        ``(hit (n,) bool, collisions (n,) int32)`` per photon.
     """
-    s = torch.log1p(-x[0]) * -inv_st
-    db = exit_distance(pos, dirn, geo)
-    hit = s >= db
-    cost = 2 * x[1] - 1
-    sint = (1 - cost * cost).clamp_min(0.0).sqrt()
-    phi = (2 * math.pi) * x[2]
-    scattered = torch.stack([sint * torch.cos(phi), sint * torch.sin(phi), cost])
-    pos.copy_(pos + dirn * torch.minimum(s, db))
-    dirn.copy_(torch.where(hit, dirn, scattered))
-    w.copy_(torch.where(hit, w, w * alb))
-    return hit
+    hit = torch.zeros_like(w, dtype=torch.bool)
+    coll = torch.zeros_like(w, dtype=torch.int32)
+    # per component, so that the compiled steps are one loop over the photons
+    p, d, ww = list(pos.unbind(0)), list(dirn.unbind(0)), w
+    for k in range(SUBSTEPS):
+        u0, u1, u2 = _uniforms(x[k])
+        s = torch.log(u0) * -inv_st
+        db = exit_distance(p, d, geo)
+        arrive = (s >= db) & ~hit
+        collide = ~(hit | arrive)
+        t = torch.where(hit, 0.0, torch.minimum(s, db))
+        p = [pi + di * t for pi, di in zip(p, d, strict=True)]
+        cost = 2 * u1 - 1
+        sint = (1 - cost * cost).clamp_min(0.0).sqrt()
+        phi = (2 * math.pi) * u2
+        new = (sint * torch.cos(phi), sint * torch.sin(phi), cost)
+        d = [torch.where(collide, ni, di) for ni, di in zip(new, d, strict=True)]
+        ww = torch.where(collide, ww * alb, ww)
+        hit = hit | arrive
+        coll = coll + collide.to(torch.int32)
+    pos.copy_(torch.stack(p))
+    dirn.copy_(torch.stack(d))
+    w.copy_(ww)
+    return hit, coll
+
+
+#: steps per call of the fused step function
+SUBSTEPS = 4
+#: bits per uniform of :func:`_uniforms` (three from one 63-bit draw)
+_UBITS = 21
+
+
+def _uniforms(r: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Three independent uniforms in (0, 1) (float32) from 63 random bits ``r`` (int64 >= 0):
+    bits ``[42, 63)``, ``[21, 42)``, ``[0, 21)``, each ``(k + ½)/2²¹``. One 64-bit draw of
+    the generator costs about as much as one float32 draw: a third of the random-number
+    time. The resolution, 2⁻²¹ ≈ 5·10⁻⁷, is far below any Monte Carlo error here; the
+    midpoint keeps ξ off 0 and 1 (the free flight ``−ln ξ`` is at most 15.2 mean free paths,
+    which cuts a tail of probability 2.4·10⁻⁷)."""
+    mask = (1 << _UBITS) - 1
+    scale = 1.0 / (1 << _UBITS)
+    out = [(((r >> (_UBITS * i)) & mask).to(torch.float32) + 0.5) * scale for i in (2, 1, 0)]
+    return out[0], out[1], out[2]
 
 
 _STEP = Fused(_fly_and_collide)
@@ -222,7 +270,15 @@ def warm_up(geometry: Slab | Ball) -> None:
     dirn[2] = 1.0
     ones = torch.ones(n, dtype=_F32)
     with torch_threads(1):
-        _STEP(pos, dirn, ones.clone(), ones, ones, torch.full((3, n), 0.5), geometry.params())
+        _STEP(
+            pos,
+            dirn,
+            ones.clone(),
+            ones,
+            ones,
+            torch.zeros(SUBSTEPS, n, dtype=torch.int64),
+            geometry.params(),
+        )
 
 
 def _norm(v: torch.Tensor) -> torch.Tensor:
@@ -300,16 +356,17 @@ def transport(
     pos, dirn, w, chan = launch(n)
     launched = n
     inv_st, alb = inv_st_c[chan], alb_c[chan]
-    xi = torch.empty(3, n, dtype=_F32)
+    xi = torch.empty(SUBSTEPS, n, dtype=torch.int64)
     geo = geometry.params()
     parked = 0  # finished photons left in place (no flight, no collision) until compaction
     with torch_threads(1):  # the fused step is compiled for one thread (sssbench.mc.fused)
         t0 = time.perf_counter()
         while n > parked:
-            x = torch.rand(3, n, generator=gen, out=xi)  # flight, cos θ, φ
-            hit = _STEP(pos, dirn, w, inv_st, alb, x, geo)
+            x = xi.random_(generator=gen)  # 63 bits per step: flight, cos θ, φ (_uniforms)
+            hit, coll = _STEP(pos, dirn, w, inv_st, alb, x, geo)
             hidx = hit.nonzero().squeeze(1)
-            inter += n - parked - hidx.numel()  # every other photon collided (parked: s = 0 < db)
+            # parked photons (s = 0 < db) count a collision every step
+            inter += int(coll.sum(dtype=torch.int64)) - SUBSTEPS * parked
             # boundary events on the subset: reflected (Fresnel) or leaving
             leave_idx, grazing = hidx, None
             if hidx.numel() and eta != 1.0:
@@ -367,7 +424,7 @@ def transport(
                 pos, dirn, w, chan = pos[:, keep], dirn[:, keep], w[keep], chan[keep]
                 inv_st, alb = inv_st[keep], alb[keep]
                 n, parked = keep.numel(), 0
-                xi = torch.empty(3, n, dtype=_F32)
+                xi = torch.empty(SUBSTEPS, n, dtype=torch.int64)
         tally.flush()
         bar.close()
     seconds = time.perf_counter() - t0

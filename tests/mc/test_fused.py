@@ -10,7 +10,7 @@ import torch
 
 from sssbench.mc import fused
 from sssbench.mc.fused import Fused, torch_threads
-from sssbench.mc.transport import Ball, Slab, _fly_and_collide, exit_distance
+from sssbench.mc.transport import SUBSTEPS, Ball, Slab, _fly_and_collide, _uniforms, exit_distance
 
 N = 4096
 
@@ -31,7 +31,7 @@ def _state(geo_kind: str, seed: int = 0):
     w = torch.rand(N, generator=gen) + 0.5
     inv_st = torch.rand(N, generator=gen) * 2  # mean free paths up to 2 mm: many hits
     alb = torch.rand(N, generator=gen)
-    x = torch.rand(3, N, generator=gen)
+    x = torch.empty(SUBSTEPS, N, dtype=torch.int64).random_(generator=gen)
     return geometry, (pos, dirn, w, inv_st, alb, x)
 
 
@@ -46,24 +46,25 @@ def test_compiled_step_equals_eager_step(geo_kind):
     eager = [t.clone() for t in state[:3]]
     comp = [t.clone() for t in state[:3]]
     with torch_threads(1):
-        hit_e = _fly_and_collide(*eager, *state[3:], geometry.params())
-        hit_c = step(*comp, *state[3:], geometry.params())
+        hit_e, coll_e = _fly_and_collide(*eager, *state[3:], geometry.params())
+        hit_c, coll_c = step(*comp, *state[3:], geometry.params())
     assert step.failed is None, step.failed
     assert int((hit_e != hit_c).sum()) <= 2  # a tie s = db may round either way
-    same = hit_e == hit_c
+    same = (hit_e == hit_c) & (coll_e == coll_c)
+    assert int((~same).sum()) <= 2
     for a, b in zip(eager, comp, strict=True):
         assert torch.allclose(a[..., same], b[..., same], rtol=1e-5, atol=1e-5)
 
 
 @pytest.mark.parametrize("geo_kind", ["ball", "slab"])
-def test_step_moves_hits_onto_the_boundary_and_scatters_the_rest(geo_kind):
+def test_steps_stop_on_the_boundary_and_capture_weight(geo_kind):
     # the geometry's own definition: a photon that hit stands on the surface (|p − c| = R, or
-    # z on a face) with its direction and weight unchanged; the others moved by the flight
-    # −ln(1 − ξ)/σt and keep the fraction α of their weight, with a unit direction
+    # z on a face); implicit capture leaves w·α^c after c collisions; a photon that did not
+    # hit collided in every step; directions stay unit vectors
     geometry, (pos, dirn, w, inv_st, alb, x) = _state(geo_kind, seed=1)
     p, d, ww = pos.clone(), dirn.clone(), w.clone()
     with torch_threads(1):
-        hit = Fused(_fly_and_collide)(p, d, ww, inv_st, alb, x, geometry.params())
+        hit, coll = Fused(_fly_and_collide)(p, d, ww, inv_st, alb, x, geometry.params())
     assert 0.05 < float(hit.float().mean()) < 0.95
     if geo_kind == "ball":
         c = torch.tensor(geometry.center).view(3, 1)
@@ -72,12 +73,21 @@ def test_step_moves_hits_onto_the_boundary_and_scatters_the_rest(geo_kind):
     else:
         z = p[2, hit]
         assert bool(((z - 10.0).abs().lt(1e-5) | (z - 12.0).abs().lt(1e-5)).all())
-    assert torch.equal(d[:, hit], dirn[:, hit]) and torch.equal(ww[hit], w[hit])
-    flight = -torch.log1p(-x[0]) * inv_st
-    moved = (p - pos).norm(dim=0)
-    assert torch.allclose(moved[~hit], flight[~hit], rtol=1e-4, atol=1e-5)
-    assert torch.allclose(ww[~hit], (w * alb)[~hit], rtol=1e-6)
-    assert torch.allclose(d[:, ~hit].norm(dim=0), torch.ones(int((~hit).sum())), atol=1e-5)
+    assert bool((coll[~hit] == SUBSTEPS).all()) and bool((coll[hit] < SUBSTEPS).all())
+    assert torch.allclose(ww, w * alb.double().pow(coll).float(), rtol=1e-5)
+    assert torch.allclose(d.norm(dim=0), torch.ones(N), atol=1e-5)
+
+
+def test_three_uniforms_from_one_draw_are_independent_uniforms():
+    # moments of U(0, 1): mean 1/2, variance 1/12, no correlation between the three
+    r = torch.empty(200_000, dtype=torch.int64).random_(generator=torch.Generator().manual_seed(5))
+    u = torch.stack(_uniforms(r)).double()
+    assert float(u.min()) > 0 and float(u.max()) < 1
+    se_mean = math.sqrt(1 / 12 / u.shape[1])
+    assert torch.allclose(u.mean(1), torch.full((3,), 0.5, dtype=torch.float64), atol=4 * se_mean)
+    assert torch.allclose(u.var(1), torch.full((3,), 1 / 12, dtype=torch.float64), atol=1e-3)
+    corr = torch.corrcoef(u)
+    assert float((corr - torch.eye(3, dtype=torch.float64)).abs().max()) < 4 / math.sqrt(u.shape[1])
 
 
 def test_exit_distance_of_a_ball_from_its_centre_is_the_radius():
