@@ -12,7 +12,8 @@ includes the Fresnel loss at entry and the material's total diffuse reflectance;
 screen-space pipeline blurs the irradiance with a profile normalised to 1 (texturing off). The
 two are compared through the material's diffuse albedo at normal incidence,
 ``ρ = (1 − F(0)) R_d`` (``R_d``: the MC total diffuse reflectance of the half-space,
-:func:`sssbench.mc.walk.walk`, with many more photons than a pixel gets): the image is
+:func:`sssbench.mc.transport.transport` from a point under normal incidence, with many
+more photons than a pixel gets): the image is
 ``M / ρ``, which is exactly ``E`` on a uniformly, normally lit plane, as the blurred irradiance
 is. What remains is the light transport the profile model leaves out or gets wrong: the
 radial shape of the real point-spread function, the angle of incidence (Fresnel and the
@@ -58,7 +59,7 @@ from sssbench._checks import check_int
 from sssbench.mc.boundary import normal_specular
 from sssbench.mc.cache import cached_entry
 from sssbench.mc.transport import Ball, Medium, Slab, _norm, refract_in, transport, warm_up
-from sssbench.mc.walk import walk
+from sssbench.mc.walk import mean_stderr
 from sssbench.profiles.dipole import MATERIALS
 
 __all__ = [
@@ -284,17 +285,19 @@ def _run_batches(jobs: list[tuple], workers: int) -> list[tuple[torch.Tensor, in
 
 
 def _albedo(medium: Medium, photons: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """``ρ = (1 − F(0)) R_d`` per channel and its standard error (module doc)."""
+    """``ρ = (1 − F(0)) R_d`` per channel and its standard error (module doc): ``R_d`` of the
+    half-space under normal incidence by the scenes' own transport (``photons`` per channel,
+    entering at one point, every exit scored)."""
     t_in = 1.0 - normal_specular(medium.eta)
-    out = [
-        walk(float(a), photons=photons, eta=medium.eta, seed=seed + c, progress=False).estimate(
-            "top"
-        )
-        for c, a in enumerate(medium.albedo.tolist())
-    ]
-    r = torch.tensor([o[0] for o in out], dtype=_F64)
-    se = torch.tensor([o[1] for o in out], dtype=_F64)
+    t = transport(medium, Slab(0.0), _PlaneSource(0.0, 0.0, True, 1.0), _every_exit, 1,
+                  photons=3 * photons, seed=seed, progress=False)  # fmt: skip
+    r, se = mean_stderr(t.sums[0, :, 0], t.sums[1, :, 0], photons)
     return t_in * r, t_in * se
+
+
+def _every_exit(pos: torch.Tensor, dirn: torch.Tensor) -> torch.Tensor:
+    """Score of :func:`_albedo`: every leaving photon in bin 0."""
+    return torch.zeros(pos.shape[1], dtype=torch.long)
 
 
 def _flat(model, medium, photons, batches, seed, workers, progress):  # noqa: ANN001, ANN202

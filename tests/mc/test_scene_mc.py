@@ -32,6 +32,20 @@ def test_uniform_plane_exitance_is_halfspace_reflectance():
         assert abs(float(est[c]) - exact) <= 3 * float(se[c]), (c, float(est[c]), exact)
 
 
+def test_albedo_normaliser_is_halfspace_reflectance():
+    # ρ = (1 − F(0)) R_d with F(0) = 0 when index-matched: Chandrasekhar's 1 − H(1)√(1 − a)
+    from sssbench.mc.scene import _albedo
+    from sssbench.mc.transport import Medium
+
+    albedos = (0.95, 0.6, 0.3)
+    medium = Medium(albedos, tuple(1 - a for a in albedos), 1.0)  # σt = 1 mm⁻¹
+    rho, se = _albedo(medium, 40_000, seed=2)
+    for c, a in enumerate(albedos):
+        exact = halfspace_reflectance(a)
+        assert abs(float(rho[c]) - exact) <= 3 * float(se[c]), (c, float(rho[c]), exact)
+        assert float(se[c]) < 0.01
+
+
 def _asymmetry(batches: torch.Tensor, op) -> float:  # noqa: ANN001
     """Σ(mean difference)² / Σ(its variance) of ``image − op(image)`` over the batches: ≈ 1
     when the exitance is invariant under ``op`` (the difference is noise), ≫ 1 otherwise."""
