@@ -268,17 +268,10 @@ def warm_up(geometry: Slab | Ball) -> None:
     pos = _parking(geometry, _F32, n).contiguous()
     dirn = torch.zeros(3, n, dtype=_F32)
     dirn[2] = 1.0
-    ones = torch.ones(n, dtype=_F32)
+    w, inv_st, alb = (torch.ones(n, dtype=_F32) for _ in range(3))  # distinct: no aliasing
+    x = torch.zeros(SUBSTEPS, n, dtype=torch.int64)
     with torch_threads(1):
-        _STEP(
-            pos,
-            dirn,
-            ones.clone(),
-            ones,
-            ones,
-            torch.zeros(SUBSTEPS, n, dtype=torch.int64),
-            geometry.params(),
-        )
+        _STEP(pos, dirn, w, inv_st, alb, x, geometry.params())
 
 
 def _norm(v: torch.Tensor) -> torch.Tensor:
