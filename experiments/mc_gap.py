@@ -16,7 +16,9 @@ screen-space method.
 
 Cost: the MC's collisions per second (``mc_photons``, ``mc_seconds``) of each scene, as run
 (cache hits keep the time of the run that filled the cache), and a timed walk on 1 and 2
-worker processes.
+worker processes: wall time, CPU time (with a core per process, 2 processes would run at
+2 × collisions / CPU seconds), the one-off compilation of the fused walk step and the load
+average while measuring. The verdict's speed target is wall time on 2 cores.
 
     python -m experiments.run mc_gap [--quick]
 """
@@ -261,12 +263,8 @@ def run(ctx: Context) -> Section:
     fast = cost["rate_2"] >= 2e7
     fast_cpu = cost["rate_cpu_2"] >= 2e7
     resolved = worst_se <= 1e-3 and mc_minutes <= 10
-    if fast and resolved:
-        verdict = "target met"
-    elif fast_cpu and resolved:
-        verdict = "target met in CPU time, not in wall time on this loaded machine"
-    else:
-        verdict = "target not met"
+    # the target is wall time on 2 cores; CPU time says what 2 free cores would give
+    verdict = "target met" if fast and resolved else "target not met"
     reason = (
         f"Cost: {cost['rate_2']:.3g} collisions/s on 2 processes in wall time, "
         f"{cost['rate_cpu_2']:.3g}/s in CPU time with a core per process "

@@ -87,11 +87,13 @@ class Fused:
             return self.fn(*args)
         if torch.get_num_threads() != 1:
             raise RuntimeError("Fused step functions run with torch.set_num_threads(1)")
-        if self._compiled is None:
-            # one compile worker: no process pool for a single small kernel (and none left
-            # behind when the caller forks walk processes)
-            self._compiled = torch.compile(self.fn, dynamic=True, options={"compile_threads": 1})
         try:
+            if self._compiled is None:
+                # one compile worker: no process pool for a single small kernel (and none
+                # left behind when the caller forks walk processes)
+                self._compiled = torch.compile(
+                    self.fn, dynamic=True, options={"compile_threads": 1}
+                )
             return self._compiled(*args)
         except Exception as err:  # noqa: BLE001 - any compiler failure: fall back, say so
             self.failed = f"{type(err).__name__}: {err}"
