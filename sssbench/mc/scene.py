@@ -46,11 +46,9 @@ the digest of all source of ``sssbench`` and ``data_synth`` (never stale).
 
 from __future__ import annotations
 
-import concurrent.futures
 import hashlib
 import json
 import math
-import multiprocessing
 from dataclasses import dataclass
 
 import torch
@@ -58,6 +56,7 @@ import torch
 from sssbench._checks import check_int
 from sssbench.mc.boundary import normal_specular
 from sssbench.mc.cache import cached_entry
+from sssbench.mc.parallel import cpu_seconds, run_jobs
 from sssbench.mc.transport import Ball, Medium, Slab, _norm, refract_in, transport, warm_up
 from sssbench.mc.walk import mean_stderr
 from sssbench.profiles.dipole import MATERIALS
@@ -272,16 +271,11 @@ def _job(args: tuple) -> tuple[torch.Tensor, int, float]:
 
 
 def _run_batches(jobs: list[tuple], workers: int) -> list[tuple[torch.Tensor, int, float]]:
-    """Run independent walks, in ``workers`` processes when > 1: forked where the platform
-    can (no re-import of the caller's script; each worker runs torch on one thread, so the
-    parent's thread pool is never used after the fork), else spawned."""
-    if workers <= 1 or len(jobs) <= 1:
-        return [_job(j) for j in jobs]
-    warm_up(jobs[0][1])  # compile the step once, here: the forked workers inherit it
-    methods = multiprocessing.get_all_start_methods()
-    ctx = multiprocessing.get_context("fork" if "fork" in methods else "spawn")
-    with concurrent.futures.ProcessPoolExecutor(min(workers, len(jobs)), mp_context=ctx) as ex:
-        return list(ex.map(_job, jobs))
+    """Run independent walks (:func:`_job`), in ``workers`` processes when > 1
+    (:func:`sssbench.mc.parallel.run_jobs`), the fused step compiled before the fork."""
+    if workers > 1 and len(jobs) > 1:
+        warm_up(jobs[0][1])  # compile the step once, here: the forked workers inherit it
+    return run_jobs(_job, jobs, workers)
 
 
 def _albedo(medium: Medium, photons: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -410,21 +404,9 @@ def sphere_walk_rate(
     model = mc_model("sphere", gbuffer, params)
     per = max(3, photons // batches // 3 * 3)
     jobs = _sphere_jobs(model, medium_for(material), per, batches, 0, False)
-    c0, t0 = _cpu_seconds(), time.perf_counter()
+    c0, t0 = cpu_seconds(), time.perf_counter()
     out = _run_batches(jobs, workers)
-    return sum(o[1] for o in out), time.perf_counter() - t0, _cpu_seconds() - c0
-
-
-def _cpu_seconds() -> float:
-    """User + system CPU seconds of this process and of its waited-for children."""
-    import time
-
-    try:
-        import resource
-    except ImportError:  # pragma: no cover - not Unix
-        return time.process_time()
-    kids = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return time.process_time() + kids.ru_utime + kids.ru_stime
+    return sum(o[1] for o in out), time.perf_counter() - t0, cpu_seconds() - c0
 
 
 def _sphere(model, medium, photons, batches, seed, workers, progress):  # noqa: ANN001, ANN202
