@@ -16,7 +16,9 @@ screen-space method.
 
 Cost: the MC's collisions per second (``mc_photons``, ``mc_seconds``) of each scene, as run
 (cache hits keep the time of the run that filled the cache), and a timed walk on 1 and 2
-worker processes.
+worker processes: wall time, CPU time (with a core per process, 2 processes would run at
+2 × collisions / CPU seconds), the one-off compilation of the fused walk step and the load
+average while measuring. The verdict's speed target is wall time on 2 cores.
 
     python -m experiments.run mc_gap [--quick]
 """
@@ -85,18 +87,31 @@ def _runs(ctx: Context) -> list[dict]:
 
 def _scene_cost(ctx: Context) -> dict[str, float]:
     """Collisions per second of the sphere's walks (64², 4 batches) in 1 and 2 worker
-    processes (wall time, fork included; not cached)."""
+    processes (wall time, fork included; not cached), their CPU time, the one-off compilation
+    of the fused step (timed first, before either) and the machine's load while measuring."""
+    import os
+    import time
+
     import data_synth
     from sssbench.mc.scene import sphere_walk_rate
+    from sssbench.mc.transport import _STEP, Ball, warm_up
 
     g = data_synth.make_scene("sphere", (64, 64), fields=[])
-    photons = 60_000 if ctx.quick else 1_200_000
-    out = {}
+    t0 = time.perf_counter()
+    warm_up(Ball((0.0, 0.0, 0.0), 1.0))
+    out = {"compile_s": time.perf_counter() - t0, "compiled": float(_STEP.active)}
+    photons = 60_000 if ctx.quick else 4_000_000
+    load0 = os.getloadavg()[0]
     for workers in (1, 2):
-        inter, wall = sphere_walk_rate(g, "skin1", photons=photons, workers=workers)
+        inter, wall, cpu = sphere_walk_rate(g, "skin1", photons=photons, workers=workers)
         out[f"rate_{workers}"] = inter / wall
         out[f"wall_{workers}"] = wall
+        out[f"cpu_{workers}"] = cpu
         out["interactions"] = inter
+    # each of the 2 processes on a core of its own: collisions per CPU second, times 2
+    out["rate_cpu_2"] = 2 * out["interactions"] / out["cpu_2"]
+    out["load"] = 0.5 * (load0 + os.getloadavg()[0])
+    out["cores"] = float(os.cpu_count() or 1)
     return out
 
 
@@ -147,8 +162,8 @@ def _verdicts(rows: list[dict]) -> list[str]:
 
 
 def run(ctx: Context) -> Section:
+    cost = _scene_cost(ctx)  # first: its warm-up is this process's compilation of the step
     rows = _runs(ctx)
-    cost = _scene_cost(ctx)
     labels = list(dict.fromkeys(r["scene"] for r in rows))
     methods = list(dict.fromkeys(r["method"] for r in rows))
     table = md_table(
@@ -209,8 +224,17 @@ def run(ctx: Context) -> Section:
         f"than the best screen-space method is from the profile reference. MC cost (sphere "
         f"64², {cost['interactions']:.3g} collisions): {cost['rate_1']:.3g} collisions/s in "
         f"1 process, {cost['rate_2']:.3g}/s in 2 (wall {cost['wall_1']:.3g} s and "
-        f"{cost['wall_2']:.3g} s, fork included; target 2e7/s on 2 cores). The machine was "
-        "shared with 5 other agents' jobs while this ran: the rates are lower bounds."
+        f"{cost['wall_2']:.3g} s, fork included; target 2e7/s on 2 cores); CPU time "
+        f"{cost['cpu_1']:.3g} s and {cost['cpu_2']:.3g} s, i.e. {cost['rate_cpu_2']:.3g}/s with "
+        f"a core per process; the walk step "
+        + (
+            f"compiled once per process in {cost['compile_s']:.3g} s (before the timings; "
+            "inductor's disk cache, when warm, makes this a load). "
+            if cost["compiled"]
+            else "ran eagerly (torch.compile unavailable or disabled). "
+        )
+        + f"Load average while measuring: {cost['load']:.2g} on {cost['cores']:.0f} cores"
+        + (" (shared machine: the wall rates are lower bounds)." if cost["load"] > 1.5 else ".")
     )
     body = (
         "Per scene:\n\n- "
@@ -238,11 +262,16 @@ def run(ctx: Context) -> Section:
     worst_se = max(r["rel_rms_mc_se"] for r in sphere) if sphere else math.nan
     mc_minutes = (sphere[0]["mc_seconds"] / 60) if sphere else math.nan
     fast = cost["rate_2"] >= 2e7
+    fast_cpu = cost["rate_cpu_2"] >= 2e7
     resolved = worst_se <= 1e-3 and mc_minutes <= 10
+    # the target is wall time on 2 cores; CPU time says what 2 free cores would give
     verdict = "target met" if fast and resolved else "target not met"
     reason = (
-        f"Cost: {cost['rate_2']:.3g} collisions/s on 2 processes "
-        f"({'meets' if fast else 'misses'} 2e7/s); the sphere's MC reference at {res}² took "
+        f"Cost: {cost['rate_2']:.3g} collisions/s on 2 processes in wall time, "
+        f"{cost['rate_cpu_2']:.3g}/s in CPU time with a core per process "
+        f"({'meets' if fast else 'misses'} 2e7/s in wall time, "
+        f"{'meets' if fast_cpu else 'misses'} it in CPU time); the sphere's MC reference at "
+        f"{res}² took "
         f"{mc_minutes:.3g} min of walks with a largest noise-corrected error standard error of "
         f"{worst_se:.2g} ({'meets' if resolved else 'misses'} 1e-3 within 10 min). "
         + (sentences[-1][:1].upper() + sentences[-1][1:] if sentences else "")

@@ -12,7 +12,8 @@ includes the Fresnel loss at entry and the material's total diffuse reflectance;
 screen-space pipeline blurs the irradiance with a profile normalised to 1 (texturing off). The
 two are compared through the material's diffuse albedo at normal incidence,
 ``ρ = (1 − F(0)) R_d`` (``R_d``: the MC total diffuse reflectance of the half-space,
-:func:`sssbench.mc.walk.walk`, with many more photons than a pixel gets): the image is
+:func:`sssbench.mc.transport.transport` from a point under normal incidence, with many
+more photons than a pixel gets): the image is
 ``M / ρ``, which is exactly ``E`` on a uniformly, normally lit plane, as the blurred irradiance
 is. What remains is the light transport the profile model leaves out or gets wrong: the
 radial shape of the real point-spread function, the angle of incidence (Fresnel and the
@@ -45,11 +46,9 @@ the digest of all source of ``sssbench`` and ``data_synth`` (never stale).
 
 from __future__ import annotations
 
-import concurrent.futures
 import hashlib
 import json
 import math
-import multiprocessing
 from dataclasses import dataclass
 
 import torch
@@ -57,8 +56,9 @@ import torch
 from sssbench._checks import check_int
 from sssbench.mc.boundary import normal_specular
 from sssbench.mc.cache import cached_entry
-from sssbench.mc.transport import Ball, Medium, Slab, _norm, refract_in, transport
-from sssbench.mc.walk import walk
+from sssbench.mc.parallel import cpu_seconds, run_jobs
+from sssbench.mc.transport import Ball, Medium, Slab, _norm, refract_in, transport, warm_up
+from sssbench.mc.walk import mean_stderr
 from sssbench.profiles.dipole import MATERIALS
 
 __all__ = [
@@ -159,11 +159,11 @@ class _PlaneSource:
     weight: float
 
     def __call__(self, n: int, chan: torch.Tensor, gen: torch.Generator) -> tuple:
-        xy = torch.rand(2, n, generator=gen, dtype=_F64) * self.cell
-        pos = torch.cat([xy, torch.full((1, n), self.z, dtype=_F64)])
-        dirn = torch.zeros(3, n, dtype=_F64)
+        xy = torch.rand(2, n, generator=gen, dtype=torch.float32) * self.cell
+        pos = torch.cat([xy, torch.full((1, n), self.z, dtype=torch.float32)])
+        dirn = torch.zeros(3, n, dtype=torch.float32)
         dirn[2] = 1.0 if self.down else -1.0
-        return pos, dirn, torch.full((n,), self.weight, dtype=_F64)
+        return pos, dirn, torch.full((n,), self.weight, dtype=torch.float32)
 
 
 @dataclass(frozen=True)
@@ -195,13 +195,15 @@ class _SphereSource:
 
     def __call__(self, n: int, chan: torch.Tensor, gen: torch.Generator) -> tuple:
         r = self.radius
-        u = torch.rand(5, n, generator=gen, dtype=_F64)
+        # float32, the walk's photon state (sssbench.mc.transport); the frame in float64
+        u = torch.rand(5, n, generator=gen, dtype=torch.float32)
         lt = torch.tensor(self.light, dtype=_F64)
         a = torch.linalg.cross(lt, torch.tensor([0.0, 0.0, 1.0], dtype=_F64))
         if float(a.norm()) < 1e-6:
             a = torch.linalg.cross(lt, torch.tensor([1.0, 0.0, 0.0], dtype=_F64))
         a = a / a.norm()
         b = torch.linalg.cross(lt, a)
+        lt, a, b = lt.float(), a.float(), b.float()
         # directional: uniform over the disc of radius R perpendicular to l, onto the lit half
         rho, phi = r * u[0].sqrt(), 2 * math.pi * u[1]
         off = a[:, None] * (rho * torch.cos(phi)) + b[:, None] * (rho * torch.sin(phi))
@@ -269,29 +271,27 @@ def _job(args: tuple) -> tuple[torch.Tensor, int, float]:
 
 
 def _run_batches(jobs: list[tuple], workers: int) -> list[tuple[torch.Tensor, int, float]]:
-    """Run independent walks, in ``workers`` processes when > 1: forked where the platform
-    can (no re-import of the caller's script; each worker runs torch on one thread, so the
-    parent's thread pool is never used after the fork), else spawned."""
-    if workers <= 1 or len(jobs) <= 1:
-        return [_job(j) for j in jobs]
-    methods = multiprocessing.get_all_start_methods()
-    ctx = multiprocessing.get_context("fork" if "fork" in methods else "spawn")
-    with concurrent.futures.ProcessPoolExecutor(min(workers, len(jobs)), mp_context=ctx) as ex:
-        return list(ex.map(_job, jobs))
+    """Run independent walks (:func:`_job`), in ``workers`` processes when > 1
+    (:func:`sssbench.mc.parallel.run_jobs`), the fused step compiled before the fork."""
+    if workers > 1 and len(jobs) > 1:
+        warm_up(jobs[0][1])  # compile the step once, here: the forked workers inherit it
+    return run_jobs(_job, jobs, workers)
 
 
 def _albedo(medium: Medium, photons: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """``ρ = (1 − F(0)) R_d`` per channel and its standard error (module doc)."""
+    """``ρ = (1 − F(0)) R_d`` per channel and its standard error (module doc): ``R_d`` of the
+    half-space under normal incidence by the scenes' own transport (``photons`` per channel,
+    entering at one point, every exit scored)."""
     t_in = 1.0 - normal_specular(medium.eta)
-    out = [
-        walk(float(a), photons=photons, eta=medium.eta, seed=seed + c, progress=False).estimate(
-            "top"
-        )
-        for c, a in enumerate(medium.albedo.tolist())
-    ]
-    r = torch.tensor([o[0] for o in out], dtype=_F64)
-    se = torch.tensor([o[1] for o in out], dtype=_F64)
+    t = transport(medium, Slab(0.0), _PlaneSource(0.0, 0.0, True, 1.0), _every_exit, 1,
+                  photons=3 * photons, seed=seed, progress=False)  # fmt: skip
+    r, se = mean_stderr(t.sums[0, :, 0], t.sums[1, :, 0], photons)
     return t_in * r, t_in * se
+
+
+def _every_exit(pos: torch.Tensor, dirn: torch.Tensor) -> torch.Tensor:
+    """Score of :func:`_albedo`: every leaving photon in bin 0."""
+    return torch.zeros(pos.shape[1], dtype=torch.long)
 
 
 def _flat(model, medium, photons, batches, seed, workers, progress):  # noqa: ANN001, ANN202
@@ -391,9 +391,12 @@ def sphere_walk_rate(
     batches: int = 4,
     workers: int = 1,
     params: dict | None = None,
-) -> tuple[int, float]:
-    """``(collisions, wall seconds)`` of the ``sphere`` scene's walks alone (no cache, no
-    normaliser, no pixel areas): the cost measurement of docs/mc.md."""
+) -> tuple[int, float, float]:
+    """``(collisions, wall seconds, CPU seconds)`` of the ``sphere`` scene's walks alone (no
+    cache, no normaliser, no pixel areas): the cost measurement of docs/mc.md. CPU time is
+    this process's plus that of the worker processes (Unix; this process's only elsewhere);
+    both include compiling the fused step if this process has not yet
+    (:func:`sssbench.mc.transport.warm_up`)."""
     import time
 
     from data_synth.mc_scenes import mc_model
@@ -401,9 +404,9 @@ def sphere_walk_rate(
     model = mc_model("sphere", gbuffer, params)
     per = max(3, photons // batches // 3 * 3)
     jobs = _sphere_jobs(model, medium_for(material), per, batches, 0, False)
-    t0 = time.perf_counter()
+    c0, t0 = cpu_seconds(), time.perf_counter()
     out = _run_batches(jobs, workers)
-    return sum(o[1] for o in out), time.perf_counter() - t0
+    return sum(o[1] for o in out), time.perf_counter() - t0, cpu_seconds() - c0
 
 
 def _sphere(model, medium, photons, batches, seed, workers, progress):  # noqa: ANN001, ANN202

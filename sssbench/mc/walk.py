@@ -49,6 +49,7 @@ reflections are not interactions).
 
 from __future__ import annotations
 
+import hashlib
 import math
 import time
 from dataclasses import dataclass
@@ -57,6 +58,7 @@ import torch
 
 from sssbench._checks import check_int, check_scalar
 from sssbench.mc.boundary import fresnel_dielectric, normal_specular
+from sssbench.mc.parallel import run_jobs
 
 __all__ = ["WalkTally", "walk", "total_reflectance", "slab", "mean_stderr"]
 
@@ -115,6 +117,35 @@ class WalkTally:
     def rate(self) -> float:
         """Interactions per second of wall time."""
         return self.interactions / max(self.seconds, 1e-9)
+
+    @classmethod
+    def total(cls, parts: list[WalkTally], seconds: float) -> WalkTally:
+        """The tally of independent walks together (sums of their float64 sums and counts)."""
+        radial = None if parts[0].radial is None else sum(p.radial for p in parts)
+        return cls(
+            photons=sum(p.photons for p in parts),
+            interactions=sum(p.interactions for p in parts),
+            seconds=seconds,
+            counts={f: sum(p.counts[f] for p in parts) for f in _FATES},
+            radial=radial,
+            **{f: sum(getattr(p, f) for p in parts) for f in _FATES},
+        )
+
+
+def _share_seed(seed: int, share: int) -> int:
+    """Seed of the ``share``-th worker's generator: ``seed`` itself for the first, else a
+    32-bit hash of both (the CPU generator keeps only 32 bits of a seed: ``seed + 2³²``
+    would repeat the first share's photons)."""
+    if share == 0:
+        return seed
+    digest = hashlib.blake2b(f"sssbench.mc.walk {seed} {share}".encode(), digest_size=4)
+    return int.from_bytes(digest.digest(), "little")
+
+
+def _walk_share(job: tuple) -> WalkTally:
+    """One worker's walk of :func:`walk` (``workers`` > 1)."""
+    albedo, photons, seed, kwargs = job
+    return walk(albedo, photons=photons, seed=seed, **kwargs)
 
 
 def _new_directions(
@@ -176,6 +207,7 @@ def walk(
     batch: int = 1 << 17,
     progress: bool | None = None,
     threads: int | None = 1,
+    workers: int = 1,
 ) -> WalkTally:
     """Run the walk (module doc) and return its tallies.
 
@@ -195,6 +227,10 @@ def walk(
             is. Default 1: on the shared 2-core development machine the walk ran ~10× *slower*
             on 2 threads than on 1 while other jobs loaded it (1.2 vs 11.7 M interactions/s)
             and equally fast when it was quiet (12.6 vs 12.7 M/s).
+        workers: processes, each walking its share of the photons with its own generator
+            (:func:`_share_seed`; one thread each), their tallies
+            summed (:func:`sssbench.mc.parallel.run_jobs`). The result depends on
+            ``workers``; ``seconds`` is the wall time of the whole.
     """
     a = check_scalar("albedo", albedo, 0.0, 1.0)
     photons = check_int("photons", photons, 2)
@@ -217,6 +253,15 @@ def walk(
         )
     seed = check_int("seed", seed, 0)
     batch = check_int("batch", batch, 1)
+    workers = check_int("workers", workers, 1)
+    if workers > 1:
+        kwargs = dict(g=g, eta=eta, thickness=thickness, radial_edges=radial_edges,
+                      roulette_radius=roulette_radius, kill_radius=kill_radius, batch=batch,
+                      progress=False, threads=1)  # fmt: skip
+        shares = [photons // workers + (i < photons % workers) for i in range(workers)]
+        jobs = [(a, n, _share_seed(seed, i), kwargs) for i, n in enumerate(shares) if n >= 2]
+        t0 = time.perf_counter()
+        return WalkTally.total(run_jobs(_walk_share, jobs, workers), time.perf_counter() - t0)
     if threads is not None:
         threads = check_int("threads", threads, 1)
         saved = torch.get_num_threads()

@@ -32,6 +32,20 @@ def test_uniform_plane_exitance_is_halfspace_reflectance():
         assert abs(float(est[c]) - exact) <= 3 * float(se[c]), (c, float(est[c]), exact)
 
 
+def test_albedo_normaliser_is_halfspace_reflectance():
+    # ρ = (1 − F(0)) R_d with F(0) = 0 when index-matched: Chandrasekhar's 1 − H(1)√(1 − a)
+    from sssbench.mc.scene import _albedo
+    from sssbench.mc.transport import Medium
+
+    albedos = (0.95, 0.6, 0.3)
+    medium = Medium(albedos, tuple(1 - a for a in albedos), 1.0)  # σt = 1 mm⁻¹
+    rho, se = _albedo(medium, 40_000, seed=2)
+    for c, a in enumerate(albedos):
+        exact = halfspace_reflectance(a)
+        assert abs(float(rho[c]) - exact) <= 3 * float(se[c]), (c, float(rho[c]), exact)
+        assert float(se[c]) < 0.01
+
+
 def _asymmetry(batches: torch.Tensor, op) -> float:  # noqa: ANN001
     """Σ(mean difference)² / Σ(its variance) of ``image − op(image)`` over the batches: ≈ 1
     when the exitance is invariant under ``op`` (the difference is noise), ≫ 1 otherwise."""
@@ -139,7 +153,9 @@ def test_app_reference_mc_stores_both_errors(tmp_path, monkeypatch):
         assert m["rel_rms_mc"] == pytest.approx(m[twin], rel=1e-9)
     rows = RunStore(store).runs()
     assert len(rows) == 2
-    assert all(r["metrics"]["rel_rms_mc_se"] > 0 for r in rows)
+    # 6 000 photons cannot resolve these errors: the noise-corrected error may be clamped at 0
+    # in every jackknife sample (se = 0); it is never negative
+    assert all(r["metrics"]["rel_rms_mc_se"] >= 0 for r in rows)
     assert all(r["config"]["reference"] == "mc" for r in rows)
     # reference=mc is part of the point: the same run against the profile is another point
     a = app.compose_spec("method=identity", *common, store=store).point()

@@ -28,6 +28,22 @@ def test_halfspace_reflectance_matches_chandrasekhar(a):
     assert t.counts["bottom"] == 0 and t.counts["roulette"] == 0
 
 
+def test_two_worker_processes_sum_independent_walks():
+    # the shares are walked with their own generators in 2 processes: the total still counts
+    # every photon once (R + T + A = 1 per photon in an analog slab) and the half-space
+    # reflectance is Chandrasekhar's; were both shares seeded alike, the total would be exactly
+    # twice one share
+    t = walk(0.9, photons=200_000, thickness=3.0, eta=1.0, seed=5, workers=2, progress=False)
+    assert t.photons == 200_000 and sum(t.counts.values()) == 200_000
+    r, t_, a = (t.estimate(f)[0] for f in ("top", "bottom", "absorbed"))
+    assert r + t_ + a == pytest.approx(1.0, abs=1e-12)
+    half = walk(0.9, photons=100_000, thickness=3.0, eta=1.0, seed=5, progress=False)
+    assert float(t.top[0]) != 2 * float(half.top[0])
+    h = walk(0.9, photons=400_000, seed=1, workers=2, progress=False)
+    r, se = h.estimate("top")
+    assert abs(r - halfspace_reflectance(0.9)) <= 3 * se, (r, se)
+
+
 @pytest.mark.parametrize(
     ("a", "thickness", "eta", "g"),
     [(0.7, 2.0, 1.0, 0.0), (0.95, 5.0, 1.3, 0.0), (0.9, 1.0, 1.5, 0.8), (1.0, 3.0, 1.4, -0.3)],
