@@ -18,7 +18,7 @@ from tqdm.auto import tqdm
 
 from sssbench._checks import check_choice, check_scalar
 from sssbench.gbuffer import GBuffer, pixel_size_mm
-from sssbench.ops._reference_far import Surface, gather
+from sssbench.ops._reference_far import Surface, gather, map_threads
 from sssbench.ops._reference_flat import flat_kernel
 from sssbench.ops.timing import timed_pass
 from sssbench.profiles.base import Profile, _gauss_legendre
@@ -178,6 +178,7 @@ def reference_sss(
     method: str = "auto",
     reconstruction: str = "box",
     progress: bool | None = None,
+    threads: int | None = None,
 ) -> torch.Tensor:
     """Exact screen-space subsurface scattering of ``gbuffer.diffuse`` with ``profile``.
 
@@ -265,6 +266,9 @@ def reference_sss(
         reconstruction: ``"box"`` or ``"bilinear"`` (see above).
         progress: show a progress bar (tqdm) on stderr; ``None``: when the multipole
             evaluation has more than 500 000 target pixels × Gaussians (a few seconds).
+        threads: Python threads of the gather and multipole methods (independent tiles of
+            targets, each computed with one intra-op torch thread, so the result is the same
+            for every ``threads``); ``None``: ``torch.get_num_threads()``.
 
     Returns:
         ``(B, 3, H, W)`` in the G-buffer's dtype (computed in float64).
@@ -276,6 +280,9 @@ def reference_sss(
     check_scalar("tol", tol, 0.0, 1.0, low_inclusive=False, high_inclusive=False)
     check_choice("method", method, METHODS)
     check_choice("reconstruction", reconstruction, RECONSTRUCTIONS)
+    workers = torch.get_num_threads() if threads is None else threads
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ValueError(f"threads must be a positive int or None, got {threads!r}")
     total = profile.total()
     if bool((total <= 0).any()):
         raise ValueError(f"profile total must be > 0 in every channel, got {total.tolist()}")
@@ -312,9 +319,10 @@ def reference_sss(
     radius_mm = profile.radius(tol)
     with timed_pass("reference", (2 * k + 1) ** 2, int(active.numel())):
         if method == "multipole":
-            acc, wsum = _multipole(g, profile, k, active, tol, reconstruction, progress)
+            acc, wsum = _multipole(g, profile, k, active, tol, reconstruction, progress, workers)
         elif _is_sum_of_gaussians(profile):
-            acc, wsum = _gather_sog(profile, _surface(g, k).table, centre, wp, k, radius_mm)
+            table = _surface(g, k).table
+            acc, wsum = _gather_sog(profile, table, centre, wp, k, radius_mm, workers=workers)
         else:
             acc, wsum = _gather_generic(profile, _surface(g, k).table, centre, wp, k, radius_mm)
     num = torch.zeros(b * h * w, 3, dtype=torch.float64).index_copy(0, active, acc)
@@ -362,10 +370,12 @@ def _multipole(
     tol: float,
     reconstruction: str,
     progress: bool | None,
+    workers: int = 1,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Numerator and denominator ``(E, 3)`` of the active pixels by the ``"multipole"``
-    method of :func:`reference_sss` (the padded surface is built here and dropped once its
-    scaled copies exist: the far field's pyramid is the peak of memory)."""
+    method of :func:`reference_sss` on ``workers`` threads (the padded surface is built here
+    and dropped once its scaled copies exist: the far field's pyramid is the peak of
+    memory)."""
     b, h, w = g.shape
     e = active.numel()
     acc = torch.zeros(e, 3, dtype=torch.float64)
@@ -394,7 +404,9 @@ def _multipole(
         bi, rem = active // (h * w), active % (h * w)
         centre = bi * hp * wp + (rem // w + k) * wp + (rem % w + k)
         with tqdm(desc="reference (cells)", unit="offset", disable=not show) as near_bar:
-            acc, wsum = _gather_sog(sub, surf.table, centre, wp, k_n, r_n, progress=near_bar)
+            acc, wsum = _gather_sog(
+                sub, surf.table, centre, wp, k_n, r_n, progress=near_bar, workers=workers
+            )
     if not groups:
         return acc, wsum
     n_far = sum(len(ids) for ids, _ in groups)
@@ -426,10 +438,15 @@ def _multipole(
             # channel total of the profile
             share = [float((wts[j] / profile.total()).max()) for j in ids]
             tols = [min(0.5, tol / max(sh, tol)) for sh in share]
-            res = gather(s, rows, cols, v_g, tols, reconstruction, ratio, progress=bar)
+            res = gather(
+                s, rows, cols, v_g, tols, reconstruction, ratio, progress=bar, workers=workers
+            )
             wg = wts[ids]  # (G, 3)
-            acc[sel] += torch.einsum("gtc,gc->tc", res[..., :3], wg)
-            wsum[sel] += torch.einsum("gt,gc->tc", res[..., 3], wg)
+            # elementwise, one Gaussian at a time (a matrix product's rounding may depend
+            # on torch's thread count)
+            for gi in range(len(ids)):
+                acc[sel] += res[gi, :, :3] * wg[gi]
+                wsum[sel] += res[gi, :, 3:] * wg[gi]
     bar.close()
     return acc, wsum
 
@@ -576,9 +593,11 @@ def _gather_sog(
     k: int,
     radius_mm: float,
     progress: object = None,
+    workers: int = 1,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """:func:`_gather_generic` for a sum of Gaussians, many offsets per batch (``progress``:
-    a tqdm bar, advanced by the offsets done).
+    a tqdm bar, advanced by the offsets done; the chunks of centres run on ``workers`` threads,
+    :func:`~sssbench.ops._reference_far.map_threads`).
 
     Centres are taken in chunks of ``_CENTRES`` (bands of rows, so a batch stays in cache),
     offsets nearest first in batches of ``_BATCH_ELEMS // centres``; each offset of a chunk
@@ -614,11 +633,15 @@ def _gather_sog(
     fields = table[:, [0, 1, 2, 3, 4, 5, 7, 8, 9]].t().contiguous()
     if progress is not None:
         progress.reset(total=shift.numel() * math.ceil(e / _CENTRES))
-    for i in range(0, e, _CENTRES):
+
+    def chunk(i: int) -> int:
         part = slice(i, i + _CENTRES)
-        acc[part], wsum[part] = _sog_chunk(
-            profile, v, fields, centre[part], shift, radius_mm, progress
-        )
+        acc[part], wsum[part] = _sog_chunk(profile, v, fields, centre[part], shift, radius_mm)
+        return shift.numel()
+
+    for n in map_threads(chunk, range(0, e, _CENTRES), workers):
+        if progress is not None:
+            progress.update(n)
     return acc, wsum
 
 
@@ -629,7 +652,6 @@ def _sog_chunk(
     centre: torch.Tensor,
     shift: torch.Tensor,
     radius_mm: float,
-    progress: object,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """:func:`_gather_sog` of at most ``_CENTRES`` centres (``fields``: field-major
     neighbour table, ``shift``: flat offsets nearest first)."""
@@ -669,8 +691,6 @@ def _sog_chunk(
             wgt = wgt.view(3, -1, e)
             acc += (wgt * sub[6]).sum(1).t()
             wsum += wgt.sum(1).t()
-        if progress is not None:
-            progress.update(c)
     return acc, wsum
 
 
