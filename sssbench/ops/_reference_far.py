@@ -50,7 +50,7 @@ import torch
 
 from sssbench.profiles.base import _gauss_legendre
 
-__all__ = ["Pyramid", "build_pyramid", "cell_moments", "far_field", "map_threads"]
+__all__ = ["Pyramid", "cell_moments", "far_field", "map_threads", "surface_pyramid"]
 
 _T = TypeVar("_T")
 _R = TypeVar("_R")
@@ -86,49 +86,45 @@ def cell_moments(
     half: torch.Tensor,
     sx: torch.Tensor,
     sy: torch.Tensor,
-    q: torch.Tensor,
+    q_at: Callable[[int, int], torch.Tensor],
     reconstruction: str,
 ) -> torch.Tensor:
-    """Moments of ``q dA`` over every cell patch about its centre, ``(C, 10, H, W)``.
+    """Moments of ``q dA`` over cell patches about their centres, ``(C, 10, *half.shape)``.
 
     Args:
-        half: ``(H, W)`` half-size of each cell's lateral square (0 off the surface).
-        sx, sy: ``(H, W)`` depth slopes of the patch.
-        q: ``(C, H, W)`` values at the pixel centres (zero off the surface).
-        reconstruction: ``"box"`` (``q`` constant over the cell) or ``"bilinear"`` (``q``
-            interpolated between the centres of the cell and its neighbours, which needs a
-            one-pixel border: the result then is ``(C, 10, H − 2, W − 2)`` of the interior).
+        half: half-size of each cell's lateral square (0 off the surface), any shape ``S``.
+        sx, sy: depth slopes of the patches, shape ``S``.
+        q_at: ``q_at(a, b)`` the values ``(C, *S)`` at the centres of the cells' neighbours at
+            column offset ``a`` and row offset ``−b`` (zero off the surface): ``"box"`` reads
+            only ``q_at(0, 0)`` (``q`` constant over the cell), ``"bilinear"`` the 3×3
+            neighbourhood (``q`` interpolated between the centres).
+        reconstruction: ``"box"`` or ``"bilinear"``.
 
     The patch is ``c + s t_x + t t_y`` with ``|s|, |t| ≤ h``, area element
     ``A = √(1 + s_x² + s_y²)``, so ``∫ f dA = A ∫∫ f ds dt`` and every moment is a product of
     one-dimensional integrals (:func:`_hat_moments` for the bilinear weights).
     """
     area_el = torch.sqrt(1 + sx * sx + sy * sy)
-    txx, tyy, txy = _tangent_products(sx, sy)
+    q0 = q_at(0, 0)
+    out = q0.new_zeros(q0.shape[0], _NMOM, *half.shape)
     if reconstruction == "box":
-        out = torch.zeros(q.shape[0], _NMOM, *q.shape[1:], dtype=q.dtype)
-        torch.mul(q, 4 * half * half * area_el, out=out[:, 0])
-        torch.mul(out[:, :1], ((half * half / 3.0) * (txx + tyy))[None], out=out[:, 4:])
+        # Q = M h²/3 (t_x t_xᵀ + t_y t_yᵀ): xx, yy, zz, xy, xz, yz = 1, 1, s_x² + s_y², 0, s_x, s_y
+        mass = torch.mul(q0, 4 * half * half * area_el, out=out[:, 0])
+        hq = half * half / 3.0
+        for j, f in ((0, hq), (1, hq), (2, hq * (sx * sx + sy * sy)), (4, hq * sx), (5, hq * sy)):
+            torch.mul(mass, f, out=out[:, 4 + j])
         return out
-    h, w = half.shape
-    inner = (slice(1, h - 1), slice(1, w - 1))
-    hh, ae = half[inner], area_el[inner]
-    txx, tyy, txy = (
-        txx[(slice(None), *inner)],
-        tyy[(slice(None), *inner)],
-        txy[(slice(None),) + inner],
-    )
-    out = torch.zeros(q.shape[0], _NMOM, h - 2, w - 2, dtype=q.dtype)
-    # s runs along +x (columns), t along +y (rows upward): the t-neighbour a is row −a
+    txx, tyy, txy = _tangent_products(sx, sy)
+    # s runs along +x (columns), t along +y (rows upward): the t-neighbour b is row −b
     for a in (-1, 0, 1):
-        i0a, i1a, i2a = _hat_moments(hh, a)
+        i0a, i1a, i2a = _hat_moments(half, a)
         for b in (-1, 0, 1):
-            i0b, i1b, i2b = _hat_moments(hh, b)
-            qn = q[:, 1 - b : h - 1 - b, 1 + a : w - 1 + a] * ae
+            i0b, i1b, i2b = _hat_moments(half, b)
+            qn = q_at(a, b) * area_el
             out[:, 0] += qn * (i0a * i0b)
             out[:, 1] += qn * (i1a * i0b)  # D = A ∫∫ q (s t_x + t t_y)
             out[:, 2] += qn * (i0a * i1b)
-            out[:, 3] += qn * (i1a * i0b * sx[inner] + i0a * i1b * sy[inner])
+            out[:, 3] += qn * (i1a * i0b * sx + i0a * i1b * sy)
             quad = i2a * i0b * txx + i0a * i2b * tyy + i1a * i1b * txy
             out[:, 4:] += qn[:, None] * quad[None]
     return out
@@ -139,15 +135,42 @@ def cell_radius(half: torch.Tensor, sx: torch.Tensor, sy: torch.Tensor) -> torch
     return half * torch.sqrt(2 + (sx.abs() + sy.abs()) ** 2)
 
 
+def cells_at(
+    f: torch.Tensor, q: torch.Tensor, rows: torch.Tensor, cols: torch.Tensor, reconstruction: str
+) -> torch.Tensor:
+    """:func:`cell_moments` of the cells at interior ``rows``, ``cols`` ``(N,)`` of the surface
+    ``f`` ``(6, h, w)`` (x, y, z, half, slope_x, slope_y), ``q`` ``(C, h, w)`` with a
+    one-pixel border: ``(N, C, 10)``."""
+    r, c = rows + 1, cols + 1
+    half, sx, sy = f[3:6, r, c]
+    mom = cell_moments(half, sx, sy, lambda a, b: q[:, r - b, c + a], reconstruction)
+    return mom.permute(2, 0, 1)
+
+
 @dataclass
 class Pyramid:
     """Block moments per level: ``pos[l]`` ``(3, H_l, W_l)`` expansion centres, ``mom[l]``
-    ``(C, 10, H_l, W_l)`` moments about them, ``rad[l]`` ``(H_l, W_l)`` bounding radii (0 for an
-    empty block); level ``l`` blocks are ``2^l`` pixels wide."""
+    ``(C, 10, H_l, W_l)`` moments about them for ``l ≥ 1``, ``area[l]`` ``(H_l, W_l)`` the
+    stencil's area (the last channel's mass), ``rad[l]`` ``(H_l, W_l)`` bounding radii (0 for
+    an empty block); level ``l`` blocks are ``2^l`` pixels wide. The cells' own moments
+    (level 0, the largest array) are not kept: :meth:`moments` computes those asked for from
+    the surface ``fields``, ``q`` (with a one-pixel border, as :func:`cells_at` takes it)."""
 
     pos: list[torch.Tensor]
-    mom: list[torch.Tensor]
+    mom: list[torch.Tensor | None]
+    area: list[torch.Tensor]
     rad: list[torch.Tensor]
+    fields: torch.Tensor
+    q: torch.Tensor
+    reconstruction: str
+
+    def moments(self, lev: int, flat: torch.Tensor) -> torch.Tensor:
+        """Moments ``(N, C, 10)`` of the level-``lev`` blocks at flat indices ``flat``."""
+        mom = self.mom[lev]
+        if mom is None:
+            w = self.area[0].shape[1]
+            return cells_at(self.fields, self.q, flat // w, flat % w, self.reconstruction)
+        return mom.flatten(2)[:, :, flat].permute(2, 0, 1)
 
 
 def _merge(pos: torch.Tensor, mom: torch.Tensor, rad: torch.Tensor):
@@ -175,17 +198,6 @@ def _merge(pos: torch.Tensor, mom: torch.Tensor, rad: torch.Tensor):
     dist = torch.sqrt((delta * delta).sum(0)) + r
     radius = torch.where(r > 0, dist, 0.0).amax((1, 3))
     return cen, out, radius
-
-
-def build_pyramid(pos: torch.Tensor, mom: torch.Tensor, rad: torch.Tensor, levels: int) -> Pyramid:
-    """Levels 0..``levels`` of block moments; H and W must be multiples of ``2^levels``."""
-    pyr = Pyramid([pos], [mom], [rad])
-    for _ in range(levels):
-        cen, m, r = _merge(pyr.pos[-1], pyr.mom[-1], pyr.rad[-1])
-        pyr.pos.append(cen)
-        pyr.mom.append(m)
-        pyr.rad.append(r)
-    return pyr
 
 
 def _coefficients(p: torch.Tensor, mom: torch.Tensor, v: float) -> torch.Tensor:
@@ -309,21 +321,48 @@ def _pad_to(t: torch.Tensor, mult: int) -> torch.Tensor:
     return torch.nn.functional.pad(t, (0, (-w) % mult, 0, (-h) % mult))
 
 
-def surface_pyramid(s: Surface, reconstruction: str, levels: int) -> Pyramid:
-    """:func:`cell_moments` of the surface merged up to ``levels`` (the image zero-padded to
-    multiples of ``2^levels``: cells of size 0, no moments)."""
+def surface_pyramid(
+    fields: torch.Tensor, q: torch.Tensor, reconstruction: str, levels: int, workers: int = 1
+) -> Pyramid:
+    """:func:`cell_moments` of the surface ``fields`` ``(6, Hp + 2, Wp + 2)``, ``q``
+    ``(C, Hp + 2, Wp + 2)`` (one-pixel border) merged up to ``levels`` (the image zero-padded
+    to multiples of ``2^levels``: cells of size 0, no moments).
+
+    Built by bands of ``2^levels`` rows on ``workers`` threads (:func:`map_threads`): a
+    band's cell moments are merged up and dropped, so level 0's moments (the largest array)
+    never exist whole."""
     mult = 1 << levels
-    if reconstruction == "bilinear":
-        fields = torch.stack([s.half, s.sx, s.sy])
-        fields = torch.nn.functional.pad(fields[None], (1, 1, 1, 1), mode="replicate")[0]
-        q = torch.nn.functional.pad(s.q[None], (1, 1, 1, 1), mode="replicate")[0]
-        mom = _pad_to(cell_moments(fields[0], fields[1], fields[2], q, "bilinear"), mult)
-    else:  # padded before: the moments, the largest array, are not copied
-        half, sx, sy = _pad_to(torch.stack([s.half, s.sx, s.sy]), mult)
-        mom = cell_moments(half, sx, sy, _pad_to(s.q, mult), "box")
-    pos = _pad_to(torch.stack([s.x, s.y, s.z]), mult)
-    rad = _pad_to(cell_radius(s.half, s.sx, s.sy), mult)
-    return build_pyramid(pos, mom, rad, levels)
+    hp, wp = fields.shape[1] - 2, fields.shape[2] - 2
+    geo = fields[:, 1:-1, 1:-1]
+    pos0 = _pad_to(geo[:3], mult)
+    rad0 = _pad_to(cell_radius(geo[3], geo[4], geo[5]), mult)
+    hm, wm = pos0.shape[1:]
+    pos = [pos0] + [q.new_empty(3, hm >> lev, wm >> lev) for lev in range(1, levels + 1)]
+    mom: list[torch.Tensor | None] = [None]
+    mom += [q.new_empty(q.shape[0], _NMOM, hm >> lev, wm >> lev) for lev in range(1, levels + 1)]
+    rad = [rad0] + [q.new_empty(hm >> lev, wm >> lev) for lev in range(1, levels + 1)]
+    area = [q.new_zeros(hm, wm)]
+
+    def band(r0: int) -> None:
+        r1 = min(r0 + mult, hp)  # rows r0:r1 of the surface, zero-padded to mult rows
+        g = fields[3:6, r0 + 1 : r1 + 1, 1 : wp + 1]
+
+        def q_at(a: int, b: int) -> torch.Tensor:
+            return q[:, r0 + 1 - b : r1 + 1 - b, 1 + a : wp + 1 + a]
+
+        m = cell_moments(g[0], g[1], g[2], q_at, reconstruction)
+        m = torch.nn.functional.pad(m, (0, wm - wp, 0, mult - (r1 - r0)))
+        area[0][r0 : r0 + mult] = m[-1, 0]
+        p, r = pos0[:, r0 : r0 + mult], rad0[r0 : r0 + mult]
+        for lev in range(1, levels + 1):
+            p, m, r = _merge(p, m, r)
+            rows = slice(r0 >> lev, (r0 >> lev) + p.shape[1])
+            pos[lev][:, rows], mom[lev][:, :, rows], rad[lev][rows] = p, m, r  # type: ignore[index]
+
+    for _ in map_threads(band, range(0, hm, mult), workers):
+        pass
+    area += [m[-1, 0] for m in mom[1:]]  # type: ignore[index]
+    return Pyramid(pos, mom, area, rad, fields, q, reconstruction)
 
 
 def _graded_rule(ratio: float, order: int = 6) -> tuple[torch.Tensor, torch.Tensor]:
@@ -458,7 +497,7 @@ def _cuts(pyr: Pyramid, v: float, ratio: float) -> tuple[list[torch.Tensor], tor
     sub-patches of :func:`cell_patches` then have radius ≤ ``σ / ratio``, like the blocks."""
     sigma = math.sqrt(v)
     limit = sigma / ratio
-    usable = [(r <= limit) & (m[-1, 0] > 0) for r, m in zip(pyr.rad, pyr.mom, strict=True)]
+    usable = [(r <= limit) & (a > 0) for r, a in zip(pyr.rad, pyr.area, strict=True)]
     top = max([lev for lev, u in enumerate(usable) if bool(u.any())] or [0])
     cut = []
     for lev in range(top + 1):
@@ -466,7 +505,7 @@ def _cuts(pyr: Pyramid, v: float, ratio: float) -> tuple[list[torch.Tensor], tor
         if lev < top:
             c = c & ~usable[lev + 1].repeat_interleave(2, 0).repeat_interleave(2, 1)
         cut.append(c)
-    big = (pyr.rad[0] > limit) & (pyr.mom[0][-1, 0] > 0)
+    big = (pyr.rad[0] > limit) & (pyr.area[0] > 0)
     panels = torch.where(big, torch.ceil(pyr.rad[0] / (2 * limit)), 0).to(torch.int64)
     return cut, panels
 
@@ -519,7 +558,8 @@ def gather(
                 if progress is not None:
                     progress.update(n)
         return out
-    pyr = surface_pyramid(s, reconstruction, _levels(max(variances), ratio, hp, wp))
+    levels = _levels(max(variances), ratio, hp, wp)
+    pyr = surface_pyramid(fields, q, reconstruction, levels, workers)
     for gi, v in enumerate(variances):
         reach = math.sqrt(v) * math.sqrt(2 * math.log(1 / tols[gi]))
         side = max(tile, min(max(hp, wp), 1 << max(0, math.floor(math.log2(reach / 4)))))
@@ -694,11 +734,10 @@ def _sources(
     m_all = q.new_empty(order.numel(), q.shape[0], _NMOM)
     first = 0
     for lev, fl in enumerate(flat):
-        mom = pyr.mom[lev].flatten(2)
         for a in range(0, fl.numel(), 1 << 16):
             part = fl[a : a + (1 << 16)]
             dst = rank[first + a : first + a + part.numel()]
-            m_all.index_copy_(0, dst, mom[:, :, part].permute(2, 0, 1))
+            m_all.index_copy_(0, dst, pyr.moments(lev, part))
         first += fl.numel()
     for part in patch_mom:
         m_all.index_copy_(0, rank[first : first + part.shape[0]], part)
