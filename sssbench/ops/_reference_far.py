@@ -274,22 +274,53 @@ def far_field(
 class Surface:
     """The padded surface of one image, in the scaled length unit.
 
-    ``x, y, z, half, sx, sy`` are ``(Hp, Wp)`` (cell centre, half-size — 0 off the surface —
-    and depth slopes), ``q`` is ``(C, Hp, Wp)`` (irradiance channels times stencil, then the
-    stencil), ``pad`` the padding in pixels, ``foot`` the footprint of a pixel per unit depth
-    (``2 tan(fov_y/2) / H``) and ``u_max`` the largest ``|x| / z`` of a target.
+    ``fields`` ``(6 + C, Hp + 2, Wp + 2)``: x, y, z, half, slope_x, slope_y (cell centre,
+    half-size — 0 off the surface — and depth slopes), then ``q`` (irradiance channels times
+    stencil, then the stencil), with a one-pixel replicated border (the neighbours of the
+    bilinear reconstruction; :func:`with_border`); ``pad`` the padding in pixels, ``foot``
+    the footprint of a pixel per unit depth (``2 tan(fov_y/2) / H``) and ``u_max`` the
+    largest ``|x| / z`` of a target. ``x, y, z, half`` ``(Hp, Wp)`` and ``q`` ``(C, Hp, Wp)``
+    are views of the interior.
     """
 
-    x: torch.Tensor
-    y: torch.Tensor
-    z: torch.Tensor
-    half: torch.Tensor
-    sx: torch.Tensor
-    sy: torch.Tensor
-    q: torch.Tensor
+    fields: torch.Tensor
     pad: int
     foot: float
     u_max: float
+
+    @property
+    def x(self) -> torch.Tensor:
+        return self.fields[0, 1:-1, 1:-1]
+
+    @property
+    def y(self) -> torch.Tensor:
+        return self.fields[1, 1:-1, 1:-1]
+
+    @property
+    def z(self) -> torch.Tensor:
+        return self.fields[2, 1:-1, 1:-1]
+
+    @property
+    def half(self) -> torch.Tensor:
+        return self.fields[3, 1:-1, 1:-1]
+
+    @property
+    def q(self) -> torch.Tensor:
+        return self.fields[6:, 1:-1, 1:-1]
+
+
+def with_border(parts: list[torch.Tensor]) -> torch.Tensor:
+    """The ``(H, W)`` maps ``parts`` stacked ``(N, H + 2, W + 2)`` with a one-pixel border
+    replicating the edge (``pad(..., mode="replicate")`` without a second copy)."""
+    h, w = parts[0].shape
+    out = parts[0].new_empty(len(parts), h + 2, w + 2)
+    for i, t in enumerate(parts):
+        out[i, 1:-1, 1:-1] = t
+    out[:, 0, 1:-1] = out[:, 1, 1:-1]
+    out[:, -1, 1:-1] = out[:, -2, 1:-1]
+    out[:, :, 0] = out[:, :, 1]
+    out[:, :, -1] = out[:, :, -2]
+    return out
 
 
 def map_threads(fn: Callable[[_T], _R], items: Iterable[_T], workers: int) -> Iterator[_R]:
@@ -521,9 +552,10 @@ def gather(
     tile: int = 16,
     progress: object = None,
     workers: int = 1,
-) -> torch.Tensor:
-    """``∫ q G(v_g, |p − p_i|) dA`` at the targets (padded ``rows, cols``) for every Gaussian
-    ``g``, per channel of ``q``: ``(G, T, C)``.
+) -> Iterator[torch.Tensor]:
+    """``∫ q G(v_g, |p − p_i|) dA`` at the targets (padded ``rows, cols``) for each Gaussian
+    ``g`` in turn, per channel of ``q``: ``(T, C)`` per Gaussian (one at a time: the caller
+    folds each in before the next is computed).
 
     With ``ratio``: the moment expansion of the blocks of :func:`_cuts` and of the
     sub-patches of the cells too large to expand (steep or wide against σ,
@@ -538,14 +570,12 @@ def gather(
     much larger costs sources per target. The tiles of a Gaussian run on ``workers`` threads
     (:func:`map_threads`).
     """
-    out = torch.zeros(len(variances), rows.numel(), s.q.shape[0], dtype=s.z.dtype)
+    shape = (rows.numel(), s.q.shape[0])
     if rows.numel() == 0:
-        return out
+        yield from (s.z.new_zeros(shape) for _ in variances)
+        return
     hp, wp = s.z.shape
-    geo = torch.stack([s.x, s.y, s.z, s.half, s.sx, s.sy])[None]
-    fields = torch.nn.functional.pad(geo, (1, 1, 1, 1), mode="replicate")[0]
-    del geo
-    q = torch.nn.functional.pad(s.q[None], (1, 1, 1, 1), mode="replicate")[0]
+    fields, q = s.fields[:6], s.fields[6:]
     tgt = torch.stack([s.x[rows, cols], s.y[rows, cols], s.z[rows, cols]], 1)
     if ratio is None:
         h_max = float(s.half.max())
@@ -553,11 +583,13 @@ def gather(
             rule = _graded_rule(h_max / math.sqrt(v))
             reach = math.sqrt(v) * math.sqrt(2 * math.log(1 / tols[gi]))
             tiles = _tiles(s, rows, cols, tgt, tile, reach)
-            work = partial(_graded_tile, fields, q, tgt, rule, v, reconstruction, out[gi])
+            out = s.z.new_zeros(shape)
+            work = partial(_graded_tile, fields, q, tgt, rule, v, reconstruction, out)
             for n in map_threads(work, tiles, workers):
                 if progress is not None:
                     progress.update(n)
-        return out
+            yield out
+        return
     levels = _levels(max(variances), ratio, hp, wp)
     pyr = surface_pyramid(fields, q, reconstruction, levels, workers)
     for gi, v in enumerate(variances):
@@ -565,11 +597,12 @@ def gather(
         side = max(tile, min(max(hp, wp), 1 << max(0, math.floor(math.log2(reach / 4)))))
         src = _sources(pyr, *_cuts(pyr, v, ratio), fields, q, reconstruction, side)
         tiles = _tiles(s, rows, cols, tgt, side, reach)
-        for n in map_threads(partial(_moment_tile, src, tgt, v, reach, out[gi]), tiles, workers):
+        out = s.z.new_zeros(shape)
+        for n in map_threads(partial(_moment_tile, src, tgt, v, reach, out), tiles, workers):
             if progress is not None:
                 progress.update(n)
         del src  # before the next Gaussian's sources are made
-    return out
+        yield out
 
 
 def _graded_tile(

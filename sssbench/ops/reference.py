@@ -18,7 +18,7 @@ from tqdm.auto import tqdm
 
 from sssbench._checks import check_choice, check_scalar
 from sssbench.gbuffer import GBuffer, pixel_size_mm
-from sssbench.ops._reference_far import Surface, gather, map_threads
+from sssbench.ops._reference_far import Surface, gather, map_threads, with_border
 from sssbench.ops._reference_flat import flat_kernel
 from sssbench.ops.timing import timed_pass
 from sssbench.profiles.base import Profile, _gauss_legendre
@@ -241,7 +241,7 @@ def reference_sss(
       over σ where the irradiance or the surface jumps and exponentially small where they are
       smooth. Measured against a brute-force surface integral on a curved masked surface with a
       depth step and a shadow edge, kernel up to 37 px wide (tests/ops/test_reference_far.py): rel
-      RMS 1.5e-5 (box) and 1.7e-5 (bilinear) at ``FAR_RATIO`` 2, 1.7e-6 / 3.7e-6 at 3, 2.9e-4 at 1;
+      RMS 1.5e-5 (box) and 1.7e-5 (bilinear) at ``FAR_RATIO`` 2, 1.8e-6 / 3.7e-6 at 3, 2.9e-4 at 1;
       white-noise irradiance on a plane, one Gaussian, is the worst case measured: up to 1.5e-4 at
       2. Support: every surface cell of the image extended by ``k`` pixels (clamp-to-edge) within
       ``σ_g √(2 ln(1 / tol_g))`` in 3D, ``tol_g`` = ``tol`` over the Gaussian's largest share of a
@@ -411,23 +411,14 @@ def _multipole(
     n_far = sum(len(ids) for ids, _ in groups)
     bar = tqdm(total=e * n_far, desc="reference (moments)", unit="px·G", disable=not show)
     foot = 2 * math.tan(g.fov_y / 2) / h
-    surfaces = [
-        Surface(
-            f[0] / unit,
-            f[1] / unit,
-            f[2] / unit,
-            f[3] / unit,
-            f[4].clone(),
-            f[5].clone(),
-            torch.cat([f[7:10], f[6:7]]),
-            k,
-            foot,
-            float((torch.stack([f[0], f[1]]).abs() / f[2]).amax()),
-        )
-        for f in surf.fields
-    ]
-    del surf
-    for i, s in enumerate(surfaces):
+    for i in range(b):
+        f = surf.fields[i]
+        parts = [f[0] / unit, f[1] / unit, f[2] / unit, f[3] / unit, f[4], f[5], *f[7:10], f[6]]
+        u_max = float((torch.stack([f[0], f[1]]).abs() / f[2]).amax())
+        s = Surface(with_border(parts), k, foot, u_max)
+        del parts, f
+        if i == b - 1:
+            del surf  # the padded surface is not needed once its scaled copies exist
         sel = torch.nonzero(active // (h * w) == i).squeeze(1)
         rem = active[sel] % (h * w)
         rows, cols = rem // w + k, rem % w + k
@@ -437,15 +428,14 @@ def _multipole(
             # channel total of the profile
             share = [float((wts[j] / profile.total()).max()) for j in ids]
             tols = [min(0.5, tol / max(sh, tol)) for sh in share]
-            res = gather(
+            per_gaussian = gather(
                 s, rows, cols, v_g, tols, reconstruction, ratio, progress=bar, workers=workers
             )
-            wg = wts[ids]  # (G, 3)
             # elementwise, one Gaussian at a time (a matrix product's rounding may depend
             # on torch's thread count)
-            for gi in range(len(ids)):
-                acc[sel] += res[gi, :, :3] * wg[gi]
-                wsum[sel] += res[gi, :, 3:] * wg[gi]
+            for j, res in zip(ids, per_gaussian, strict=True):
+                acc[sel] += res[:, :3] * wts[j]
+                wsum[sel] += res[:, 3:] * wts[j]
     bar.close()
     return acc, wsum
 
