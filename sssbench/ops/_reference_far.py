@@ -200,26 +200,30 @@ def _merge(pos: torch.Tensor, mom: torch.Tensor, rad: torch.Tensor):
     return cen, out, radius
 
 
+#: the 3×3 quadrupole from its 6 components (row-major)
+_Q33 = [0, 3, 4, 3, 1, 5, 4, 5, 2]
+
+
 def _coefficients(p: torch.Tensor, mom: torch.Tensor, v: float) -> torch.Tensor:
     """Columns of the Taylor expansion for sources at ``p`` ``(S, 3)`` (relative to the tile
     origin) with moments ``mom`` ``(S, C, 10)``: ``(S, C · 10)`` such that the expansion at a
-    target ``x`` is ``Σ_S G · [α + x·β + Σ_kl x_k x_l γ_kl]`` (see module docstring)."""
-    m = mom[:, :, 0]
-    d = mom[:, :, 1:4]
-    qv = mom[:, :, 4:]
-    # Q P and Pᵀ Q P from the 6 components
-    qx = qv[..., 0] * p[:, None, 0] + qv[..., 3] * p[:, None, 1] + qv[..., 4] * p[:, None, 2]
-    qy = qv[..., 3] * p[:, None, 0] + qv[..., 1] * p[:, None, 1] + qv[..., 5] * p[:, None, 2]
-    qz = qv[..., 4] * p[:, None, 0] + qv[..., 5] * p[:, None, 1] + qv[..., 2] * p[:, None, 2]
-    qp = torch.stack([qx, qy, qz], -1)  # (S, C, 3)
-    pqp = (qp * p[:, None]).sum(-1)
-    trq = qv[..., 0] + qv[..., 1] + qv[..., 2]
-    pd = (d * p[:, None]).sum(-1)
-    alpha = m - pd / v + pqp / (2 * v * v) - trq / (2 * v)
-    beta = d / v - qp / (v * v)
-    gamma = qv / (2 * v * v)
-    gamma = torch.cat([gamma[..., :3], 2 * gamma[..., 3:]], -1)  # off-diagonals twice
-    return torch.cat([alpha[..., None], beta, gamma], -1).reshape(p.shape[0], -1)
+    target ``x`` is ``Σ_S G · [α + x·β + Σ_kl x_k x_l γ_kl]`` (see module docstring):
+    ``β = D/v − QP/v²``, ``α = M − P·(D/v − QP/2v²) − tr Q / 2v`` (``= M − P·D/v + PᵀQP/2v²
+    − tr Q/2v``), ``γ = Q / 2v²`` with the off-diagonal components twice (``x_k x_l`` appears
+    once per pair)."""
+    s, c = mom.shape[:2]
+    qv = mom[..., 4:]
+    qp = (qv[..., _Q33].view(s, c, 3, 3) * p[:, None, None, :]).sum(-1)  # (S, C, 3)
+    out = mom.new_empty(s, c, _NMOM)
+    dv = mom[..., 1:4] / v
+    qpv = qp / (v * v)
+    torch.sub(dv, qpv, out=out[..., 1:4])
+    half_step = torch.sub(dv, qpv, alpha=0.5)
+    alpha = mom[..., 0] - (half_step * p[:, None]).sum(-1)
+    torch.sub(alpha, qv[..., :3].sum(-1), alpha=0.5 / v, out=out[..., 0])
+    scale = torch.tensor([1.0, 1.0, 1.0, 2.0, 2.0, 2.0], dtype=mom.dtype) / (2 * v * v)
+    torch.mul(qv, scale, out=out[..., 4:])
+    return out.view(s, -1)
 
 
 def _monomials(x: torch.Tensor) -> torch.Tensor:
