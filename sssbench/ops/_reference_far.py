@@ -344,8 +344,11 @@ def map_threads(fn: Callable[[_T], _R], items: Iterable[_T], workers: int) -> It
         if workers <= 1:
             yield from map(fn, items)
         else:
-            with ThreadPoolExecutor(workers, thread_name_prefix="reference") as pool:
+            pool = ThreadPoolExecutor(workers, thread_name_prefix="reference")
+            try:
                 yield from pool.map(fn, items)
+            finally:  # on an error or an interrupt, the items not started are dropped
+                pool.shutdown(wait=True, cancel_futures=True)
     finally:
         torch.set_num_threads(prev)
 

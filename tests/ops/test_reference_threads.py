@@ -95,3 +95,19 @@ def test_sub_patch_moments_add_up_to_the_cell_moments(reconstruction, panels):
     np.testing.assert_allclose((got / scale).numpy(), (want / scale).numpy(), atol=1e-13)
     # the sub-patches tile the cell: their centres average to the cell's centre
     assert torch.allclose(pos.mean(0), f[:3, 1, 1], atol=1e-13)
+
+
+def test_map_threads_keeps_the_order_and_one_torch_thread_per_item(torch_threads):
+    torch_threads(2)
+    assert list(far.map_threads(lambda i: i * i, range(50), 3)) == [i * i for i in range(50)]
+    # every item runs with one intra-op thread: the same kernels whatever the worker count
+    assert set(far.map_threads(lambda _: torch.get_num_threads(), range(8), 2)) == {1}
+
+    def boom(i: int) -> int:
+        if i == 7:
+            raise RuntimeError("item 7")
+        return i
+
+    with pytest.raises(RuntimeError, match="item 7"):
+        list(far.map_threads(boom, range(20), 2))
+    assert torch.get_num_threads() == 2  # restored, also after an error
