@@ -602,7 +602,7 @@ def gather(
     for gi, v in enumerate(variances):
         reach = math.sqrt(v) * math.sqrt(2 * math.log(1 / tols[gi]))
         side = max(tile, min(max(hp, wp), 1 << max(0, math.floor(math.log2(reach / 4)))))
-        src = _sources(pyr, *_cuts(pyr, v, ratio), fields, q, reconstruction, side)
+        src = _sources(pyr, *_cuts(pyr, v, ratio), fields, q, reconstruction, side, workers)
         tiles = _tiles(s, rows, cols, tgt, side, reach)
         out = s.z.new_zeros(shape)
         for n in map_threads(partial(_moment_tile, src, tgt, v, reach, out), tiles, workers):
@@ -727,10 +727,12 @@ def _sources(
     q: torch.Tensor,
     reconstruction: str,
     side: int,
+    workers: int = 1,
 ) -> _Sources:
     """The blocks of ``cut`` and the sub-patches of the cells too large to expand
     (:func:`cell_patches`, ``panels`` per quadrant and axis) as :class:`_Sources` (``fields``,
-    ``q``: the padded surface with a one-pixel border, as :func:`cell_nodes` takes it)."""
+    ``q``: the padded surface with a one-pixel border, as :func:`cell_nodes` takes it; the
+    sub-patches are made on ``workers`` threads)."""
     hp, wp = fields.shape[-2] - 2, fields.shape[-1] - 2
     nrows, ncols = (hp + side - 1) // side, (wp + side - 1) // side
     pos, rad = [q.new_zeros(0, 3)], [q.new_zeros(0)]
@@ -743,24 +745,21 @@ def _sources(
         pix.append(idx * b + b // 2)
         flat.append(idx[:, 0] * c.shape[1] + idx[:, 1])
     margin = max([1 << lev for lev, c in enumerate(cut) if bool(c.any())] or [1])
-    patch_mom = []
     panels = panels[:hp, :wp]
     big = torch.nonzero(panels > 0)
     per_cell = panels[big[:, 0], big[:, 1]]
+    batches = []  # (panels, cells) with at most _PATCH_NODES quadrature nodes each
     for m in torch.unique(per_cell).tolist():
         cells = big[per_cell == m]
         step = max(1, _PATCH_NODES // (16 * m * m))
-        for a in range(0, cells.shape[0], step):
-            r, c = cells[a : a + step].unbind(1)
-            p_, m_ = cell_patches(fields, q, r, c, m, reconstruction)
-            pos.append(p_)
-            patch_mom.append(m_)
-            hh, sx, sy = fields[3:6, r + 1, c + 1]
-            one = cell_radius(hh / (2 * m), sx, sy)
-            rad.append(one[None, :, None, None].expand(4, -1, m, m).reshape(-1))
-            pix.append(
-                cells[a : a + step][None, :, None, None].expand(4, -1, m, m, 2).reshape(-1, 2)
-            )
+        batches += [(m, cells[a : a + step]) for a in range(0, cells.shape[0], step)]
+    work = partial(_patch_batch, fields, q, reconstruction)
+    patch_mom = []
+    for p_, m_, r_, x_ in map_threads(work, batches, workers):
+        pos.append(p_)
+        patch_mom.append(m_)
+        rad.append(r_)
+        pix.append(x_)
     pix_all = torch.cat(pix)
     bucket = (pix_all[:, 0] // side).clamp_max(nrows - 1) * ncols
     bucket += (pix_all[:, 1] // side).clamp_max(ncols - 1)
@@ -783,6 +782,20 @@ def _sources(
         m_all.index_copy_(0, rank[first : first + part.shape[0]], part)
         first += part.shape[0]
     return _Sources(p_all, m_all, r_all, start, ncols, nrows, side, margin)
+
+
+def _patch_batch(
+    fields: torch.Tensor, q: torch.Tensor, reconstruction: str, item: tuple[int, torch.Tensor]
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """:func:`cell_patches` of the cells ``(N, 2)`` of ``item = (panels, cells)`` with their
+    ball radii ``(S,)`` and pixels ``(S, 2)`` (each sub-patch lies in its cell's pixel)."""
+    m, cells = item
+    r, c = cells.unbind(1)
+    pos, mom = cell_patches(fields, q, r, c, m, reconstruction)
+    hh, sx, sy = fields[3:6, r + 1, c + 1]
+    rad = cell_radius(hh / (2 * m), sx, sy)[None, :, None, None].expand(4, -1, m, m)
+    pix = cells[None, :, None, None].expand(4, -1, m, m, 2)
+    return pos, mom, rad.reshape(-1), pix.reshape(-1, 2)
 
 
 def _levels(v_max: float, ratio: float, hp: int, wp: int) -> int:
