@@ -283,8 +283,7 @@ class Surface:
     stencil, then the stencil), with a one-pixel replicated border (the neighbours of the
     bilinear reconstruction; :func:`with_border`); ``pad`` the padding in pixels, ``foot``
     the footprint of a pixel per unit depth (``2 tan(fov_y/2) / H``) and ``u_max`` the
-    largest ``|x| / z`` of a target. ``x, y, z, half`` ``(Hp, Wp)`` and ``q`` ``(C, Hp, Wp)``
-    are views of the interior.
+    largest ``|x| / z`` of a target.
     """
 
     fields: torch.Tensor
@@ -293,24 +292,9 @@ class Surface:
     u_max: float
 
     @property
-    def x(self) -> torch.Tensor:
-        return self.fields[0, 1:-1, 1:-1]
-
-    @property
-    def y(self) -> torch.Tensor:
-        return self.fields[1, 1:-1, 1:-1]
-
-    @property
-    def z(self) -> torch.Tensor:
-        return self.fields[2, 1:-1, 1:-1]
-
-    @property
-    def half(self) -> torch.Tensor:
-        return self.fields[3, 1:-1, 1:-1]
-
-    @property
-    def q(self) -> torch.Tensor:
-        return self.fields[6:, 1:-1, 1:-1]
+    def inner(self) -> torch.Tensor:
+        """``(6 + C, Hp, Wp)``: the fields without the border (a view)."""
+        return self.fields[:, 1:-1, 1:-1]
 
 
 def with_border(parts: list[torch.Tensor]) -> torch.Tensor:
@@ -522,7 +506,7 @@ def _window_px(s: Surface, reach: float, zmin: float) -> float:
     (``u_t = x_t / z_t``), and ``|Δx|² + Δz² ≤ R²`` needs ``d · foot · z_b ≤ R √(1 + u_t²)``
     (Cauchy–Schwarz), with ``z_b ≥ z_t − R``.
     """
-    hp, wp = s.z.shape
+    hp, wp = s.inner.shape[1:]
     if zmin - reach > 0:
         return reach * math.sqrt(1 + s.u_max**2) / (s.foot * (zmin - reach)) + 1
     return float(max(hp, wp))
@@ -577,20 +561,20 @@ def gather(
     much larger costs sources per target. The tiles of a Gaussian run on ``workers`` threads
     (:func:`map_threads`).
     """
-    shape = (rows.numel(), s.q.shape[0])
+    shape = (rows.numel(), s.fields.shape[0] - 6)
     if rows.numel() == 0:
-        yield from (s.z.new_zeros(shape) for _ in variances)
+        yield from (s.fields.new_zeros(shape) for _ in variances)
         return
-    hp, wp = s.z.shape
+    hp, wp = s.inner.shape[1:]
     fields, q = s.fields[:6], s.fields[6:]
-    tgt = torch.stack([s.x[rows, cols], s.y[rows, cols], s.z[rows, cols]], 1)
+    tgt = s.inner[:3, rows, cols].t().contiguous()  # (T, 3) x, y, z
     if ratio is None:
-        h_max = float(s.half.max())
+        h_max = float(s.inner[3].max())
         for gi, v in enumerate(variances):
             rule = _graded_rule(h_max / math.sqrt(v))
             reach = math.sqrt(v) * math.sqrt(2 * math.log(1 / tols[gi]))
             tiles = _tiles(s, rows, cols, tgt, tile, reach)
-            out = s.z.new_zeros(shape)
+            out = s.fields.new_zeros(shape)
             work = partial(_graded_tile, fields, q, tgt, rule, v, reconstruction, out)
             for n in map_threads(work, tiles, workers):
                 if progress is not None:
@@ -604,7 +588,7 @@ def gather(
         side = max(tile, min(max(hp, wp), 1 << max(0, math.floor(math.log2(reach / 4)))))
         src = _sources(pyr, *_cuts(pyr, v, ratio), fields, q, reconstruction, side, workers)
         tiles = _tiles(s, rows, cols, tgt, side, reach)
-        out = s.z.new_zeros(shape)
+        out = s.fields.new_zeros(shape)
         for n in map_threads(partial(_moment_tile, src, tgt, v, reach, out), tiles, workers):
             if progress is not None:
                 progress.update(n)
@@ -657,7 +641,7 @@ def _tiles(
 ):
     """The targets by tiles of ``tile²`` pixels: per tile the target indices and the pixel
     window ``(ra, rb, ca, cb)`` (rows ``ra:rb``, cols ``ca:cb``) of :func:`_window_px`."""
-    hp, wp = s.z.shape
+    hp, wp = s.inner.shape[1:]
     ntc = (wp + tile - 1) // tile
     tid = (rows // tile) * ntc + cols // tile
     order = torch.argsort(tid, stable=True)
