@@ -18,15 +18,19 @@ the *moments* of ``q dA`` instead of cell by cell:
   ``q`` the sum is moreover a midpoint rule of a smooth integrand, whose error decays like
   ``exp(−2π² σ² / b²)`` (Poisson summation), so the error sits at discontinuities of ``q``
   (measured in the tests against a brute-force surface integral).
-- Per Gaussian, the blocks of its cut and the Gauss–Legendre nodes of the cells too large to
-  expand (point masses: moments ``M`` only) are listed once as sources, bucketed by squares
-  of pixels (:func:`_sources`); per tile of targets (about a quarter of the Gaussian's reach
-  wide, at least 16 pixels) the sources of the buckets under its window are dense: the
-  exponents of all (target, source) pairs are one matrix product, the Taylor terms a second
-  one (the polynomial in the target position is expanded about a tile origin, so both
-  products are small matrices). Selecting the blocks per tile and Gaussian from the
-  pyramid's levels instead was ~20× slower than the arithmetic on a 480×270 face close-up
-  (skin_deon6, 0.07 mm per pixel; measured).
+- Cells too large to expand for a Gaussian (steep or wide against σ) are split into
+  sub-patches of radius ≤ ``σ / ratio`` whose moments are exact (:func:`cell_patches`), so
+  they are expanded like the blocks. (Gauss–Legendre points on those cells, 12× as many
+  sources on the 1080p face close-up with skin_deon6, took 44% of the time on a 960×540
+  crop of it; measured. The error against the brute-force surface integral did not change
+  in the tests: 4.8e-6 on the steep close-up, 1.5e-5 / 1.7e-5 on the curved surface.)
+- Per Gaussian, the blocks of its cut and the sub-patches are listed once as sources, bucketed by
+  squares of pixels (:func:`_sources`); per tile of targets (about a quarter of the Gaussian's reach
+  wide, at least 16 pixels) the sources of the buckets under its window are dense: the exponents of
+  all (target, source) pairs are one matrix product, the Taylor terms a second one (the polynomial
+  in the target position is expanded about a tile origin, so both products are small matrices).
+  Selecting the blocks per tile and Gaussian from the pyramid's levels instead was ~20× slower than
+  the arithmetic on a 480×270 face close-up (skin_deon6, 0.07 mm per pixel; measured).
 
 All lengths are divided by a unit ``L`` (a pixel footprint) first, so the weights
 ``area · G`` are dimensionless and the same at every scale of the scene.
@@ -35,19 +39,28 @@ All lengths are divided by a unit ``L`` (a pixel footprint) first, so the weight
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from functools import partial
+from typing import TypeVar
 
 import numpy as np
 import torch
 
 from sssbench.profiles.base import _gauss_legendre
 
-__all__ = ["Pyramid", "build_pyramid", "cell_moments", "far_field"]
+__all__ = ["Pyramid", "cell_moments", "far_field", "map_threads", "surface_pyramid"]
+
+_T = TypeVar("_T")
+_R = TypeVar("_R")
 
 #: per-channel moment layout: M, D (x, y, z), Q (xx, yy, zz, xy, xz, yz)
 _NMOM = 10
 #: quadrupole components (k, l) in the order of the layout
 _QPAIRS = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
+#: quadrature nodes per batch of :func:`cell_patches` in :func:`_sources` (bounds its memory)
+_PATCH_NODES = 1 << 18
 
 
 def _tangent_products(sx: torch.Tensor, sy: torch.Tensor) -> tuple[torch.Tensor, ...]:
@@ -73,49 +86,45 @@ def cell_moments(
     half: torch.Tensor,
     sx: torch.Tensor,
     sy: torch.Tensor,
-    q: torch.Tensor,
+    q_at: Callable[[int, int], torch.Tensor],
     reconstruction: str,
 ) -> torch.Tensor:
-    """Moments of ``q dA`` over every cell patch about its centre, ``(C, 10, H, W)``.
+    """Moments of ``q dA`` over cell patches about their centres, ``(C, 10, *half.shape)``.
 
     Args:
-        half: ``(H, W)`` half-size of each cell's lateral square (0 off the surface).
-        sx, sy: ``(H, W)`` depth slopes of the patch.
-        q: ``(C, H, W)`` values at the pixel centres (zero off the surface).
-        reconstruction: ``"box"`` (``q`` constant over the cell) or ``"bilinear"`` (``q``
-            interpolated between the centres of the cell and its neighbours, which needs a
-            one-pixel border: the result then is ``(C, 10, H − 2, W − 2)`` of the interior).
+        half: half-size of each cell's lateral square (0 off the surface), any shape ``S``.
+        sx, sy: depth slopes of the patches, shape ``S``.
+        q_at: ``q_at(a, b)`` the values ``(C, *S)`` at the centres of the cells' neighbours at
+            column offset ``a`` and row offset ``−b`` (zero off the surface): ``"box"`` reads
+            only ``q_at(0, 0)`` (``q`` constant over the cell), ``"bilinear"`` the 3×3
+            neighbourhood (``q`` interpolated between the centres).
+        reconstruction: ``"box"`` or ``"bilinear"``.
 
     The patch is ``c + s t_x + t t_y`` with ``|s|, |t| ≤ h``, area element
     ``A = √(1 + s_x² + s_y²)``, so ``∫ f dA = A ∫∫ f ds dt`` and every moment is a product of
     one-dimensional integrals (:func:`_hat_moments` for the bilinear weights).
     """
     area_el = torch.sqrt(1 + sx * sx + sy * sy)
-    txx, tyy, txy = _tangent_products(sx, sy)
+    q0 = q_at(0, 0)
+    out = q0.new_zeros(q0.shape[0], _NMOM, *half.shape)
     if reconstruction == "box":
-        out = torch.zeros(q.shape[0], _NMOM, *q.shape[1:], dtype=q.dtype)
-        torch.mul(q, 4 * half * half * area_el, out=out[:, 0])
-        torch.mul(out[:, :1], ((half * half / 3.0) * (txx + tyy))[None], out=out[:, 4:])
+        # Q = M h²/3 (t_x t_xᵀ + t_y t_yᵀ): xx, yy, zz, xy, xz, yz = 1, 1, s_x² + s_y², 0, s_x, s_y
+        mass = torch.mul(q0, 4 * half * half * area_el, out=out[:, 0])
+        hq = half * half / 3.0
+        for j, f in ((0, hq), (1, hq), (2, hq * (sx * sx + sy * sy)), (4, hq * sx), (5, hq * sy)):
+            torch.mul(mass, f, out=out[:, 4 + j])
         return out
-    h, w = half.shape
-    inner = (slice(1, h - 1), slice(1, w - 1))
-    hh, ae = half[inner], area_el[inner]
-    txx, tyy, txy = (
-        txx[(slice(None), *inner)],
-        tyy[(slice(None), *inner)],
-        txy[(slice(None),) + inner],
-    )
-    out = torch.zeros(q.shape[0], _NMOM, h - 2, w - 2, dtype=q.dtype)
-    # s runs along +x (columns), t along +y (rows upward): the t-neighbour a is row −a
+    txx, tyy, txy = _tangent_products(sx, sy)
+    # s runs along +x (columns), t along +y (rows upward): the t-neighbour b is row −b
     for a in (-1, 0, 1):
-        i0a, i1a, i2a = _hat_moments(hh, a)
+        i0a, i1a, i2a = _hat_moments(half, a)
         for b in (-1, 0, 1):
-            i0b, i1b, i2b = _hat_moments(hh, b)
-            qn = q[:, 1 - b : h - 1 - b, 1 + a : w - 1 + a] * ae
+            i0b, i1b, i2b = _hat_moments(half, b)
+            qn = q_at(a, b) * area_el
             out[:, 0] += qn * (i0a * i0b)
             out[:, 1] += qn * (i1a * i0b)  # D = A ∫∫ q (s t_x + t t_y)
             out[:, 2] += qn * (i0a * i1b)
-            out[:, 3] += qn * (i1a * i0b * sx[inner] + i0a * i1b * sy[inner])
+            out[:, 3] += qn * (i1a * i0b * sx + i0a * i1b * sy)
             quad = i2a * i0b * txx + i0a * i2b * tyy + i1a * i1b * txy
             out[:, 4:] += qn[:, None] * quad[None]
     return out
@@ -126,15 +135,42 @@ def cell_radius(half: torch.Tensor, sx: torch.Tensor, sy: torch.Tensor) -> torch
     return half * torch.sqrt(2 + (sx.abs() + sy.abs()) ** 2)
 
 
+def cells_at(
+    f: torch.Tensor, q: torch.Tensor, rows: torch.Tensor, cols: torch.Tensor, reconstruction: str
+) -> torch.Tensor:
+    """:func:`cell_moments` of the cells at interior ``rows``, ``cols`` ``(N,)`` of the surface
+    ``f`` ``(6, h, w)`` (x, y, z, half, slope_x, slope_y), ``q`` ``(C, h, w)`` with a
+    one-pixel border: ``(N, C, 10)``."""
+    r, c = rows + 1, cols + 1
+    half, sx, sy = f[3:6, r, c]
+    mom = cell_moments(half, sx, sy, lambda a, b: q[:, r - b, c + a], reconstruction)
+    return mom.permute(2, 0, 1)
+
+
 @dataclass
 class Pyramid:
     """Block moments per level: ``pos[l]`` ``(3, H_l, W_l)`` expansion centres, ``mom[l]``
-    ``(C, 10, H_l, W_l)`` moments about them, ``rad[l]`` ``(H_l, W_l)`` bounding radii (0 for an
-    empty block); level ``l`` blocks are ``2^l`` pixels wide."""
+    ``(C, 10, H_l, W_l)`` moments about them for ``l ≥ 1``, ``area[l]`` ``(H_l, W_l)`` the
+    stencil's area (the last channel's mass), ``rad[l]`` ``(H_l, W_l)`` bounding radii (0 for
+    an empty block); level ``l`` blocks are ``2^l`` pixels wide. The cells' own moments
+    (level 0, the largest array) are not kept: :meth:`moments` computes those asked for from
+    the surface ``fields``, ``q`` (with a one-pixel border, as :func:`cells_at` takes it)."""
 
     pos: list[torch.Tensor]
-    mom: list[torch.Tensor]
+    mom: list[torch.Tensor | None]
+    area: list[torch.Tensor]
     rad: list[torch.Tensor]
+    fields: torch.Tensor
+    q: torch.Tensor
+    reconstruction: str
+
+    def moments(self, lev: int, flat: torch.Tensor) -> torch.Tensor:
+        """Moments ``(N, C, 10)`` of the level-``lev`` blocks at flat indices ``flat``."""
+        mom = self.mom[lev]
+        if mom is None:
+            w = self.area[0].shape[1]
+            return cells_at(self.fields, self.q, flat // w, flat % w, self.reconstruction)
+        return mom.flatten(2)[:, :, flat].permute(2, 0, 1)
 
 
 def _merge(pos: torch.Tensor, mom: torch.Tensor, rad: torch.Tensor):
@@ -164,37 +200,30 @@ def _merge(pos: torch.Tensor, mom: torch.Tensor, rad: torch.Tensor):
     return cen, out, radius
 
 
-def build_pyramid(pos: torch.Tensor, mom: torch.Tensor, rad: torch.Tensor, levels: int) -> Pyramid:
-    """Levels 0..``levels`` of block moments; H and W must be multiples of ``2^levels``."""
-    pyr = Pyramid([pos], [mom], [rad])
-    for _ in range(levels):
-        cen, m, r = _merge(pyr.pos[-1], pyr.mom[-1], pyr.rad[-1])
-        pyr.pos.append(cen)
-        pyr.mom.append(m)
-        pyr.rad.append(r)
-    return pyr
+#: the 3×3 quadrupole from its 6 components (row-major)
+_Q33 = [0, 3, 4, 3, 1, 5, 4, 5, 2]
 
 
 def _coefficients(p: torch.Tensor, mom: torch.Tensor, v: float) -> torch.Tensor:
     """Columns of the Taylor expansion for sources at ``p`` ``(S, 3)`` (relative to the tile
     origin) with moments ``mom`` ``(S, C, 10)``: ``(S, C · 10)`` such that the expansion at a
-    target ``x`` is ``Σ_S G · [α + x·β + Σ_kl x_k x_l γ_kl]`` (see module docstring)."""
-    m = mom[:, :, 0]
-    d = mom[:, :, 1:4]
-    qv = mom[:, :, 4:]
-    # Q P and Pᵀ Q P from the 6 components
-    qx = qv[..., 0] * p[:, None, 0] + qv[..., 3] * p[:, None, 1] + qv[..., 4] * p[:, None, 2]
-    qy = qv[..., 3] * p[:, None, 0] + qv[..., 1] * p[:, None, 1] + qv[..., 5] * p[:, None, 2]
-    qz = qv[..., 4] * p[:, None, 0] + qv[..., 5] * p[:, None, 1] + qv[..., 2] * p[:, None, 2]
-    qp = torch.stack([qx, qy, qz], -1)  # (S, C, 3)
-    pqp = (qp * p[:, None]).sum(-1)
-    trq = qv[..., 0] + qv[..., 1] + qv[..., 2]
-    pd = (d * p[:, None]).sum(-1)
-    alpha = m - pd / v + pqp / (2 * v * v) - trq / (2 * v)
-    beta = d / v - qp / (v * v)
-    gamma = qv / (2 * v * v)
-    gamma = torch.cat([gamma[..., :3], 2 * gamma[..., 3:]], -1)  # off-diagonals twice
-    return torch.cat([alpha[..., None], beta, gamma], -1).reshape(p.shape[0], -1)
+    target ``x`` is ``Σ_S G · [α + x·β + Σ_kl x_k x_l γ_kl]`` (see module docstring):
+    ``β = D/v − QP/v²``, ``α = M − P·(D/v − QP/2v²) − tr Q / 2v`` (``= M − P·D/v + PᵀQP/2v²
+    − tr Q/2v``), ``γ = Q / 2v²`` with the off-diagonal components twice (``x_k x_l`` appears
+    once per pair)."""
+    s, c = mom.shape[:2]
+    qv = mom[..., 4:]
+    qp = (qv[..., _Q33].view(s, c, 3, 3) * p[:, None, None, :]).sum(-1)  # (S, C, 3)
+    out = mom.new_empty(s, c, _NMOM)
+    dv = mom[..., 1:4] / v
+    qpv = qp / (v * v)
+    torch.sub(dv, qpv, out=out[..., 1:4])
+    half_step = torch.sub(dv, qpv, alpha=0.5)
+    alpha = mom[..., 0] - (half_step * p[:, None]).sum(-1)
+    torch.sub(alpha, qv[..., :3].sum(-1), alpha=0.5 / v, out=out[..., 0])
+    scale = torch.tensor([1.0, 1.0, 1.0, 2.0, 2.0, 2.0], dtype=mom.dtype) / (2 * v * v)
+    torch.mul(qv, scale, out=out[..., 4:])
+    return out.view(s, -1)
 
 
 def _monomials(x: torch.Tensor) -> torch.Tensor:
@@ -249,22 +278,63 @@ def far_field(
 class Surface:
     """The padded surface of one image, in the scaled length unit.
 
-    ``x, y, z, half, sx, sy`` are ``(Hp, Wp)`` (cell centre, half-size — 0 off the surface —
-    and depth slopes), ``q`` is ``(C, Hp, Wp)`` (irradiance channels times stencil, then the
-    stencil), ``pad`` the padding in pixels, ``foot`` the footprint of a pixel per unit depth
-    (``2 tan(fov_y/2) / H``) and ``u_max`` the largest ``|x| / z`` of a target.
+    ``fields`` ``(6 + C, Hp + 2, Wp + 2)``: x, y, z, half, slope_x, slope_y (cell centre,
+    half-size — 0 off the surface — and depth slopes), then ``q`` (irradiance channels times
+    stencil, then the stencil), with a one-pixel replicated border (the neighbours of the
+    bilinear reconstruction; :func:`with_border`); ``pad`` the padding in pixels, ``foot``
+    the footprint of a pixel per unit depth (``2 tan(fov_y/2) / H``) and ``u_max`` the
+    largest ``|x| / z`` of a target.
     """
 
-    x: torch.Tensor
-    y: torch.Tensor
-    z: torch.Tensor
-    half: torch.Tensor
-    sx: torch.Tensor
-    sy: torch.Tensor
-    q: torch.Tensor
+    fields: torch.Tensor
     pad: int
     foot: float
     u_max: float
+
+    @property
+    def inner(self) -> torch.Tensor:
+        """``(6 + C, Hp, Wp)``: the fields without the border (a view)."""
+        return self.fields[:, 1:-1, 1:-1]
+
+
+def with_border(parts: list[torch.Tensor]) -> torch.Tensor:
+    """The ``(H, W)`` maps ``parts`` stacked ``(N, H + 2, W + 2)`` with a one-pixel border
+    replicating the edge (``pad(..., mode="replicate")`` without a second copy)."""
+    h, w = parts[0].shape
+    out = parts[0].new_empty(len(parts), h + 2, w + 2)
+    for i, t in enumerate(parts):
+        out[i, 1:-1, 1:-1] = t
+    out[:, 0, 1:-1] = out[:, 1, 1:-1]
+    out[:, -1, 1:-1] = out[:, -2, 1:-1]
+    out[:, :, 0] = out[:, :, 1]
+    out[:, :, -1] = out[:, :, -2]
+    return out
+
+
+def map_threads(fn: Callable[[_T], _R], items: Iterable[_T], workers: int) -> Iterator[_R]:
+    """``fn`` over ``items`` on ``workers`` Python threads, the results in the items' order.
+
+    The work items of the reference (tiles of targets, chunks of centres) are many small
+    tensor operations: torch's intra-op threads barely speed them up (measured: 2 threads
+    doubled the CPU time for the same wall time), while independent items on separate
+    Python threads do (torch releases the GIL inside its kernels). While the map runs, torch
+    uses one intra-op thread (restored after), so every item is computed by the same
+    sequence of single-threaded kernels whatever ``workers`` is: the result does not depend
+    on the number of threads. ``fn`` must write only its own outputs (no shared
+    accumulator)."""
+    prev = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        if workers <= 1:
+            yield from map(fn, items)
+        else:
+            pool = ThreadPoolExecutor(workers, thread_name_prefix="reference")
+            try:
+                yield from pool.map(fn, items)
+            finally:  # on an error or an interrupt, the items not started are dropped
+                pool.shutdown(wait=True, cancel_futures=True)
+    finally:
+        torch.set_num_threads(prev)
 
 
 def _pad_to(t: torch.Tensor, mult: int) -> torch.Tensor:
@@ -273,21 +343,48 @@ def _pad_to(t: torch.Tensor, mult: int) -> torch.Tensor:
     return torch.nn.functional.pad(t, (0, (-w) % mult, 0, (-h) % mult))
 
 
-def surface_pyramid(s: Surface, reconstruction: str, levels: int) -> Pyramid:
-    """:func:`cell_moments` of the surface merged up to ``levels`` (the image zero-padded to
-    multiples of ``2^levels``: cells of size 0, no moments)."""
+def surface_pyramid(
+    fields: torch.Tensor, q: torch.Tensor, reconstruction: str, levels: int, workers: int = 1
+) -> Pyramid:
+    """:func:`cell_moments` of the surface ``fields`` ``(6, Hp + 2, Wp + 2)``, ``q``
+    ``(C, Hp + 2, Wp + 2)`` (one-pixel border) merged up to ``levels`` (the image zero-padded
+    to multiples of ``2^levels``: cells of size 0, no moments).
+
+    Built by bands of ``2^levels`` rows on ``workers`` threads (:func:`map_threads`): a
+    band's cell moments are merged up and dropped, so level 0's moments (the largest array)
+    never exist whole."""
     mult = 1 << levels
-    if reconstruction == "bilinear":
-        fields = torch.stack([s.half, s.sx, s.sy])
-        fields = torch.nn.functional.pad(fields[None], (1, 1, 1, 1), mode="replicate")[0]
-        q = torch.nn.functional.pad(s.q[None], (1, 1, 1, 1), mode="replicate")[0]
-        mom = _pad_to(cell_moments(fields[0], fields[1], fields[2], q, "bilinear"), mult)
-    else:  # padded before: the moments, the largest array, are not copied
-        half, sx, sy = _pad_to(torch.stack([s.half, s.sx, s.sy]), mult)
-        mom = cell_moments(half, sx, sy, _pad_to(s.q, mult), "box")
-    pos = _pad_to(torch.stack([s.x, s.y, s.z]), mult)
-    rad = _pad_to(cell_radius(s.half, s.sx, s.sy), mult)
-    return build_pyramid(pos, mom, rad, levels)
+    hp, wp = fields.shape[1] - 2, fields.shape[2] - 2
+    geo = fields[:, 1:-1, 1:-1]
+    pos0 = _pad_to(geo[:3], mult)
+    rad0 = _pad_to(cell_radius(geo[3], geo[4], geo[5]), mult)
+    hm, wm = pos0.shape[1:]
+    pos = [pos0] + [q.new_empty(3, hm >> lev, wm >> lev) for lev in range(1, levels + 1)]
+    mom: list[torch.Tensor | None] = [None]
+    mom += [q.new_empty(q.shape[0], _NMOM, hm >> lev, wm >> lev) for lev in range(1, levels + 1)]
+    rad = [rad0] + [q.new_empty(hm >> lev, wm >> lev) for lev in range(1, levels + 1)]
+    area = [q.new_zeros(hm, wm)]
+
+    def band(r0: int) -> None:
+        r1 = min(r0 + mult, hp)  # rows r0:r1 of the surface, zero-padded to mult rows
+        g = fields[3:6, r0 + 1 : r1 + 1, 1 : wp + 1]
+
+        def q_at(a: int, b: int) -> torch.Tensor:
+            return q[:, r0 + 1 - b : r1 + 1 - b, 1 + a : wp + 1 + a]
+
+        m = cell_moments(g[0], g[1], g[2], q_at, reconstruction)
+        m = torch.nn.functional.pad(m, (0, wm - wp, 0, mult - (r1 - r0)))
+        area[0][r0 : r0 + mult] = m[-1, 0]
+        p, r = pos0[:, r0 : r0 + mult], rad0[r0 : r0 + mult]
+        for lev in range(1, levels + 1):
+            p, m, r = _merge(p, m, r)
+            rows = slice(r0 >> lev, (r0 >> lev) + p.shape[1])
+            pos[lev][:, rows], mom[lev][:, :, rows], rad[lev][rows] = p, m, r  # type: ignore[index]
+
+    for _ in map_threads(band, range(0, hm, mult), workers):
+        pass
+    area += [m[-1, 0] for m in mom[1:]]  # type: ignore[index]
+    return Pyramid(pos, mom, area, rad, fields, q, reconstruction)
 
 
 def _graded_rule(ratio: float, order: int = 6) -> tuple[torch.Tensor, torch.Tensor]:
@@ -313,12 +410,6 @@ def point_field(
 ) -> torch.Tensor:
     """``Σ_S mass_S G(v, |p_S − x|)`` ``(T, C)`` for point masses ``(S, C)``."""
     return (_gaussian_matrix(targets, sources, v)[2] @ mass) / (2 * math.pi * v)
-
-
-def _gl01(order: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """Gauss–Legendre nodes and weights on ``[0, 1]``."""
-    x, w = _gauss_legendre(order)
-    return torch.from_numpy((x + 1) / 2), torch.from_numpy(w / 2)
 
 
 def cell_nodes(
@@ -370,6 +461,43 @@ def cell_nodes(
     return torch.cat(pts), torch.cat(mass)
 
 
+def cell_patches(
+    f: torch.Tensor,
+    q: torch.Tensor,
+    rows: torch.Tensor,
+    cols: torch.Tensor,
+    panels: int,
+    reconstruction: str,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Each selected cell split into ``2·panels × 2·panels`` sub-patches (``panels`` per
+    quadrant and axis), as expansion centres ``(S, 3)`` and moments ``(S, C, 10)`` of the
+    reconstructed ``q dA`` about them (the layout of :func:`cell_moments`).
+
+    ``f``, ``q``: the surface with a one-pixel border as :func:`cell_nodes` takes it,
+    ``rows``, ``cols`` ``(N,)`` interior indices; sub-patches are ordered (quadrant, cell,
+    panel along s, panel along t). On a sub-patch the integrand of every moment is, along
+    each patch axis, the reconstruction's weight (constant or linear: a quadrant never
+    straddles the hat's kink) times a polynomial of degree ≤ 2 in the position (the patch
+    is planar), so the 2-point Gauss–Legendre rule per panel and axis (:func:`cell_nodes`)
+    gives the moments exactly (to rounding); the centre is the mean of the panel's four
+    nodes (the panel's centre: the rule is symmetric and the patch affine).
+    """
+    x, w = _gauss_legendre(2)
+    centres = (np.arange(panels) + 0.5) / panels
+    u = torch.from_numpy((centres[:, None] + x[None, :] / (2 * panels)).ravel())
+    wu = torch.from_numpy(np.tile(w / (2 * panels), panels))
+    pts, mass = cell_nodes(f, q, (rows, cols), u, wu, reconstruction)
+    n, m, c = rows.numel(), panels, q.shape[0]
+    pts = pts.view(4, n, m, 2, m, 2, 3)
+    mass = mass.view(4, n, m, 2, m, 2, c)
+    cen = pts.mean((3, 5), keepdim=True)
+    d = (pts - cen)[..., None, :]  # (4, n, m, 2, m, 2, 1, 3)
+    mw = mass[..., None]  # (..., C, 1)
+    quad = torch.stack([d[..., k] * d[..., l] for k, l in _QPAIRS], -1)
+    mom = torch.cat([mw, mw * d, mw * quad], -1).sum((3, 5))  # (4, n, m, m, C, 10)
+    return cen.reshape(-1, 3), mom.reshape(-1, c, _NMOM)
+
+
 def _window_px(s: Surface, reach: float, zmin: float) -> float:
     """Half-size in pixels of the window holding every cell within ``reach`` in 3D of a target
     at depth ≥ ``zmin``.
@@ -378,7 +506,7 @@ def _window_px(s: Surface, reach: float, zmin: float) -> float:
     (``u_t = x_t / z_t``), and ``|Δx|² + Δz² ≤ R²`` needs ``d · foot · z_b ≤ R √(1 + u_t²)``
     (Cauchy–Schwarz), with ``z_b ≥ z_t − R``.
     """
-    hp, wp = s.z.shape
+    hp, wp = s.inner.shape[1:]
     if zmin - reach > 0:
         return reach * math.sqrt(1 + s.u_max**2) / (s.foot * (zmin - reach)) + 1
     return float(max(hp, wp))
@@ -386,11 +514,12 @@ def _window_px(s: Surface, reach: float, zmin: float) -> float:
 
 def _cuts(pyr: Pyramid, v: float, ratio: float) -> tuple[list[torch.Tensor], torch.Tensor]:
     """The blocks that evaluate a Gaussian of variance ``v``: per level, the non-empty blocks
-    of radius ≤ ``σ / ratio`` whose parent is larger; and per cell the Gauss–Legendre order per
-    quadrant of the cells too large to be expanded (0 elsewhere), ``2 + ⌈2 radius / σ⌉``."""
+    of radius ≤ ``σ / ratio`` whose parent is larger; and per cell the panels per quadrant and
+    axis of the cells too large to be expanded (0 elsewhere), ``⌈ratio · radius / 2σ⌉``: the
+    sub-patches of :func:`cell_patches` then have radius ≤ ``σ / ratio``, like the blocks."""
     sigma = math.sqrt(v)
     limit = sigma / ratio
-    usable = [(r <= limit) & (m[-1, 0] > 0) for r, m in zip(pyr.rad, pyr.mom, strict=True)]
+    usable = [(r <= limit) & (a > 0) for r, a in zip(pyr.rad, pyr.area, strict=True)]
     top = max([lev for lev, u in enumerate(usable) if bool(u.any())] or [0])
     cut = []
     for lev in range(top + 1):
@@ -398,9 +527,9 @@ def _cuts(pyr: Pyramid, v: float, ratio: float) -> tuple[list[torch.Tensor], tor
         if lev < top:
             c = c & ~usable[lev + 1].repeat_interleave(2, 0).repeat_interleave(2, 1)
         cut.append(c)
-    big = (pyr.rad[0] > limit) & (pyr.mom[0][-1, 0] > 0)
-    order = torch.where(big, 2 + torch.ceil(2 * pyr.rad[0] / sigma), 0).to(torch.int64)
-    return cut, order.clamp_max(24)
+    big = (pyr.rad[0] > limit) & (pyr.area[0] > 0)
+    panels = torch.where(big, torch.ceil(pyr.rad[0] / (2 * limit)), 0).to(torch.int64)
+    return cut, panels
 
 
 def gather(
@@ -413,54 +542,93 @@ def gather(
     ratio: float | None,
     tile: int = 16,
     progress: object = None,
-) -> torch.Tensor:
-    """``∫ q G(v_g, |p − p_i|) dA`` at the targets (padded ``rows, cols``) for every Gaussian
-    ``g``, per channel of ``q``: ``(G, T, C)``.
+    workers: int = 1,
+) -> Iterator[torch.Tensor]:
+    """``∫ q G(v_g, |p − p_i|) dA`` at the targets (padded ``rows, cols``) for each Gaussian
+    ``g`` in turn, per channel of ``q``: ``(T, C)`` per Gaussian (one at a time: the caller
+    folds each in before the next is computed).
 
-    With ``ratio``: the moment expansion of the blocks of :func:`_cuts` plus Gauss–Legendre
-    points on the cells too large to expand (steep or wide against σ), all of them sources
-    of one :func:`far_field` per tile of targets (:func:`_sources`). Without (Gaussians
+    With ``ratio``: the moment expansion of the blocks of :func:`_cuts` and of the
+    sub-patches of the cells too large to expand (steep or wide against σ,
+    :func:`cell_patches`), all of them sources of one :func:`far_field` per tile of targets
+    (:func:`_sources`). Without (Gaussians
     narrower than a pixel): graded Gauss–Legendre points on every cell
     (:func:`_graded_rule`). Sources are taken from the window of :func:`_window_px` around
     each tile of targets: the cells within ``R_g = σ_g √(2 ln(1/tols_g))`` in 3D (the 2D
     Gaussian holds ``exp(−R²/2v) = tol_g`` of its mass beyond ``R``). ``tile``: the tile
     side in pixels of the graded path; the moment path takes tiles of about ``R_g / 4``
     (at least 16 pixels): a tile much smaller than the window it reads costs calls, one
-    much larger costs sources per target.
+    much larger costs sources per target. The tiles of a Gaussian run on ``workers`` threads
+    (:func:`map_threads`).
     """
-    out = torch.zeros(len(variances), rows.numel(), s.q.shape[0], dtype=s.z.dtype)
+    shape = (rows.numel(), s.fields.shape[0] - 6)
     if rows.numel() == 0:
-        return out
-    hp, wp = s.z.shape
-    geo = torch.stack([s.x, s.y, s.z, s.half, s.sx, s.sy])[None]
-    fields = torch.nn.functional.pad(geo, (1, 1, 1, 1), mode="replicate")[0]
-    del geo
-    q = torch.nn.functional.pad(s.q[None], (1, 1, 1, 1), mode="replicate")[0]
-    tgt = torch.stack([s.x[rows, cols], s.y[rows, cols], s.z[rows, cols]], 1)
+        yield from (s.fields.new_zeros(shape) for _ in variances)
+        return
+    hp, wp = s.inner.shape[1:]
+    fields, q = s.fields[:6], s.fields[6:]
+    tgt = s.inner[:3, rows, cols].t().contiguous()  # (T, 3) x, y, z
     if ratio is None:
-        h_max = float(s.half.max())
+        h_max = float(s.inner[3].max())
         for gi, v in enumerate(variances):
             rule = _graded_rule(h_max / math.sqrt(v))
             reach = math.sqrt(v) * math.sqrt(2 * math.log(1 / tols[gi]))
-            for sel, (ra, rb, ca, cb) in _tiles(s, rows, cols, tgt, tile, reach):
-                fw, qw = fields[:, ra : rb + 2, ca : cb + 2], q[:, ra : rb + 2, ca : cb + 2]
-                pts, mass = cell_nodes(fw, qw, fw[3, 1:-1, 1:-1] > 0, *rule, reconstruction)
-                if pts.shape[0]:
-                    out[gi, sel] = point_field(tgt[sel], pts, mass, v)
+            tiles = _tiles(s, rows, cols, tgt, tile, reach)
+            out = s.fields.new_zeros(shape)
+            work = partial(_graded_tile, fields, q, tgt, rule, v, reconstruction, out)
+            for n in map_threads(work, tiles, workers):
                 if progress is not None:
-                    progress.update(sel.numel())
-        return out
-    pyr = surface_pyramid(s, reconstruction, _levels(max(variances), ratio, hp, wp))
+                    progress.update(n)
+            yield out
+        return
+    levels = _levels(max(variances), ratio, hp, wp)
+    pyr = surface_pyramid(fields, q, reconstruction, levels, workers)
     for gi, v in enumerate(variances):
         reach = math.sqrt(v) * math.sqrt(2 * math.log(1 / tols[gi]))
         side = max(tile, min(max(hp, wp), 1 << max(0, math.floor(math.log2(reach / 4)))))
-        src = _sources(pyr, *_cuts(pyr, v, ratio), fields, q, reconstruction, side)
-        for sel, window in _tiles(s, rows, cols, tgt, side, reach):
-            out[gi, sel] = src.field(tgt[sel], v, reach, window)
+        src = _sources(pyr, *_cuts(pyr, v, ratio), fields, q, reconstruction, side, workers)
+        tiles = _tiles(s, rows, cols, tgt, side, reach)
+        out = s.fields.new_zeros(shape)
+        for n in map_threads(partial(_moment_tile, src, tgt, v, reach, out), tiles, workers):
             if progress is not None:
-                progress.update(sel.numel())
+                progress.update(n)
         del src  # before the next Gaussian's sources are made
-    return out
+        yield out
+
+
+def _graded_tile(
+    fields: torch.Tensor,
+    q: torch.Tensor,
+    tgt: torch.Tensor,
+    rule: tuple[torch.Tensor, torch.Tensor],
+    v: float,
+    reconstruction: str,
+    out: torch.Tensor,
+    item: tuple[torch.Tensor, tuple[int, int, int, int]],
+) -> int:
+    """One tile of the graded path of :func:`gather`: ``out[sel]`` ``(T, C)`` from the
+    quadrature points of every cell of the tile's window; returns the number of targets."""
+    sel, (ra, rb, ca, cb) = item
+    fw, qw = fields[:, ra : rb + 2, ca : cb + 2], q[:, ra : rb + 2, ca : cb + 2]
+    pts, mass = cell_nodes(fw, qw, fw[3, 1:-1, 1:-1] > 0, *rule, reconstruction)
+    if pts.shape[0]:
+        out[sel] = point_field(tgt[sel], pts, mass, v)
+    return sel.numel()
+
+
+def _moment_tile(
+    src: _Sources,
+    tgt: torch.Tensor,
+    v: float,
+    reach: float,
+    out: torch.Tensor,
+    item: tuple[torch.Tensor, tuple[int, int, int, int]],
+) -> int:
+    """One tile of the moment path of :func:`gather`: ``out[sel]`` ``(T, C)``; returns the
+    number of targets."""
+    sel, window = item
+    out[sel] = src.field(tgt[sel], v, reach, window)
+    return sel.numel()
 
 
 def _tiles(
@@ -473,7 +641,7 @@ def _tiles(
 ):
     """The targets by tiles of ``tile²`` pixels: per tile the target indices and the pixel
     window ``(ra, rb, ca, cb)`` (rows ``ra:rb``, cols ``ca:cb``) of :func:`_window_px`."""
-    hp, wp = s.z.shape
+    hp, wp = s.inner.shape[1:]
     ntc = (wp + tile - 1) // tile
     tid = (rows // tile) * ntc + cols // tile
     order = torch.argsort(tid, stable=True)
@@ -494,7 +662,7 @@ def _tiles(
 class _Sources:
     """The sources of one Gaussian, bucketed by ``side``-pixel squares of their pixel: ``pos``
     ``(N, 3)`` expansion centres, ``mom`` ``(N, C, 10)`` moments, ``rad`` ``(N,)`` ball radii
-    (0 for the point masses of Gauss–Legendre nodes); bucket ``(i, j)`` holds the sources
+    (blocks of the pyramid and sub-patches of large cells); bucket ``(i, j)`` holds the sources
     ``start[i · ncols + j] : start[i · ncols + j + 1]``; ``margin``: the largest distance in
     pixels from a source's pixel to a pixel of its block."""
 
@@ -506,7 +674,6 @@ class _Sources:
     nrows: int
     side: int
     margin: int
-    cells: _BigCells
 
     def field(
         self, x: torch.Tensor, v: float, reach: float, window: tuple[int, int, int, int]
@@ -516,91 +683,42 @@ class _Sources:
         the 3D bounding box of the targets (the others hold less than the tolerance of the
         Gaussian)."""
         lo, hi = x.amin(0), x.amax(0)
-        keep = _near(self.pos, self.rad, self.start, self, window, self.margin, lo, hi, reach)
-        out = far_field(x, self.pos[keep], self.mom[keep], v)
-        cl = self.cells
-        keep = _near(cl.pos, cl.rad, cl.start, self, window, 0, lo, hi, reach)
-        order = cl.order[keep]
-        for n in torch.unique(order).tolist():
-            sel = keep[order == n]
-            cells = (cl.rows[sel], cl.cols[sel])
-            pts, mass = cell_nodes(cl.fields, cl.q, cells, *_gl01(n), cl.reconstruction)
-            out += point_field(x, pts, mass, v)
-        return out
+        keep = self.near(window, lo, hi, reach)
+        return far_field(x, self.pos[keep], self.mom[keep], v)
 
-
-@dataclass
-class _BigCells:
-    """The cells of one Gaussian too large to expand, bucketed like :class:`_Sources`:
-    centres ``pos`` ``(N, 3)``, ball radii ``rad``, padded ``rows``, ``cols`` and
-    Gauss–Legendre ``order`` per quadrant; ``fields``, ``q``: the surface with a one-pixel
-    border (:func:`cell_nodes` integrates them per tile: their nodes are too many to keep)."""
-
-    pos: torch.Tensor
-    rad: torch.Tensor
-    rows: torch.Tensor
-    cols: torch.Tensor
-    order: torch.Tensor
-    start: list[int]
-    fields: torch.Tensor
-    q: torch.Tensor
-    reconstruction: str
-
-
-def _near(
-    pos: torch.Tensor,
-    rad: torch.Tensor,
-    start: list[int],
-    grid: _Sources,
-    window: tuple[int, int, int, int],
-    margin: int,
-    lo: torch.Tensor,
-    hi: torch.Tensor,
-    reach: float,
-) -> torch.Tensor:
-    """Indices of the bucketed balls (``pos``, ``rad``; buckets ``start`` on the grid of
-    ``grid``) of a bucket under the pixel window ``(ra, rb, ca, cb)`` widened by ``margin``
-    pixels that come within ``reach`` of the box ``[lo, hi]``."""
-    ra, rb, ca, cb = window
-    sd, nc = grid.side, grid.ncols
-    r1, r2 = max(0, (ra - margin) // sd), min(grid.nrows - 1, (rb - 1 + margin) // sd)
-    c1, c2 = max(0, (ca - margin) // sd), min(nc - 1, (cb - 1 + margin) // sd)
-    spans = [(start[i * nc + c1], start[i * nc + c2 + 1]) for i in range(r1, r2 + 1)]
-    idx = torch.cat([torch.arange(a, b) for a, b in spans if b > a] or [torch.arange(0)])
-    p = pos[idx]
-    gap = (p - hi).clamp_min(0) + (lo - p).clamp_min(0)
-    return idx[(gap * gap).sum(1) <= (reach + rad[idx]) ** 2]
+    def near(
+        self, window: tuple[int, int, int, int], lo: torch.Tensor, hi: torch.Tensor, reach: float
+    ) -> torch.Tensor:
+        """Indices of the sources of a bucket under the pixel window ``(ra, rb, ca, cb)``
+        widened by ``margin`` pixels whose ball comes within ``reach`` of the box
+        ``[lo, hi]``."""
+        ra, rb, ca, cb = window
+        sd, nc, mg, start = self.side, self.ncols, self.margin, self.start
+        r1, r2 = max(0, (ra - mg) // sd), min(self.nrows - 1, (rb - 1 + mg) // sd)
+        c1, c2 = max(0, (ca - mg) // sd), min(nc - 1, (cb - 1 + mg) // sd)
+        spans = [(start[i * nc + c1], start[i * nc + c2 + 1]) for i in range(r1, r2 + 1)]
+        idx = torch.cat([torch.arange(a, b) for a, b in spans if b > a] or [torch.arange(0)])
+        p = self.pos[idx]
+        gap = (p - hi).clamp_min(0) + (lo - p).clamp_min(0)
+        return idx[(gap * gap).sum(1) <= (reach + self.rad[idx]) ** 2]
 
 
 def _sources(
     pyr: Pyramid,
     cut: list[torch.Tensor],
-    n_gl: torch.Tensor,
+    panels: torch.Tensor,
     fields: torch.Tensor,
     q: torch.Tensor,
     reconstruction: str,
     side: int,
+    workers: int = 1,
 ) -> _Sources:
-    """The blocks of ``cut`` and the cells too large to expand (Gauss–Legendre order
-    ``n_gl`` per quadrant) as :class:`_Sources` (``fields``, ``q``: the padded surface with
-    a one-pixel border, as :func:`cell_nodes` takes it)."""
+    """The blocks of ``cut`` and the sub-patches of the cells too large to expand
+    (:func:`cell_patches`, ``panels`` per quadrant and axis) as :class:`_Sources` (``fields``,
+    ``q``: the padded surface with a one-pixel border, as :func:`cell_nodes` takes it; the
+    sub-patches are made on ``workers`` threads)."""
     hp, wp = fields.shape[-2] - 2, fields.shape[-1] - 2
     nrows, ncols = (hp + side - 1) // side, (wp + side - 1) // side
-
-    def bucketed(pix: torch.Tensor, *payload: list[torch.Tensor]) -> list:
-        """Bucket starts and the payloads (lists of parts, emptied) in bucket order."""
-        bucket = (pix[:, 0] // side).clamp_max(nrows - 1) * ncols
-        bucket += (pix[:, 1] // side).clamp_max(ncols - 1)
-        order = torch.argsort(bucket, stable=True)
-        start = [0, *torch.cumsum(torch.bincount(bucket, minlength=nrows * ncols), 0).tolist()]
-        out: list = [start, order]
-        for parts in payload:
-            whole = torch.cat(parts)
-            parts.clear()  # the parts are freed before the sorted copy is made
-            out.append(whole[order])
-            del whole
-        return out
-
     pos, rad = [q.new_zeros(0, 3)], [q.new_zeros(0)]
     pix, flat = [torch.zeros(0, 2, dtype=torch.int64)], []
     for lev, c in enumerate(cut):
@@ -611,28 +729,57 @@ def _sources(
         pix.append(idx * b + b // 2)
         flat.append(idx[:, 0] * c.shape[1] + idx[:, 1])
     margin = max([1 << lev for lev, c in enumerate(cut) if bool(c.any())] or [1])
-    start, order, p_all, r_all = bucketed(torch.cat(pix), pos, rad)
+    panels = panels[:hp, :wp]
+    big = torch.nonzero(panels > 0)
+    per_cell = panels[big[:, 0], big[:, 1]]
+    batches = []  # (panels, cells) with at most _PATCH_NODES quadrature nodes each
+    for m in torch.unique(per_cell).tolist():
+        cells = big[per_cell == m]
+        step = max(1, _PATCH_NODES // (16 * m * m))
+        batches += [(m, cells[a : a + step]) for a in range(0, cells.shape[0], step)]
+    work = partial(_patch_batch, fields, q, reconstruction)
+    patch_mom = []
+    for p_, m_, r_, x_ in map_threads(work, batches, workers):
+        pos.append(p_)
+        patch_mom.append(m_)
+        rad.append(r_)
+        pix.append(x_)
+    pix_all = torch.cat(pix)
+    bucket = (pix_all[:, 0] // side).clamp_max(nrows - 1) * ncols
+    bucket += (pix_all[:, 1] // side).clamp_max(ncols - 1)
+    del pix_all
+    order = torch.argsort(bucket, stable=True)
+    start = [0, *torch.cumsum(torch.bincount(bucket, minlength=nrows * ncols), 0).tolist()]
+    p_all, r_all = torch.cat(pos)[order], torch.cat(rad)[order]
     # the moments (the largest payload) copied into their sorted places a slice at a time
     rank = torch.empty_like(order)
     rank[order] = torch.arange(order.numel())
     m_all = q.new_empty(order.numel(), q.shape[0], _NMOM)
     first = 0
     for lev, fl in enumerate(flat):
-        mom = pyr.mom[lev].flatten(2)
         for a in range(0, fl.numel(), 1 << 16):
             part = fl[a : a + (1 << 16)]
             dst = rank[first + a : first + a + part.numel()]
-            m_all.index_copy_(0, dst, mom[:, :, part].permute(2, 0, 1))
+            m_all.index_copy_(0, dst, pyr.moments(lev, part))
         first += fl.numel()
-    n_gl = n_gl[:hp, :wp]
-    big = torch.nonzero(n_gl > 0)
-    rows, cols = big[:, 0], big[:, 1]
-    f = fields[:, rows + 1, cols + 1]
-    c_start, _, c_pos, c_rad, c_rows, c_cols, c_order = bucketed(
-        big, [f[:3].t()], [cell_radius(f[3], f[4], f[5])], [rows], [cols], [n_gl[rows, cols]]
-    )
-    cells = _BigCells(c_pos, c_rad, c_rows, c_cols, c_order, c_start, fields, q, reconstruction)
-    return _Sources(p_all, m_all, r_all, start, ncols, nrows, side, margin, cells)
+    for part in patch_mom:
+        m_all.index_copy_(0, rank[first : first + part.shape[0]], part)
+        first += part.shape[0]
+    return _Sources(p_all, m_all, r_all, start, ncols, nrows, side, margin)
+
+
+def _patch_batch(
+    fields: torch.Tensor, q: torch.Tensor, reconstruction: str, item: tuple[int, torch.Tensor]
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """:func:`cell_patches` of the cells ``(N, 2)`` of ``item = (panels, cells)`` with their
+    ball radii ``(S,)`` and pixels ``(S, 2)`` (each sub-patch lies in its cell's pixel)."""
+    m, cells = item
+    r, c = cells.unbind(1)
+    pos, mom = cell_patches(fields, q, r, c, m, reconstruction)
+    hh, sx, sy = fields[3:6, r + 1, c + 1]
+    rad = cell_radius(hh / (2 * m), sx, sy)[None, :, None, None].expand(4, -1, m, m)
+    pix = cells[None, :, None, None].expand(4, -1, m, m, 2)
+    return pos, mom, rad.reshape(-1), pix.reshape(-1, 2)
 
 
 def _levels(v_max: float, ratio: float, hp: int, wp: int) -> int:

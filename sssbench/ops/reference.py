@@ -18,7 +18,7 @@ from tqdm.auto import tqdm
 
 from sssbench._checks import check_choice, check_scalar
 from sssbench.gbuffer import GBuffer, pixel_size_mm
-from sssbench.ops._reference_far import Surface, gather
+from sssbench.ops._reference_far import Surface, gather, map_threads, with_border
 from sssbench.ops._reference_flat import flat_kernel
 from sssbench.ops.timing import timed_pass
 from sssbench.profiles.base import Profile, _gauss_legendre
@@ -178,6 +178,7 @@ def reference_sss(
     method: str = "auto",
     reconstruction: str = "box",
     progress: bool | None = None,
+    threads: int | None = None,
 ) -> torch.Tensor:
     """Exact screen-space subsurface scattering of ``gbuffer.diffuse`` with ``profile``.
 
@@ -229,25 +230,24 @@ def reference_sss(
     - ``"fft"``: constant depth only: every neighbour at the same offset has the same weight,
       so the sums are 2D convolutions (``torch.fft``) with the closed-form 1D factors of
       :mod:`sssbench.ops._reference_flat`, precise at any pixel / profile ratio.
-    - ``"multipole"`` (sums of Gaussians): Gaussians narrower than ``WIDE_PIXELS`` times the
-      largest footprint by the cell gather within their own (small) support (box), or by
-      graded Gauss–Legendre points on the bilinear field (bilinear); wider Gaussians from the
-      moments of the reconstructed ``q dA`` (mass, dipole, quadrupole; exact for both
-      reconstructions) of the coarsest pixel blocks whose patches fit in a ball of radius
-      ``σ / FAR_RATIO``, by the second-order Taylor expansion of the Gaussian about the
-      block centre, and Gauss–Legendre points on cells too large or steep for that
-      (:mod:`sssbench.ops._reference_far`). The expansion's error is third order in the
-      block radius over σ where the irradiance or the surface jumps and exponentially small
-      where they are smooth. Measured against a brute-force surface integral on a curved
-      masked surface with a depth step and a shadow edge, kernel up to 37 px wide
-      (tests/ops/test_reference_far.py): rel RMS 1.5e-5 (box) and 1.7e-5 (bilinear) at
-      ``FAR_RATIO`` 2, 1.7e-6 / 3.7e-6 at 3, 2.9e-4 at 1; white-noise irradiance on a plane,
-      one Gaussian, is the worst case measured: up to 1.5e-4 at 2. Support: every surface
-      cell of the image extended by ``k`` pixels (clamp-to-edge) within ``σ_g √(2 ln(1 /
-      tol_g))`` in 3D, ``tol_g`` = ``tol`` over the Gaussian's largest share of a channel's
-      total (each Gaussian leaves out at most ``tol`` of any channel's energy). This equals the
-      window of the other methods unless ``k`` is capped by the image size (a kernel wider
-      than the image), where the other methods stop at ``±k`` pixels from each target.
+    - ``"multipole"`` (sums of Gaussians): Gaussians narrower than ``WIDE_PIXELS`` times the largest
+      footprint by the cell gather within their own (small) support (box), or by graded
+      Gauss–Legendre points on the bilinear field (bilinear); wider Gaussians from the moments of
+      the reconstructed ``q dA`` (mass, dipole, quadrupole; exact for both reconstructions) of the
+      coarsest pixel blocks whose patches fit in a ball of radius ``σ / FAR_RATIO``, by the
+      second-order Taylor expansion of the Gaussian about the block centre; cells too large or steep
+      for that are split into sub-patches that fit the same ball, with exact moments
+      (:mod:`sssbench.ops._reference_far`). The expansion's error is third order in the block radius
+      over σ where the irradiance or the surface jumps and exponentially small where they are
+      smooth. Measured against a brute-force surface integral on a curved masked surface with a
+      depth step and a shadow edge, kernel up to 37 px wide (tests/ops/test_reference_far.py): rel
+      RMS 1.5e-5 (box) and 1.7e-5 (bilinear) at ``FAR_RATIO`` 2, 1.8e-6 / 3.7e-6 at 3, 2.9e-4 at 1;
+      white-noise irradiance on a plane, one Gaussian, is the worst case measured: up to 1.5e-4 at
+      2. Support: every surface cell of the image extended by ``k`` pixels (clamp-to-edge) within
+      ``σ_g √(2 ln(1 / tol_g))`` in 3D, ``tol_g`` = ``tol`` over the Gaussian's largest share of a
+      channel's total (each Gaussian leaves out at most ``tol`` of any channel's energy). This
+      equals the window of the other methods unless ``k`` is capped by the image size (a kernel
+      wider than the image), where the other methods stop at ``±k`` pixels from each target.
     - ``"auto"``: fft for a constant depth, multipole for a sum of Gaussians with the
       library's cell integral, gather otherwise.
 
@@ -265,6 +265,9 @@ def reference_sss(
         reconstruction: ``"box"`` or ``"bilinear"`` (see above).
         progress: show a progress bar (tqdm) on stderr; ``None``: when the multipole
             evaluation has more than 500 000 target pixels × Gaussians (a few seconds).
+        threads: Python threads of the gather and multipole methods (independent tiles of
+            targets, each computed with one intra-op torch thread, so the result is the same
+            for every ``threads``); ``None``: ``torch.get_num_threads()``.
 
     Returns:
         ``(B, 3, H, W)`` in the G-buffer's dtype (computed in float64).
@@ -276,6 +279,9 @@ def reference_sss(
     check_scalar("tol", tol, 0.0, 1.0, low_inclusive=False, high_inclusive=False)
     check_choice("method", method, METHODS)
     check_choice("reconstruction", reconstruction, RECONSTRUCTIONS)
+    workers = torch.get_num_threads() if threads is None else threads
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ValueError(f"threads must be a positive int or None, got {threads!r}")
     total = profile.total()
     if bool((total <= 0).any()):
         raise ValueError(f"profile total must be > 0 in every channel, got {total.tolist()}")
@@ -312,9 +318,10 @@ def reference_sss(
     radius_mm = profile.radius(tol)
     with timed_pass("reference", (2 * k + 1) ** 2, int(active.numel())):
         if method == "multipole":
-            acc, wsum = _multipole(g, profile, k, active, tol, reconstruction, progress)
+            acc, wsum = _multipole(g, profile, k, active, tol, reconstruction, progress, workers)
         elif _is_sum_of_gaussians(profile):
-            acc, wsum = _gather_sog(profile, _surface(g, k).table, centre, wp, k, radius_mm)
+            table = _surface(g, k).table
+            acc, wsum = _gather_sog(profile, table, centre, wp, k, radius_mm, workers=workers)
         else:
             acc, wsum = _gather_generic(profile, _surface(g, k).table, centre, wp, k, radius_mm)
     num = torch.zeros(b * h * w, 3, dtype=torch.float64).index_copy(0, active, acc)
@@ -362,10 +369,13 @@ def _multipole(
     tol: float,
     reconstruction: str,
     progress: bool | None,
+    workers: int = 1,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Numerator and denominator ``(E, 3)`` of the active pixels by the ``"multipole"``
-    method of :func:`reference_sss` (the padded surface is built here and dropped once its
-    scaled copies exist: the far field's pyramid is the peak of memory)."""
+    method of :func:`reference_sss` on ``workers`` threads. The padded surface is built
+    here and dropped once its scaled copy (with the one-pixel border the far field reads)
+    exists; the far field then holds the pyramid's levels ≥ 1 and one Gaussian's sources at
+    a time (3.2 GiB peak RSS on the 1080p face close-up with skin_deon6, measured)."""
     b, h, w = g.shape
     e = active.numel()
     acc = torch.zeros(e, 3, dtype=torch.float64)
@@ -394,29 +404,22 @@ def _multipole(
         bi, rem = active // (h * w), active % (h * w)
         centre = bi * hp * wp + (rem // w + k) * wp + (rem % w + k)
         with tqdm(desc="reference (cells)", unit="offset", disable=not show) as near_bar:
-            acc, wsum = _gather_sog(sub, surf.table, centre, wp, k_n, r_n, progress=near_bar)
+            acc, wsum = _gather_sog(
+                sub, surf.table, centre, wp, k_n, r_n, progress=near_bar, workers=workers
+            )
     if not groups:
         return acc, wsum
     n_far = sum(len(ids) for ids, _ in groups)
     bar = tqdm(total=e * n_far, desc="reference (moments)", unit="px·G", disable=not show)
     foot = 2 * math.tan(g.fov_y / 2) / h
-    surfaces = [
-        Surface(
-            f[0] / unit,
-            f[1] / unit,
-            f[2] / unit,
-            f[3] / unit,
-            f[4].clone(),
-            f[5].clone(),
-            torch.cat([f[7:10], f[6:7]]),
-            k,
-            foot,
-            float((torch.stack([f[0], f[1]]).abs() / f[2]).amax()),
-        )
-        for f in surf.fields
-    ]
-    del surf
-    for i, s in enumerate(surfaces):
+    for i in range(b):
+        f = surf.fields[i]
+        parts = [f[0] / unit, f[1] / unit, f[2] / unit, f[3] / unit, f[4], f[5], *f[7:10], f[6]]
+        u_max = float((torch.stack([f[0], f[1]]).abs() / f[2]).amax())
+        s = Surface(with_border(parts), k, foot, u_max)
+        del parts, f
+        if i == b - 1:
+            del surf  # the padded surface is not needed once its scaled copies exist
         sel = torch.nonzero(active // (h * w) == i).squeeze(1)
         rem = active[sel] % (h * w)
         rows, cols = rem // w + k, rem % w + k
@@ -426,10 +429,14 @@ def _multipole(
             # channel total of the profile
             share = [float((wts[j] / profile.total()).max()) for j in ids]
             tols = [min(0.5, tol / max(sh, tol)) for sh in share]
-            res = gather(s, rows, cols, v_g, tols, reconstruction, ratio, progress=bar)
-            wg = wts[ids]  # (G, 3)
-            acc[sel] += torch.einsum("gtc,gc->tc", res[..., :3], wg)
-            wsum[sel] += torch.einsum("gt,gc->tc", res[..., 3], wg)
+            per_gaussian = gather(
+                s, rows, cols, v_g, tols, reconstruction, ratio, progress=bar, workers=workers
+            )
+            # elementwise, one Gaussian at a time (a matrix product's rounding may depend
+            # on torch's thread count)
+            for j, res in zip(ids, per_gaussian, strict=True):
+                acc[sel] += res[:, :3] * wts[j]
+                wsum[sel] += res[:, 3:] * wts[j]
     bar.close()
     return acc, wsum
 
@@ -576,9 +583,11 @@ def _gather_sog(
     k: int,
     radius_mm: float,
     progress: object = None,
+    workers: int = 1,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """:func:`_gather_generic` for a sum of Gaussians, many offsets per batch (``progress``:
-    a tqdm bar, advanced by the offsets done).
+    a tqdm bar, advanced by the offsets done; the chunks of centres run on ``workers`` threads,
+    :func:`~sssbench.ops._reference_far.map_threads`).
 
     Centres are taken in chunks of ``_CENTRES`` (bands of rows, so a batch stays in cache),
     offsets nearest first in batches of ``_BATCH_ELEMS // centres``; each offset of a chunk
@@ -614,11 +623,15 @@ def _gather_sog(
     fields = table[:, [0, 1, 2, 3, 4, 5, 7, 8, 9]].t().contiguous()
     if progress is not None:
         progress.reset(total=shift.numel() * math.ceil(e / _CENTRES))
-    for i in range(0, e, _CENTRES):
+
+    def chunk(i: int) -> int:
         part = slice(i, i + _CENTRES)
-        acc[part], wsum[part] = _sog_chunk(
-            profile, v, fields, centre[part], shift, radius_mm, progress
-        )
+        acc[part], wsum[part] = _sog_chunk(profile, v, fields, centre[part], shift, radius_mm)
+        return shift.numel()
+
+    for n in map_threads(chunk, range(0, e, _CENTRES), workers):
+        if progress is not None:
+            progress.update(n)
     return acc, wsum
 
 
@@ -629,7 +642,6 @@ def _sog_chunk(
     centre: torch.Tensor,
     shift: torch.Tensor,
     radius_mm: float,
-    progress: object,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """:func:`_gather_sog` of at most ``_CENTRES`` centres (``fields``: field-major
     neighbour table, ``shift``: flat offsets nearest first)."""
@@ -669,8 +681,6 @@ def _sog_chunk(
             wgt = wgt.view(3, -1, e)
             acc += (wgt * sub[6]).sum(1).t()
             wsum += wgt.sum(1).t()
-        if progress is not None:
-            progress.update(c)
     return acc, wsum
 
 

@@ -44,11 +44,12 @@ def test_the_close_up_exercises_both_the_cell_gather_and_the_moments(close_up):
     assert p_min < 0.07 < p_max  # the focus at 0.07 mm per pixel
 
 
-def test_close_up_matches_the_brute_force_surface_integral(close_up):
+@pytest.mark.parametrize("threads", [1, 2])
+def test_close_up_matches_the_brute_force_surface_integral(close_up, threads):
     g, targets = close_up
     k = reference_radius_px(g, PROFILE)
     want = brute_force_reference(g, PROFILE, targets, k, "box")
-    out = reference_sss(g, PROFILE)  # auto: the multipole method
+    out = reference_sss(g, PROFILE, threads=threads)  # auto: the multipole method
     got = out[0][:, targets[:, 0], targets[:, 1]].numpy().T
     assert math.isfinite(float(out.sum()))
     assert rel_rms_np(got, want) < 1e-4
