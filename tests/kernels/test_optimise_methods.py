@@ -3,32 +3,22 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import replace
 
 import pytest
 import torch
 
 from data_synth import make_scene
-from sssbench.gbuffer import GBuffer
 from sssbench.kernels import Kernel1D, jimenez2012
 from sssbench.kernels import optimise as opt
 from sssbench.metrics import rel_rms
 from sssbench.ops import Jimenez2012SSS, ReferenceSSS, SumOfGaussiansSSS
 from sssbench.profiles import SumOfGaussians
 from sssbench.registry import build_method
+from tests.kernels.test_optimise import _noise_plane, _one_thread  # noqa: F401 (autouse)
 
 PROFILE = SumOfGaussians.from_table("skin_deon6")
 SHADER = {"strength": (0.48, 0.41, 0.28), "falloff": (1.0, 0.37, 0.3)}  # 002's shader defaults
-
-
-@pytest.fixture(autouse=True)
-def _one_thread():
-    """One intra-op thread: tiny images on a busy machine (see test_optimise.py)."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
 
 
 @pytest.fixture
@@ -37,15 +27,6 @@ def kernel_cache(tmp_path, monkeypatch):
     shared cache (content-keyed), so a fresh cache does not rebuild them."""
     monkeypatch.setattr(opt, "kernel_cache_dir", lambda: tmp_path / "kernels")
     return tmp_path / "kernels"
-
-
-def _noise_plane(n: int, pixel_mm: float, seed: int = 0) -> GBuffer:
-    """A fronto-parallel plane whose pixels are ``pixel_mm`` wide, white-noise irradiance."""
-    fov = math.radians(25.0)
-    z = pixel_mm * n / (2 * math.tan(fov / 2))
-    gen = torch.Generator().manual_seed(seed)
-    diffuse = torch.rand((1, 3, n, n), generator=gen, dtype=torch.float64)
-    return GBuffer(diffuse, torch.full((1, 1, n, n), z, dtype=torch.float64), fov)
 
 
 def _kernel(offsets_px, weights, px) -> Kernel1D:
