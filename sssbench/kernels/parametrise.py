@@ -123,14 +123,17 @@ class SymmetricTaps(Parametrisation):
         init: the starting kernel, symmetric (``offsets[i] = −offsets[K−1−i]``, a centre tap
             at 0 when K is odd, no two offsets equal) with non-negative weights summing to 1
             per channel — e.g. the importance-sampled kernel (000 §7).
+        grey: one weight per tap for all three channels (``init`` must have equal channels),
+            e.g. one Gaussian's blur of the sum of Gaussians; ``False``: per channel.
 
     Attributes:
         u: ``(K // 2,)`` softplus pre-images of the gaps between successive positive offsets,
             in units of ``scale`` mm.
-        logits: ``(K // 2 + K % 2, 3)`` log-weights of the centre (odd K) and the positive taps.
+        logits: ``(K // 2 + K % 2, C)`` log-weights of the centre (odd K) and the positive
+            taps, ``C = 1`` when ``grey``, else 3.
     """
 
-    def __init__(self, init: Kernel1D) -> None:
+    def __init__(self, init: Kernel1D, grey: bool = False) -> None:
         super().__init__()
         if not isinstance(init, Kernel1D):
             raise TypeError(f"init must be a Kernel1D, got {type(init).__name__}")
@@ -146,6 +149,10 @@ class SymmetricTaps(Parametrisation):
             raise ValueError("init weights must be symmetric (w[i] = w[K-1-i])")
         if bool((w < 0).any()) or not torch.allclose(w.sum(0), torch.ones(3, dtype=w.dtype)):
             raise ValueError("init weights must be >= 0 and sum to 1 per channel")
+        if grey:
+            if not torch.allclose(w, w[:, :1].expand_as(w), atol=1e-12, rtol=0):
+                raise ValueError("init weights must be equal in every channel with grey=True")
+            w = w[:, :1]
         pos = off[k - m :]
         gaps = torch.diff(torch.cat([pos.new_zeros(1), pos]))
         if bool((gaps <= 0).any()):
@@ -162,7 +169,7 @@ class SymmetricTaps(Parametrisation):
         offsets = torch.cat([-pos.flip(0), *mid, pos])
         pairs = self.logits[1:] if self.has_centre else self.logits
         weights = torch.softmax(torch.cat([pairs.flip(0), self.logits]), dim=0)
-        return Kernel1D(offsets, weights)
+        return Kernel1D(offsets, weights.expand(-1, 3))
 
     def value(self) -> dict[str, Any]:
         return {"kernel": self.kernel()}
@@ -182,6 +189,11 @@ class PerGaussianTaps(Parametrisation):
     ``w'`` are kept (the profile's, not fitted: a choice, so that the method stays 003's
     schedule and only its discretisation changes).
 
+    Each tap set is grey (one weight per tap for R, G and B), as each Gaussian's blur is in
+    003 (the colour comes from the blend weights): a choice, measured on the held-out scenes
+    of ``experiments/optimised.py`` against per-channel weights (3× the parameters, which fit
+    the training scenes better and the held-out head worse, see docs/optimised.md).
+
     Args:
         steps: the method's :class:`~sssbench.ops.sum_of_gaussians.SoGStep` list; steps whose
             ``kernel`` is ``None`` (the unblurred first Gaussian) stay without passes.
@@ -192,7 +204,9 @@ class PerGaussianTaps(Parametrisation):
         if not steps or not all(hasattr(s, "kernel") for s in steps):
             raise TypeError("steps must be a non-empty sequence of SoGStep")
         self.steps = list(steps)
-        self.taps = nn.ModuleList(SymmetricTaps(s.kernel) for s in steps if s.kernel is not None)
+        self.taps = nn.ModuleList(
+            SymmetricTaps(s.kernel, grey=True) for s in steps if s.kernel is not None
+        )
 
     def _kernels(self) -> list[Kernel1D | None]:
         fitted = iter(t.kernel() for t in self.taps)

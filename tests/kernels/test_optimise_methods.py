@@ -54,6 +54,8 @@ def test_per_gaussian_taps_start_at_the_schedule_and_stay_normalised():
     for k in fitted.kernels[1:]:
         assert torch.allclose(k.weights.sum(0), torch.ones(3, dtype=torch.float64), atol=1e-12)
         assert bool((k.weights >= 0).all()) and torch.equal(k.offsets, -k.offsets.flip(0))
+    for k in fitted.kernels[1:]:  # grey: one weight per tap for every channel
+        assert torch.equal(k.weights, k.weights[:, :1].expand(-1, 3))
     other = SumOfGaussiansSSS(PROFILE, 5)  # no unblurred first Gaussian: another schedule
     with pytest.raises(ValueError, match="Gaussian steps"):
         opt.PerGaussianTaps.install(other, fitted)
@@ -64,7 +66,8 @@ def test_per_gaussian_fit_recovers_a_reachable_tap_set():
     §7.3.3), so the result is ``w' · K*K* E + (1 − w') E`` with the blend ``w'`` of the
     second Gaussian (0.3 / 0.6 / 0.8). With the known tap set K* (each tap in its own pixel
     cell) on a white-noise plane, K* is the unique zero-loss kernel; the fit recovers it from
-    a perturbed start, and the pass-free first step stays without taps."""
+    a perturbed start, and the pass-free first step stays without taps. The tap sets are
+    grey (one weight per tap for R, G, B), as each of 003's Gaussian blurs."""
     px = 0.5
     g = _noise_plane(24, px)
     two = SumOfGaussians(
@@ -72,8 +75,7 @@ def test_per_gaussian_fit_recovers_a_reachable_tap_set():
         torch.tensor([[0.7, 0.4, 0.2], [0.3, 0.6, 0.8]], dtype=torch.float64),
     )
     m = SumOfGaussiansSSS(two, 5, lod=False, unblurred_first=True, follow_surface=None)
-    truth = _kernel([-3.5, -1.5, 0, 1.5, 3.5], [[0.1, 0.2, 0.4, 0.2, 0.1], [0.05, 0.15, 0.6,
-                    0.15, 0.05], [0.02, 0.08, 0.8, 0.08, 0.02]], px)  # fmt: skip
+    truth = _kernel([-3.5, -1.5, 0, 1.5, 3.5], [[0.1, 0.2, 0.4, 0.2, 0.1]] * 3, px)  # grey
     m.steps = [replace(s, kernel=None if s.kernel is None else truth) for s in m.schedule]
     with torch.no_grad():
         target = m(g)
