@@ -388,7 +388,8 @@ def _limits(data: dict, others: dict, budget_rows: list) -> str:
         parts.append(
             f"{method} {scale} {name}: the {start} kernel's {total:.3g} has a taps part of "
             f"{taps:.3g} ({taps / total:.0%} of it) beside model {model:.3g} and screen "
-            f"{screen:.3g}; the fit removes {removed:.0%} of it"
+            f"{screen:.3g}; the fit {'removes' if removed >= 0 else 'adds'} {abs(removed):.0%} "
+            "of it"
             + (" (more than the taps part: it also compensates part of the model and "
                "screen-space error on this scene)" if removed > taps / total else "")
             + f" and the best published start ({case['best_rule']}) "
