@@ -127,7 +127,7 @@ def method_kernels(method: nn.Module, name: str | None = None) -> list[NamedKern
     from sssbench.ops import Jimenez2012SSS, LowRankSSS, SeparableMethod, SumOfGaussiansSSS
 
     kind = type(method).__name__
-    if isinstance(method, SumOfGaussiansSSS):
+    if isinstance(method, SumOfGaussiansSSS) and method.steps is not None:  # None: not fitted
         return [
             NamedKernel(f"sog{i}", s.kernel, extras={"blend": s.blend.double().tolist()})
             for i, s in enumerate(method.steps)

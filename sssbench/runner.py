@@ -626,8 +626,13 @@ def _budget_inputs(
         return None
 
     # fitted taps (sampling="optimised") exist for the run's own tap count only; the converged
-    # limit is the same continuous kernel, reached by importance sampling at many taps
-    limit_sampling = "importance" if spec.sampling == "optimised" else spec.sampling
+    # limit is reached by the method's own placement rule at many taps (the pre-integrated
+    # kernel's importance sampling, the sum of Gaussians' uniform taps, the 2012 builder's)
+    limit_sampling = (
+        registry.default_option(spec.method, "sampling")
+        if spec.sampling == "optimised"
+        else spec.sampling
+    )
 
     def build(samples: int) -> Any:
         sampling = spec.sampling if samples == spec.samples else limit_sampling

@@ -2,9 +2,11 @@
 
 Every published rule places taps without looking at the pixel grid, the irradiance
 reconstruction of the gather (linear interpolation) or the depth-aware pass that applies
-them (importance sampling, 000 §7; a power law, 002 appendix; uniform taps). Here the taps of
-the pre-integrated two-pass kernel (000 eq. 5) are *fitted*: the method
-(:class:`~sssbench.ops.PreintegratedSSS`, every depth-aware option it was given) is run on a
+them (importance sampling, 000 §7; a power law, 002 appendix; uniform taps). Here a method's
+kernel is *fitted* — the pre-integrated two-pass kernel's taps (000 eq. 5), the sum of
+Gaussians' per-Gaussian tap sets (003 §7.3) or the 2012 kernel's strength, falloff and width
+(002 eq. 1): the method (e.g. :class:`~sssbench.ops.PreintegratedSSS`, every depth-aware
+option it was given) is run on a
 training set of scenes at one pixel footprint, its output compared with the exact reference
 (:class:`~sssbench.ops.ReferenceSSS`, the SSS stage only, cached), and the error minimised
 with Adam through the differentiable gather (:func:`~sssbench.ops.separable_pass`, the torch
@@ -15,16 +17,23 @@ scenes with large errors (a light disc on a plane) dominate the fit. Measured on
 head (7 taps, 1 mm per pixel): 21 % less error than the best rule with the relative loss, 3 %
 with the plain mean (which in exchange did better on the skin-patch scene, 44 % against 0 %).
 
-Parametrisation (:class:`SymmetricTaps`), so that every iterate is a valid kernel:
+Parametrisations (:mod:`sssbench.kernels.parametrise`), so that every iterate is a valid
+kernel, all fitted by the one loop :func:`fit_taps` (:data:`METHOD_FITS` says which method
+uses which):
 
-- offsets symmetric and sorted: the positive half is ``s · cumsum(softplus(u))`` (strictly
-  increasing, > 0; ``s`` the initial extent in mm, so ``u`` is O(1)), mirrored, with a centre
-  tap fixed at 0 for an odd tap count;
-- weights per channel non-negative, normalised and symmetric: a softmax over the taps of
-  mirrored logits (``w_{-i} = w_i``, ``Σ w = 1``, as the normalised kernel of 000 eq. 5).
+- ``preintegrated`` (:class:`SymmetricTaps`): offsets symmetric and sorted (the positive half
+  ``s · cumsum(softplus(u))``, mirrored, a centre tap at 0 for an odd tap count), weights per
+  channel non-negative, symmetric and normalised (a softmax of mirrored logits), as the
+  normalised kernel of 000 eq. 5;
+- ``sum_of_gaussians`` (:class:`PerGaussianTaps`): one such tap set per blurred Gaussian of
+  003 §7.3.3, each normalised on its own; variances and blend weights stay the profile's;
+- ``jimenez2012`` (:class:`Jimenez2012Parameters`): the 2012 kernel's per-channel strength
+  (sigmoid) and falloff (exp) and its width (a log-ratio), 002 eq. 1; its taps stay the 2012
+  kernel builder's.
 
 The fit starts from each published rule (importance, 000 §7; uniform; power, 002 appendix —
-at equal taps) for a short screening run (:data:`SCREEN_STEPS`), continues from the best
+at equal taps; for the 2012 kernel its given parameters and each preset of 002 at the given
+width) for a short screening run (:data:`SCREEN_STEPS`), continues from the best
 screened kernel, and keeps the best iterate seen (the starts included), so the training error
 never rises above the best rule's. The screening is there because the loss has local minima
 (the taps' interpolation weights are piecewise linear in the offsets): measured at 9 taps and
@@ -47,6 +56,7 @@ changed input can never be served an old kernel.
 
 from __future__ import annotations
 
+import dataclasses
 import inspect
 import json
 import logging
@@ -54,7 +64,7 @@ import math
 import os
 import threading
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -62,8 +72,15 @@ from typing import Any
 import torch
 from torch import nn
 
-from sssbench._checks import check_choice, check_int, check_scalar
+from sssbench._checks import check_choice, check_int, check_magnitude, check_scalar
 from sssbench.kernels.kernel1d import Kernel1D
+from sssbench.kernels.parametrise import (
+    Fitted,
+    Jimenez2012Parameters,
+    Parametrisation,
+    PerGaussianTaps,
+    SymmetricTaps,
+)
 from sssbench.kernels.sampling import OPTIMISED, SAMPLINGS
 from sssbench.profiles.base import Profile
 
@@ -75,10 +92,19 @@ __all__ = [
     "TrainingScene",
     "DEFAULT_TRAINING",
     "SymmetricTaps",
+    "PerGaussianTaps",
+    "Jimenez2012Parameters",
+    "Parametrisation",
+    "Fitted",
+    "MethodFit",
+    "METHOD_FITS",
     "FitResult",
     "OptimisedKernel",
     "fit_taps",
     "optimise",
+    "method_options",
+    "use_optimised",
+    "check_optimised_sampling",
     "cache_key",
     "kernel_cache_dir",
     "nearest_footprint",
@@ -89,8 +115,6 @@ __all__ = [
 
 log = logging.getLogger("sssbench")
 
-#: methods whose taps can be fitted
-METHODS = ("preintegrated",)
 #: largest tap count fitted (a step costs about linearly in taps; beyond this the importance
 #: rule's discretisation error is already small, see experiments/sections/sampling.md)
 MAX_OPTIMISED_TAPS = 33
@@ -149,61 +173,6 @@ DEFAULT_TRAINING = (
 )
 
 
-# ------------------------------------------------------------------- parametrisation
-def _softplus_inverse(y: torch.Tensor) -> torch.Tensor:
-    """``log(exp(y) − 1)`` for ``y > 0``, stable for small and large ``y``."""
-    return torch.where(y > 20.0, y, torch.log(torch.expm1(y.clamp_max(20.0))))
-
-
-class SymmetricTaps(nn.Module):
-    """Symmetric, sorted, normalised taps as unconstrained parameters (module doc).
-
-    Args:
-        init: the starting kernel, symmetric (``offsets[i] = −offsets[K−1−i]``, a centre tap
-            at 0 when K is odd, no two offsets equal) with non-negative weights summing to 1
-            per channel — e.g. the importance-sampled kernel (000 §7).
-
-    Attributes:
-        u: ``(K // 2,)`` softplus pre-images of the gaps between successive positive offsets,
-            in units of ``scale`` mm.
-        logits: ``(K // 2 + K % 2, 3)`` log-weights of the centre (odd K) and the positive taps.
-    """
-
-    def __init__(self, init: Kernel1D) -> None:
-        super().__init__()
-        if not isinstance(init, Kernel1D):
-            raise TypeError(f"init must be a Kernel1D, got {type(init).__name__}")
-        off = init.offsets.detach().to(torch.float64)
-        w = init.weights.detach().to(torch.float64)
-        k = len(init)
-        self.taps, self.has_centre = k, k % 2 == 1
-        m = k // 2
-        scale = max(float(off.abs().max()), 1e-6)
-        if not torch.allclose(off, -off.flip(0), atol=1e-9 * scale, rtol=0):
-            raise ValueError(f"init offsets must be symmetric about 0, got {off.tolist()}")
-        if not torch.allclose(w, w.flip(0), atol=1e-9, rtol=1e-7):
-            raise ValueError("init weights must be symmetric (w[i] = w[K-1-i])")
-        if bool((w < 0).any()) or not torch.allclose(w.sum(0), torch.ones(3, dtype=w.dtype)):
-            raise ValueError("init weights must be >= 0 and sum to 1 per channel")
-        pos = off[k - m :]
-        gaps = torch.diff(torch.cat([pos.new_zeros(1), pos]))
-        if bool((gaps <= 0).any()):
-            raise ValueError(f"init offsets must be distinct (and the centre at 0), got {off}")
-        self.scale = scale
-        self.u = nn.Parameter(_softplus_inverse(gaps / scale))
-        half = w[m:]  # the centre (odd K) and the positive taps
-        self.logits = nn.Parameter(torch.log(half.clamp_min(torch.finfo(torch.float64).tiny)))
-
-    def kernel(self) -> Kernel1D:
-        """The current taps as a :class:`Kernel1D` (float64, differentiable)."""
-        pos = self.scale * torch.cumsum(nn.functional.softplus(self.u), 0)
-        mid = [pos.new_zeros(1)] if self.has_centre else []
-        offsets = torch.cat([-pos.flip(0), *mid, pos])
-        pairs = self.logits[1:] if self.has_centre else self.logits
-        weights = torch.softmax(torch.cat([pairs.flip(0), self.logits]), dim=0)
-        return Kernel1D(offsets, weights)
-
-
 # ------------------------------------------------------------------- the fit
 def rel_rms_loss(
     result: torch.Tensor, reference: torch.Tensor, mask: torch.Tensor | None
@@ -235,41 +204,51 @@ class FitResult:
     """What :func:`fit_taps` returns.
 
     Attributes:
-        kernel: the best taps seen (float64, detached).
+        fitted: the best parameters seen, as a :class:`~sssbench.kernels.parametrise.Fitted`
+            (float64, detached kernels and continuous parameters).
         losses: the mean training loss at every evaluated step (``losses[0]``: the init).
-        best_step: the step of ``kernel``.
+        best_step: the step of ``fitted``.
     """
 
-    kernel: Kernel1D
+    fitted: Fitted
     losses: list[float]
     best_step: int
+
+    @property
+    def kernel(self) -> Kernel1D:
+        """The kernel of a two-pass method (``fitted.kernel``)."""
+        return self.fitted.kernel
 
 
 def fit_taps(
     method: nn.Module,
     problems: Sequence[tuple[Any, torch.Tensor]],
-    init: Kernel1D,
+    init: Kernel1D | Parametrisation,
     *,
     steps: int = DEFAULT_STEPS,
     lr: float = DEFAULT_LR,
     scales: Sequence[float] | None = None,
 ) -> FitResult:
-    """Fit ``method.kernel`` (a two-pass method's :class:`Kernel1D`) to targets by Adam.
+    """Fit a method's kernel to targets by Adam: THE optimiser loop of every parametrisation.
+
+    Each step writes the parametrisation's :meth:`~Parametrisation.value` into ``method``
+    (e.g. its ``kernel`` or its Gaussian ``steps``), runs ``method`` on every problem (its own
+    passes, torch backend) and steps the parameters.
 
     Args:
-        method: a module that applies its ``kernel`` attribute (e.g.
-            :class:`~sssbench.ops.PreintegratedSSS`); its kernel is replaced by the iterates and
-            restored afterwards.
+        method: the module whose kernel is fitted (e.g. :class:`~sssbench.ops.PreintegratedSSS`);
+            the attributes the parametrisation sets are restored afterwards.
         problems: ``(gbuffer, target (1, 3, H, W))`` pairs; the loss is the mean over them of
             :func:`rel_rms_loss` on each G-buffer's mask (:func:`training_loss`).
-        scales: divisor of each problem's term (default 1), > 0.
-        init: starting kernel (see :class:`SymmetricTaps`).
+        init: a :class:`Parametrisation` (its parameters are the start and hold the best
+            iterate afterwards), or a symmetric :class:`Kernel1D`, fitted as
+            :class:`~sssbench.kernels.parametrise.SymmetricTaps` in ``method.kernel``.
         steps: Adam steps (>= 0); the learning rate decays as a half cosine to 5 % of ``lr``.
-        lr: Adam's learning rate on the parameters (offsets in units of the initial extent,
-            log-weights), > 0.
+        lr: Adam's learning rate on the (unconstrained) parameters, > 0.
+        scales: divisor of each problem's term (default 1), > 0.
 
     Returns:
-        A :class:`FitResult` whose kernel is the best iterate (never worse than ``init``).
+        A :class:`FitResult` with the best iterate (never worse than the start).
     """
     from sssbench.ops.gather import backend
 
@@ -277,24 +256,28 @@ def fit_taps(
     lr = check_scalar("lr", lr, 0.0, low_inclusive=False)
     if not problems:
         raise ValueError("problems must hold at least one (gbuffer, target) pair")
-    taps = SymmetricTaps(init)
-    params = [p for p in taps.parameters() if p.numel()]
+    if isinstance(init, Kernel1D):
+        init = SymmetricTaps(init)
+    if not isinstance(init, Parametrisation):
+        raise TypeError(f"init must be a Kernel1D or a Parametrisation, got {type(init).__name__}")
+    param = init
+    params = [p for p in param.parameters() if p.numel()]
     opt = torch.optim.Adam(params, lr=lr) if params else None
-    saved = method.kernel
+    saved = {name: getattr(method, name) for name in param.value()}
     losses: list[float] = []
-    best = (math.inf, init.to(torch.float64), 0)
+    best: tuple[float, dict[str, torch.Tensor], int] = (math.inf, {}, 0)
     try:
         # also inside a caller's no_grad / inference_mode (a method fits on its first call)
         with backend("torch"), torch.inference_mode(False), torch.enable_grad():
             for step in range(steps + 1):
-                kernel = taps.kernel()
-                method.kernel = kernel
+                for name, value in param.value().items():
+                    setattr(method, name, value)
                 loss = training_loss(method, problems, scales)
                 value = float(loss.detach())
                 losses.append(value)
                 if value < best[0]:
-                    detached = Kernel1D(kernel.offsets.detach(), kernel.weights.detach())
-                    best = (value, detached, step)
+                    state = {k: v.detach().clone() for k, v in param.state_dict().items()}
+                    best = (value, state, step)
                 if step == steps or opt is None:
                     break
                 for group in opt.param_groups:  # half cosine from lr to 5 % of lr
@@ -303,8 +286,92 @@ def fit_taps(
                 loss.backward()
                 opt.step()
     finally:
-        method.kernel = saved
-    return FitResult(best[1], losses, best[2])
+        for name, value in saved.items():
+            setattr(method, name, value)
+    if best[1]:
+        param.load_state_dict(best[1])
+    return FitResult(param.fitted(), losses, best[2])
+
+
+# ------------------------------------------------------------------- methods
+@dataclass(frozen=True)
+class MethodFit:
+    """How one method's kernel is fitted.
+
+    Attributes:
+        cls: the method's class name in :mod:`sssbench.ops`.
+        parametrisation: its :class:`Parametrisation` (built from a method by ``parametrise``).
+        parametrise: method -> parametrisation at the method's current kernel.
+        starts: ``(profile, taps, options) -> {name: method}``, the method with each published
+            rule (the fit's starting points and the rules it is compared with).
+        profile_of: method -> the profile its fit targets (and is keyed by).
+    """
+
+    cls: str
+    parametrisation: type[Parametrisation]
+    parametrise: Callable[[nn.Module], Parametrisation]
+    starts: Callable[[Profile, int, dict[str, Any]], dict[str, nn.Module]]
+    profile_of: Callable[[nn.Module], Profile]
+
+
+def _ops_class(name: str) -> type:
+    import sssbench.ops
+
+    return getattr(sssbench.ops, name)
+
+
+def _rule_starts(cls: str) -> Callable[[Profile, int, dict[str, Any]], dict[str, nn.Module]]:
+    """The method with each placement rule of :data:`SAMPLINGS` (000 §7, 002 appendix)."""
+
+    def starts(profile: Profile, taps: int, options: dict[str, Any]) -> dict[str, nn.Module]:
+        return {rule: _ops_class(cls)(profile, taps, rule, **options) for rule in SAMPLINGS}
+
+    return starts
+
+
+def _jimenez2012_starts(
+    profile: Profile, taps: int, options: dict[str, Any]
+) -> dict[str, nn.Module]:
+    """The 2012 method with its given strength / falloff and with each preset of
+    :data:`~sssbench.kernels.JIMENEZ2012_PRESETS` (002 Table 1, the 2012 shader's defaults), at
+    the given width: the published parameter sets (the width is a scene parameter in 002)."""
+    from sssbench.kernels.jimenez2012 import JIMENEZ2012_PRESETS
+
+    cls = _ops_class("Jimenez2012SSS")
+    rest = {k: v for k, v in options.items() if k not in ("strength", "falloff")}
+    sets = {"given": (options["strength"], options["falloff"])}
+    for name, p in JIMENEZ2012_PRESETS.items():
+        if json.dumps(_jsonable((p["strength"], p["falloff"]))) != json.dumps(
+            _jsonable(sets["given"])
+        ):
+            sets[name] = (p["strength"], p["falloff"])
+    return {name: cls(t, f, samples=taps, profile=profile, **rest) for name, (t, f) in sets.items()}
+
+
+def _base_profile(method: nn.Module) -> Profile:
+    from sssbench.profiles.sum_of_gaussians import SumOfGaussians
+
+    p = method.base_profile
+    return SumOfGaussians.from_table(p) if isinstance(p, str) else p
+
+
+#: method name (as :data:`sssbench.registry.METHODS`) -> how its kernel is fitted
+METHOD_FITS: dict[str, MethodFit] = {
+    "preintegrated": MethodFit(
+        "PreintegratedSSS", SymmetricTaps, lambda m: SymmetricTaps(m.kernel),
+        _rule_starts("PreintegratedSSS"), lambda m: m.profile,
+    ),
+    "sum_of_gaussians": MethodFit(
+        "SumOfGaussiansSSS", PerGaussianTaps, lambda m: PerGaussianTaps(m.schedule),
+        _rule_starts("SumOfGaussiansSSS"), lambda m: m.profile,
+    ),
+    "jimenez2012": MethodFit(
+        "Jimenez2012SSS", Jimenez2012Parameters, Jimenez2012Parameters, _jimenez2012_starts,
+        _base_profile,
+    ),
+}  # fmt: skip
+#: methods whose kernels can be fitted
+METHODS = tuple(METHOD_FITS)
 
 
 # ------------------------------------------------------------------- cache
@@ -312,6 +379,24 @@ def kernel_cache_dir() -> Path:
     """``$SSSBENCH_CACHE_DIR/kernels``, else ``~/.cache/sssbench/kernels``."""
     root = os.environ.get("SSSBENCH_CACHE_DIR")
     return (Path(root) if root else Path.home() / ".cache" / "sssbench") / "kernels"
+
+
+def _jsonable(value: Any) -> Any:
+    """An option as JSON (a dataclass such as a ``Stretch`` by its fields, tensors and tuples
+    as lists, a profile by its content digest)."""
+    from sssbench.refcache import profile_digest
+
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return {"type": type(value).__name__, **_jsonable(dataclasses.asdict(value))}
+    if isinstance(value, Profile):
+        return {"profile": profile_digest(value)}
+    if isinstance(value, torch.Tensor):
+        return value.detach().double().tolist()
+    if isinstance(value, Mapping):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    return value
 
 
 def cache_key(
@@ -332,11 +417,11 @@ def cache_key(
         "code": code_digest(),
         "profile": profile_digest(profile),
         "method": method,
-        "options": {k: options[k] for k in sorted(options)},
+        "options": {k: _jsonable(options[k]) for k in sorted(options)},
         "taps": taps,
         "pixel_mm": pixel_mm,
         "training": [s.describe() for s in training],
-        "init": "best of " + "/".join(SAMPLINGS) + " after screening",
+        "init": "best published start after screening",
         "optimiser": {"name": "adam", "steps": steps, "lr": lr, "screen": SCREEN_STEPS},
     }
 
@@ -346,27 +431,46 @@ class OptimisedKernel:
     """A fitted kernel and how it was made.
 
     Attributes:
-        kernel: the taps (mm, float64), a normal :class:`Kernel1D`.
+        fitted: the kernels (mm, or widths for the 2012 kernel; float64) and continuous
+            parameters (:class:`~sssbench.kernels.parametrise.Fitted`).
+        method: the method's name (a key of :data:`METHOD_FITS`).
         pixel_mm: the footprint it was fitted at (mm per pixel).
-        init_loss, loss: training loss of the best published rule and of ``kernel``: the mean
-            over the training scenes of the rel RMS divided by the best rule's on that scene
-            (1 when one rule is best on every scene).
-        rule_losses: the training loss of each published rule (:data:`SAMPLINGS`).
+        init_loss, loss: training loss of the best published start and of ``fitted``: the mean
+            over the training scenes of the rel RMS divided by the best start's on that scene
+            (1 when one start is best on every scene).
+        rule_losses: the training loss of each published start (rules, or the 2012 kernel's
+            parameter sets).
+        start: the start the fit continued from (the best after screening).
         losses: the training loss per step.
         seconds: wall time of the fit (references, rules and steps), as stored with the entry.
         cached: loaded from the disk cache.
         key: :func:`cache_key`.
     """
 
-    kernel: Kernel1D
+    fitted: Fitted
+    method: str
     pixel_mm: float
     init_loss: float
     loss: float
     rule_losses: dict[str, float]
+    start: str
     losses: list[float]
     seconds: float
     cached: bool
     key: dict[str, Any] = field(repr=False)
+
+    @property
+    def kernel(self) -> Kernel1D:
+        """The kernel of a two-pass method (``fitted.kernel``)."""
+        return self.fitted.kernel
+
+    @property
+    def params(self) -> dict[str, Any]:
+        """The fitted continuous parameters (``fitted.params``; the 2012 kernel's)."""
+        return self.fitted.params
+
+
+_STORED = ("init_loss", "loss", "rule_losses", "start", "losses", "seconds")
 
 
 def _cache_path(key: Mapping[str, Any], cache_dir: Path | None) -> Path:
@@ -382,15 +486,10 @@ def _load(path: Path, key: Mapping[str, Any], pixel_mm: float) -> OptimisedKerne
         entry = json.loads(path.read_text())
         if entry["key"] != json.loads(json.dumps(dict(key))):
             return None  # a hash collision: never serve another key's kernel
-        kernel = Kernel1D(
-            torch.tensor(entry["offsets"], dtype=torch.float64),
-            torch.tensor(entry["weights"], dtype=torch.float64),
-        )
-        return OptimisedKernel(
-            kernel, pixel_mm, entry["init_loss"], entry["loss"], entry["rule_losses"],
-            entry["losses"],
-            entry["seconds"], True, dict(key),
-        )  # fmt: skip
+        stored = {name: entry[name] for name in _STORED}
+        fitted = Fitted.from_dict(entry["fitted"])
+        return OptimisedKernel(fitted, key["method"], pixel_mm, **stored, cached=True,
+                               key=dict(key))  # fmt: skip
     except Exception as exc:  # an unreadable entry is recomputed
         log.warning("optimised-kernel cache entry %s unreadable (%s); refitting", path, exc)
         return None
@@ -400,15 +499,8 @@ def _store(path: Path, result: OptimisedKernel) -> None:
     """Write one entry atomically (a temporary file, then ``os.replace``)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f"{path.name}.{os.getpid()}.{threading.get_ident()}.tmp")
-    entry = {
-        "key": result.key,
-        **result.kernel.as_dict(),
-        "init_loss": result.init_loss,
-        "rule_losses": result.rule_losses,
-        "loss": result.loss,
-        "losses": result.losses,
-        "seconds": result.seconds,
-    }
+    entry = {"key": result.key, "fitted": result.fitted.as_dict()}
+    entry |= {name: getattr(result, name) for name in _STORED}
     tmp.write_text(json.dumps(entry))
     os.replace(tmp, path)
 
@@ -440,6 +532,31 @@ def sss_reference(
 
 
 # ------------------------------------------------------------------- entry point
+def method_options(method: str, options: Mapping[str, Any] | None) -> dict[str, Any]:
+    """Every constructor option of ``method`` but the fit's own (``profile``, ``samples``,
+    ``sampling``, ``pixel_mm``), defaults filled in, so that equal methods share one cache key.
+
+    Raises:
+        ValueError: an option the fit sets itself, an unknown option, or a required one (the
+            2012 kernel's ``strength``, ``falloff``, ``width``) missing, naming it.
+    """
+    check_choice("method", method, METHODS)
+    options = dict(options or {})
+    own = {"profile", "samples", "sampling", "pixel_mm"} & set(options)
+    if own:
+        raise ValueError(f"options must not set {sorted(own)} (the fit's own)")
+    params = inspect.signature(_ops_class(METHOD_FITS[method].cls).__init__).parameters
+    names = [k for k in params if k not in ("self", "profile", "samples", "sampling", "pixel_mm")]
+    unknown = sorted(set(options) - set(names))
+    if unknown:
+        raise ValueError(f"options of {method!r} have no {unknown}; valid: {names}")
+    empty = inspect.Parameter.empty
+    missing = [k for k in names if k not in options and params[k].default is empty]
+    if missing:
+        raise ValueError(f"options of {method!r} must give {missing} (no default)")
+    return {k: options.get(k, params[k].default) for k in names}
+
+
 def optimise(
     profile: Profile,
     method: str = "preintegrated",
@@ -453,28 +570,32 @@ def optimise(
     cache: bool = True,
     cache_dir: Path | None = None,
 ) -> OptimisedKernel:
-    """The pre-integrated two-pass kernel's taps fitted at one pixel footprint (module doc).
+    """A method's kernel fitted at one pixel footprint (module doc).
 
-    Minimises the mean rel RMS of ``PreintegratedSSS(profile, taps, **options)`` against the
-    exact reference over ``training`` built at ``pixel_mm`` mm per pixel, starting from the
-    published rules (:data:`SAMPLINGS`; screening, module doc). The result is valid for
-    footprints near ``pixel_mm`` (the fit sees how the taps fall on pixels of that size); the
-    method's
-    ``sampling="optimised"`` uses the kernel fitted at the nearest of :data:`FOOTPRINTS`
-    (0.05–5 mm per pixel). Cost: one forward + backward of the method per training scene and
-    step (3 × ``SCREEN_STEPS`` + ``steps`` steps), plus the training references once
-    (cached); ``experiments/optimised.py`` times the default at 7 taps.
+    Minimises the mean rel RMS of the method (``method`` with ``taps`` and ``options``)
+    against the exact reference over ``training`` built at ``pixel_mm`` mm per pixel,
+    starting from its published starts (:data:`METHOD_FITS`: the placement rules of
+    :data:`SAMPLINGS`, or the 2012 kernel's given and preset parameters; screening, module
+    doc). The result is valid for footprints near ``pixel_mm`` (the fit sees how the taps fall
+    on pixels of that size); a method's ``sampling="optimised"`` uses the kernel fitted at the
+    nearest of :data:`FOOTPRINTS` (0.05–5 mm per pixel). Cost: one forward + backward of the
+    method per training scene and step (starts × ``SCREEN_STEPS`` + ``steps`` steps), plus the
+    training references once (cached); ``experiments/optimised.py`` times them.
 
     Args:
-        profile: the radial profile (its pre-integrated kernel is the starting point and its
-            exact reference the target).
-        method: one of :data:`METHODS`.
-        taps: taps per pass in ``[1, MAX_OPTIMISED_TAPS]``.
+        profile: the radial profile: the exact reference's (the target), and the method's
+            (its pre-integrated kernel, its Gaussians, or the 2012 kernel's base profile,
+            which must then be a :class:`~sssbench.profiles.SumOfGaussians`).
+        method: one of :data:`METHODS` (``preintegrated``, ``sum_of_gaussians``,
+            ``jimenez2012``).
+        taps: taps per pass in ``[1, MAX_OPTIMISED_TAPS]`` (the 2012 kernel adds a centre tap
+            to an even count, 002 appendix).
         pixel_mm: footprint of the training scenes, mm per pixel at their focus, > 0.
         training: scenes (default :data:`DEFAULT_TRAINING`).
         steps, lr: see :func:`fit_taps` (``None``: :data:`DEFAULT_STEPS`, :data:`DEFAULT_LR`).
         options: other keyword arguments of the method (``follow_surface``, ``rotation``,
-            ``seed``, ``halo`` …): the fit runs the passes the method will run.
+            ``seed``, ``halo`` …; the 2012 kernel's ``strength``, ``falloff`` and ``width``,
+            its starting point): the fit runs the passes the method will run.
         cache: load / store the result in ``cache_dir`` (default :func:`kernel_cache_dir`).
 
     Returns:
@@ -487,11 +608,9 @@ def optimise(
         >>> r.loss <= r.init_loss  # doctest: +SKIP
         True
     """
-    from sssbench.ops import PreintegratedSSS
-
     if not isinstance(profile, Profile):
         raise TypeError(f"profile must be a sssbench Profile, got {type(profile).__name__}")
-    check_choice("method", method, METHODS)
+    options = method_options(method, options)
     taps = check_int("taps", taps, 1, MAX_OPTIMISED_TAPS)
     pixel_mm = check_scalar("pixel_mm", pixel_mm, 0.0, low_inclusive=False)
     steps = check_int("steps", DEFAULT_STEPS if steps is None else steps, 0)
@@ -499,13 +618,7 @@ def optimise(
     training = tuple(DEFAULT_TRAINING if training is None else training)
     if not training or not all(isinstance(s, TrainingScene) for s in training):
         raise TypeError("training must be a non-empty sequence of TrainingScene")
-    options = dict(options or {})
-    if {"sampling", "samples", "pixel_mm"} & set(options):
-        raise ValueError("options must not set sampling, samples or pixel_mm (the fit's own)")
-    # every option explicit, so that equal methods share one key (defaults filled in)
-    params = inspect.signature(PreintegratedSSS.__init__).parameters
-    skip = ("self", "profile", "samples", "sampling", "pixel_mm")
-    options = {k: p.default for k, p in params.items() if k not in skip} | options
+    spec = METHOD_FITS[method]
     key = cache_key(profile, method, taps, pixel_mm, training, options, steps, lr)
     path = _cache_path(key, cache_dir)
     if cache and (hit := _load(path, key, pixel_mm)) is not None:
@@ -516,30 +629,30 @@ def optimise(
         for scene in training:
             g = scene.build(pixel_mm)
             problems.append((g, sss_reference(scene, g, profile, pixel_mm).clone()))
-        ops = {rule: PreintegratedSSS(profile, taps, rule, **options) for rule in SAMPLINGS}
-        with torch.no_grad():  # each scene's term relative to the best rule there
+        ops = spec.starts(profile, taps, options)
+        with torch.no_grad():  # each scene's term relative to the best start there
             errs = [
                 [float(rel_rms_loss(op(g), t, g.mask)) for op in ops.values()] for g, t in problems
             ]
         scales = [max(min(e), torch.finfo(torch.float32).eps) for e in errs]
+        params = {name: spec.parametrise(op) for name, op in ops.items()}
         screens = {
-            rule: fit_taps(op, problems, op.kernel, steps=min(SCREEN_STEPS, steps), lr=lr,
+            name: fit_taps(op, problems, params[name], steps=min(SCREEN_STEPS, steps), lr=lr,
                            scales=scales)
-            for rule, op in ops.items()
+            for name, op in ops.items()
         }  # fmt: skip
-        rule_losses = {rule: fit.losses[0] for rule, fit in screens.items()}
-        chosen = min(screens, key=lambda rule: min(screens[rule].losses))
-        fit = fit_taps(
-            ops[chosen], problems, screens[chosen].kernel, steps=steps, lr=lr, scales=scales
-        )
+        rule_losses = {name: fit.losses[0] for name, fit in screens.items()}
+        chosen = min(screens, key=lambda name: min(screens[name].losses))
+        # continues from the best screened iterate (the parametrisation holds it)
+        fit = fit_taps(ops[chosen], problems, params[chosen], steps=steps, lr=lr, scales=scales)
     result = OptimisedKernel(
-        fit.kernel, pixel_mm, min(rule_losses.values()), min(fit.losses), rule_losses,
-        fit.losses, time.perf_counter() - start, False, key,
+        fit.fitted, method, pixel_mm, min(rule_losses.values()), min(fit.losses), rule_losses,
+        chosen, fit.losses, time.perf_counter() - start, False, key,
     )  # fmt: skip
     log.info(
-        "optimised %d-tap kernel at %.3g mm/px: training loss (rel RMS / best rule's) "
-        "%.4g -> %.4g (%.0f s)",
-        taps, pixel_mm, result.init_loss, result.loss, result.seconds,
+        "optimised %s kernel (%d taps) at %.3g mm/px: training loss (rel RMS / best "
+        "start's) %.4g -> %.4g (%.0f s)",
+        method, taps, pixel_mm, result.init_loss, result.loss, result.seconds,
     )  # fmt: skip
     if cache:
         _store(path, result)
@@ -557,3 +670,52 @@ def nearest_footprint(pixel_mm: float) -> float:
             "at %g mm/px", pixel_mm, FOOTPRINTS[0], FOOTPRINTS[-1], best,
         )  # fmt: skip
     return best
+
+
+# ------------------------------------------------------------------- methods' use
+def check_optimised_sampling(sampling: str, samples: int, pixel_mm: float | None) -> float | None:
+    """Validate a method's ``samples`` and ``pixel_mm`` against its ``sampling``: fitted
+    kernels stop at :data:`MAX_OPTIMISED_TAPS`, and ``pixel_mm`` (the footprint, mm per
+    pixel) is only for ``sampling="optimised"``. Returns ``pixel_mm``."""
+    if sampling == OPTIMISED:
+        check_int("samples (with sampling='optimised')", samples, 1, MAX_OPTIMISED_TAPS)
+    if pixel_mm is None:
+        return None
+    if sampling != OPTIMISED:
+        raise ValueError(
+            f"pixel_mm is the footprint of sampling='optimised' kernels; it must be None "
+            f"with sampling={sampling!r}"
+        )
+    return check_magnitude("pixel_mm", pixel_mm, "length")
+
+
+def use_optimised(method: nn.Module, gbuffer: Any | None = None) -> OptimisedKernel:
+    """Install into ``method`` (built with ``sampling="optimised"``) the kernel fitted at its
+    footprint: its ``pixel_mm`` when set, else the footprint of ``gbuffer``
+    (:func:`sssbench.budget.footprint_mm`, the median over the mask; B = 1) snapped to the
+    nearest of :data:`FOOTPRINTS`. Fitted on first use (:func:`optimise` with the method's
+    ``samples`` and ``fit_options``, then from the disk cache), memoised per footprint in
+    ``method.fitted``.
+
+    Raises:
+        ValueError: no ``pixel_mm`` and a G-buffer with B != 1 (or none).
+    """
+    name = next(k for k, s in METHOD_FITS.items() if s.cls == type(method).__name__)
+    spec = METHOD_FITS[name]
+    pixel_mm = method.pixel_mm
+    if pixel_mm is None:
+        from sssbench.budget import footprint_mm
+
+        if gbuffer is None or gbuffer.shape[0] != 1:
+            raise ValueError(
+                "sampling='optimised' without pixel_mm resolves the footprint per G-buffer: "
+                f"give B = 1 (got {None if gbuffer is None else gbuffer.shape[0]}) or pixel_mm"
+            )
+        pixel_mm = nearest_footprint(footprint_mm(gbuffer))
+    if pixel_mm not in method.fitted:
+        method.fitted[pixel_mm] = optimise(
+            spec.profile_of(method), name, method.samples, pixel_mm, options=method.fit_options
+        )
+    fit = method.fitted[pixel_mm]
+    spec.parametrisation.install(method, fit.fitted)
+    return fit

@@ -8,12 +8,19 @@ import torch
 from sssbench._checks import check_choice, check_magnitude, check_method_options
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.jimenez2012 import JIMENEZ2012_PRESETS, jimenez2012
+from sssbench.kernels.kernel1d import Kernel1D
+from sssbench.kernels.optimise import check_optimised_sampling, use_optimised
+from sssbench.kernels.sampling import OPTIMISED
 from sssbench.ops.functional import functional
 from sssbench.ops.method import SeparableMethod
 from sssbench.ops.preintegrated import two_pass
 from sssbench.profiles.sum_of_gaussians import SumOfGaussians
 
-__all__ = ["Jimenez2012SSS", "jimenez2012_sss"]
+__all__ = ["Jimenez2012SSS", "jimenez2012_sss", "SAMPLINGS"]
+
+#: the ``sampling`` choices: the 2012 kernel builder's taps (power placement, 002 appendix) or
+#: its parameters fitted through the passes
+SAMPLINGS = ("power", OPTIMISED)
 
 
 class Jimenez2012SSS(SeparableMethod):
@@ -46,6 +53,23 @@ class Jimenez2012SSS(SeparableMethod):
         quadrature: ``"shader"`` or ``"integrated"`` tap weights.
         rotation: stochastic rotation radius fraction (000 §6), or ``None``.
         seed: rotation seed (one :class:`Rotation` for both passes).
+        sampling: ``"power"`` (default: the 2012 kernel builder's taps for the given
+            ``strength``, ``falloff`` and ``width``, 002 appendix) or ``"optimised"``: the
+            strength, falloff and width fitted by gradient descent through these very passes
+            (this method's options included) against the exact reference of ``profile`` (all
+            its channels) on training scenes at one pixel footprint
+            (:func:`sssbench.kernels.optimise.optimise`,
+            :class:`~sssbench.kernels.parametrise.Jimenez2012Parameters`; disk-cached; fitted
+            for 0.05–5 mm per pixel), starting from the given parameters and 002's presets at
+            the given width, whichever is best on the training set. The taps stay the 2012
+            kernel builder's. The footprint is ``pixel_mm`` when given, else the G-buffer's of
+            each call snapped to the nearest of :data:`~sssbench.kernels.optimise.FOOTPRINTS`
+            (as :class:`~sssbench.ops.PreintegratedSSS`); ``kernel``, ``strength``,
+            ``falloff`` and ``width`` then hold the fitted values of the last call (``kernel``
+            is ``None`` before the first). ``surface_scale`` stays the given ``width`` (or the
+            given ``surface_scale``): the fit runs with it.
+        pixel_mm: footprint (mm per pixel) of an ``optimised`` fit; ``None`` (default): the
+            run's own. Only with ``sampling="optimised"``.
 
     Shape:
         - forward(gbuffer): ``(B, 3, H, W)``.
@@ -73,9 +97,14 @@ class Jimenez2012SSS(SeparableMethod):
         quadrature: str = "shader",
         rotation: float | None = None,
         seed: int = 0,
+        sampling: str = "power",
+        pixel_mm: float | None = None,
     ) -> None:
         super().__init__()
         check_method_options(surface_scale, seed)
+        check_choice("sampling", sampling, SAMPLINGS)
+        self.sampling = sampling
+        self.pixel_mm = check_optimised_sampling(sampling, samples, pixel_mm)
         self.width = check_magnitude("width", width, "length")
         if not isinstance(follow_surface, bool):
             raise TypeError(f"follow_surface must be a bool, got {type(follow_surface).__name__}")
@@ -87,12 +116,24 @@ class Jimenez2012SSS(SeparableMethod):
             seed,
             default_scale=self.width,
         )
-        self.kernel = jimenez2012(
+        self.kernel: Kernel1D | None = jimenez2012(
             strength, falloff, samples, profile=profile, quadrature=quadrature
         )
         self.samples = samples
         #: the kernel's parameters, kept for its continuous form (sssbench.budget)
         self.strength, self.falloff, self.base_profile = strength, falloff, profile
+        self.quadrature = quadrature
+        #: the fits of ``sampling="optimised"`` per footprint and the options they start from
+        #: (:func:`~sssbench.kernels.optimise.use_optimised`)
+        self.fitted: dict[float, object] = {}
+        self.fit_options = dict(
+            strength=strength, falloff=falloff, width=width, follow_surface=follow_surface,
+            surface_scale=surface_scale, quadrature=quadrature, rotation=rotation, seed=seed,
+        )  # fmt: skip
+        if sampling == OPTIMISED:
+            self.kernel = None
+            if self.pixel_mm is not None:
+                use_optimised(self)
 
     @classmethod
     def preset(
@@ -107,14 +148,12 @@ class Jimenez2012SSS(SeparableMethod):
         p = JIMENEZ2012_PRESETS[name]
         return cls(p["strength"], p["falloff"], width, samples, **options)
 
-    def pass_options(self, gbuffer, width=None, guide=None, sample_weight=None):
-        """As :meth:`SeparableMethod.pass_options`; the kernel offsets are in widths (002
-        appendix: ``sssWidth``), so the per-pixel multiplier scales ``self.width``."""
-        options = super().pass_options(gbuffer, width, guide, sample_weight)
-        options["width"] = self.width * options["width"]
-        return options
-
     def scatter(self, gbuffer: GBuffer, options: dict[str, object]) -> torch.Tensor:
+        if self.sampling == OPTIMISED and self.pixel_mm is None:
+            use_optimised(self, gbuffer)  # sets kernel, strength, falloff and width
+        # the kernel offsets are in widths (002 appendix: ``sssWidth``), so the per-pixel
+        # multiplier of the pass options scales ``self.width``
+        options = dict(options, width=self.width * options["width"])
         return two_pass(gbuffer.diffuse, self.kernel, gbuffer, name="jimenez2012", **options)
 
 

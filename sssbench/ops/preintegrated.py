@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import torch
 
-from sssbench._checks import check_choice, check_int, check_magnitude, check_method_options
+from sssbench._checks import check_choice, check_magnitude, check_method_options
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.kernel1d import Kernel1D
+from sssbench.kernels.optimise import check_optimised_sampling, use_optimised
 from sssbench.kernels.preintegrated import preintegrated
 from sssbench.kernels.sampling import METHOD_SAMPLINGS, OPTIMISED
 from sssbench.ops.functional import functional
@@ -101,17 +102,7 @@ class PreintegratedSSS(SeparableMethod):
             raise TypeError(f"profile must be a sssbench Profile, got {type(profile).__name__}")
         check_method_options(None, seed)
         check_choice("sampling", sampling, METHOD_SAMPLINGS)
-        if sampling == OPTIMISED:  # fitted kernels stop at MAX_OPTIMISED_TAPS
-            from sssbench.kernels.optimise import MAX_OPTIMISED_TAPS
-
-            check_int("samples (with sampling='optimised')", samples, 1, MAX_OPTIMISED_TAPS)
-        if pixel_mm is not None:
-            if sampling != OPTIMISED:
-                raise ValueError(
-                    f"pixel_mm is the footprint of sampling='optimised' kernels; it must be None "
-                    f"with sampling={sampling!r}"
-                )
-            pixel_mm = check_magnitude("pixel_mm", pixel_mm, "length")
+        pixel_mm = check_optimised_sampling(sampling, samples, pixel_mm)
         check_choice("halo", halo, (None, *HALO_KINDS))
         if halo_sigma is not None:
             halo_sigma = check_magnitude("halo_sigma", halo_sigma, "factor")
@@ -126,11 +117,16 @@ class PreintegratedSSS(SeparableMethod):
         self.halo = halo
         self.halo_sigma = halo_sigma
         self.pixel_mm = pixel_mm
-        self._fitted: dict[float, Kernel1D] = {}
+        #: the fits of ``sampling="optimised"`` per footprint, and the options they are fitted
+        #: with (:func:`~sssbench.kernels.optimise.use_optimised`)
+        self.fitted: dict[float, object] = {}
+        self.fit_options = dict(follow_surface=follow_surface, rotation=rotation, seed=seed,
+                                halo=halo, halo_sigma=halo_sigma)  # fmt: skip
+        self.kernel: Kernel1D | None = None
         if sampling != OPTIMISED:
-            self.kernel: Kernel1D | None = preintegrated(profile, samples, sampling)
-        else:
-            self.kernel = None if pixel_mm is None else self.optimised_kernel(pixel_mm)
+            self.kernel = preintegrated(profile, samples, sampling)
+        elif pixel_mm is not None:
+            use_optimised(self)
         if halo == "bilateral":
             self.needs = ("mask", "normal")
         elif halo == "lab":
@@ -143,29 +139,9 @@ class PreintegratedSSS(SeparableMethod):
             guide, sample_weight = halo_weight(gbuffer, self.halo, self.halo_sigma)
         return super().pass_options(gbuffer, width, guide, sample_weight)
 
-    def optimised_kernel(self, pixel_mm: float) -> Kernel1D:
-        """The ``optimised`` kernel fitted at ``pixel_mm`` with this method's options (fitted
-        on first use, then from the disk cache; memoised per footprint)."""
-        from sssbench.kernels.optimise import optimise
-
-        if pixel_mm not in self._fitted:
-            options = dict(follow_surface=self.follow_surface, rotation=self.rotation,
-                           seed=self.seed, halo=self.halo, halo_sigma=self.halo_sigma)  # fmt: skip
-            fit = optimise(self.profile, "preintegrated", self.samples, pixel_mm, options=options)
-            self._fitted[pixel_mm] = fit.kernel
-        return self._fitted[pixel_mm]
-
     def scatter(self, gbuffer: GBuffer, options: dict[str, object]) -> torch.Tensor:
         if self.sampling == OPTIMISED and self.pixel_mm is None:
-            from sssbench.budget import footprint_mm
-            from sssbench.kernels.optimise import nearest_footprint
-
-            if gbuffer.shape[0] != 1:
-                raise ValueError(
-                    "sampling='optimised' without pixel_mm resolves the footprint per G-buffer: "
-                    f"give B = 1 (got {gbuffer.shape[0]}) or pixel_mm"
-                )
-            self.kernel = self.optimised_kernel(nearest_footprint(footprint_mm(gbuffer)))
+            use_optimised(self, gbuffer)
         return two_pass(gbuffer.diffuse, self.kernel, gbuffer, name="preintegrated", **options)
 
 

@@ -20,8 +20,9 @@ from sssbench._checks import (
 from sssbench._memo import memoised
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.kernel1d import Kernel1D
+from sssbench.kernels.optimise import check_optimised_sampling, use_optimised
 from sssbench.kernels.preintegrated import preintegrated
-from sssbench.kernels.sampling import MAX_SAMPLES, SAMPLINGS
+from sssbench.kernels.sampling import MAX_SAMPLES, METHOD_SAMPLINGS, OPTIMISED
 from sssbench.ops._stencil import image_stencils
 from sssbench.ops.functional import functional
 from sssbench.ops.gather import Stretch, blend_on_stencil, separable_pass
@@ -38,6 +39,9 @@ __all__ = [
     "SoGStep",
 ]
 
+#: the default tap placement (003 Listing 7.1: uniform over ±3σ); also the schedule whose tap
+#: sets ``sampling="optimised"`` replaces
+DEFAULT_SAMPLING = "uniform"
 #: 003 §7.3.2: a Gaussian narrower than half a pixel is not computed
 DEFAULT_LOD_THRESHOLD = 0.5
 #: the first Gaussian is replaced by the unblurred image when its σ is below this (mm); see
@@ -221,7 +225,17 @@ class SumOfGaussiansSSS(SeparableMethod):
         profile: a :class:`SumOfGaussians` (variances mm², weights (N, 3) >= 0).
         samples: taps per pass.
         sampling: ``"uniform"`` (default, over ±``extent_sigmas`` σ of each increment),
-            ``"power"`` (same extent) or ``"importance"`` (whole line).
+            ``"power"`` (same extent), ``"importance"`` (whole line) or ``"optimised"``: each
+            Gaussian's tap set fitted by gradient descent through these very passes (this
+            method's options included) against the exact reference on training scenes at one
+            pixel footprint (:func:`sssbench.kernels.optimise.optimise`,
+            :class:`~sssbench.kernels.parametrise.PerGaussianTaps`: offsets and weights per
+            Gaussian, each set normalised; variances and blend weights stay; disk-cached;
+            fitted for 0.05–5 mm per pixel). The footprint is ``pixel_mm`` when given, else
+            the G-buffer's of each call snapped to the nearest of
+            :data:`~sssbench.kernels.optimise.FOOTPRINTS` (as
+            :class:`~sssbench.ops.PreintegratedSSS`); ``steps`` then holds the tap sets of
+            the last call (``None`` before the first).
         stretch: JG10 stretch factors or ``None``.
         lod: per-pixel level of detail on/off.
         lod_threshold: LOD width in pixels (003: 0.5).
@@ -246,6 +260,8 @@ class SumOfGaussiansSSS(SeparableMethod):
         rotation: stochastic rotation radius fraction (000 §6), or ``None``.
         seed: seed of the rotation angles (one :class:`Rotation` for every pass).
         extent_sigmas: half-width of uniform / power taps in units of the increment's σ.
+        pixel_mm: footprint (mm per pixel) of an ``optimised`` fit (see ``sampling``);
+            ``None`` (default): the run's own. Only with ``sampling="optimised"``.
 
     Shape:
         - forward(gbuffer): ``(B, 3, H, W)``.
@@ -263,7 +279,7 @@ class SumOfGaussiansSSS(SeparableMethod):
         self,
         profile: SumOfGaussians,
         samples: int = 7,
-        sampling: str = "uniform",
+        sampling: str = DEFAULT_SAMPLING,
         stretch: Stretch | None = None,
         lod: bool = True,
         lod_threshold: float = DEFAULT_LOD_THRESHOLD,
@@ -273,13 +289,24 @@ class SumOfGaussiansSSS(SeparableMethod):
         rotation: float | None = None,
         seed: int = 0,
         extent_sigmas: float = LISTING_EXTENT_SIGMAS,
+        pixel_mm: float | None = None,
     ) -> None:
         super().__init__()
         if not isinstance(profile, SumOfGaussians):
             raise TypeError(f"profile must be a SumOfGaussians, got {type(profile).__name__}")
         check_method_options(surface_scale, seed)
         check_int("samples", samples, 1, MAX_SAMPLES)
-        check_choice("sampling", sampling, SAMPLINGS)
+        check_choice("sampling", sampling, METHOD_SAMPLINGS)
+        self.pixel_mm = check_optimised_sampling(sampling, samples, pixel_mm)
+        #: the fits of ``sampling="optimised"`` per footprint and the options they are fitted
+        #: with, as given (:func:`~sssbench.kernels.optimise.use_optimised`)
+        self.fitted: dict[float, object] = {}
+        self.fit_options = dict(
+            stretch=stretch, lod=lod, lod_threshold=lod_threshold,
+            unblurred_first=unblurred_first, follow_surface=follow_surface,
+            surface_scale=surface_scale, rotation=rotation, seed=seed,
+            extent_sigmas=extent_sigmas,
+        )  # fmt: skip
         if stretch is not None and not isinstance(stretch, Stretch):
             raise TypeError(f"stretch must be a Stretch or None, got {type(stretch).__name__}")
         self.lod_threshold = check_magnitude("lod_threshold", lod_threshold, "factor", zero=True)
@@ -298,21 +325,29 @@ class SumOfGaussiansSSS(SeparableMethod):
             unblurred_first = math.sqrt(float(var[0])) < UNBLURRED_FIRST_SIGMA
         inc = incremental_variances(var, bool(unblurred_first))
         blend = blend_weights(wts)
+        rule = DEFAULT_SAMPLING if sampling == OPTIMISED else sampling
         steps = []
         for i in range(var.numel()):
             kernel = None
             if float(inc[i]) > 0:
                 one = SumOfGaussians(inc[i : i + 1], torch.ones(1, 3, dtype=torch.float64))
-                ext = None if sampling == "importance" else extent_sigmas * math.sqrt(inc[i])
-                kernel = preintegrated(one, samples, sampling, ext)
+                ext = None if rule == "importance" else extent_sigmas * math.sqrt(inc[i])
+                kernel = preintegrated(one, samples, rule, ext)
             steps.append(SoGStep(float(var[i]), float(inc[i]), blend[i], kernel))
         self.profile = profile
-        self.steps = steps
+        #: the Gaussian steps with the rule's taps (``sampling``'s; the default rule's for
+        #: ``optimised``): the schedule whose tap sets a fit replaces
+        self.schedule = steps
+        #: the steps the passes run: ``schedule``, or with ``optimised`` the fitted tap sets
+        #: (``None`` before the first call when the footprint comes from the G-buffer)
+        self.steps: list[SoGStep] | None = steps if sampling != OPTIMISED else None
         self.samples = samples
         self.sampling = sampling
         self.stretch = stretch
         self.lod = bool(lod)
         self.unblurred_first = bool(unblurred_first)
+        if sampling == OPTIMISED and self.pixel_mm is not None:
+            use_optimised(self)
 
     def _lod_mask(self, gbuffer: GBuffer, sigma: float) -> torch.Tensor:
         """The G-buffer mask with pixels where ``sigma`` (mm) is under the LOD width zeroed.
@@ -352,6 +387,8 @@ class SumOfGaussiansSSS(SeparableMethod):
         }
 
     def scatter(self, gbuffer: GBuffer, options: dict[str, object]) -> torch.Tensor:
+        if self.sampling == OPTIMISED and self.pixel_mm is None:
+            use_optimised(self, gbuffer)
         per_axis = self._axis_options(gbuffer, options)  # 003 §7.3.1
         dtype = gbuffer.dtype
         rt1 = gbuffer.diffuse  # the widest Gaussian so far (003 Fig. 7.6: RT1)
