@@ -203,16 +203,45 @@ static void *CAT(run_, SUFFIX)(void *arg) {
     return NULL;
 }
 
-/* One pass over the active pixels of one image (see the job fields); returns their number, or
- * -1 when memory for the per-thread buffers cannot be had (nothing is written then). */
+/* The kernel's float64 taps and 1 / surface_scale in SCALAR, as sssbench.ops.gather._taps and
+ * _inverse_scale convert them (the same operations, bitwise): offsets and inverse scales
+ * clamped to the largest finite SCALAR before the cast (an infinite offset would give inf * 0 =
+ * NaN at a pixel of zero width), weights cast as they are (checked finite by the caller).
+ * out: the (k, 4) weights with a zero fourth lane, then 4 inverse scales (the fourth lane 0),
+ * then k offsets. */
+static void CAT(taps_in_, SUFFIX)(const double *offsets, const double *weights,
+                                 const double *inv_scale, int64_t k, SCALAR *out) {
+    const double big = (double)SCALAR_MAX;
+    SCALAR *weights4 = out, *inv = out + 4 * k, *offsets_s = out + 4 * k + 4;
+    for (int64_t t = 0; t < k; ++t) {
+        for (int ch = 0; ch < 3; ++ch) weights4[4 * t + ch] = (SCALAR)weights[3 * t + ch];
+        weights4[4 * t + 3] = 0;
+    }
+    for (int ch = 0; ch < 3; ++ch) {
+        const double v = inv_scale[ch];
+        inv[ch] = (SCALAR)(v <= big ? v : big); /* also NaN -> big, as torch.where */
+    }
+    inv[3] = 0;
+    for (int64_t t = 0; t < k; ++t) {
+        const double o = offsets[t];
+        offsets_s[t] = (SCALAR)(o < -big ? -big : (o > big ? big : o)); /* NaN stays NaN */
+    }
+}
+
+/* One pass over the active pixels of one image (see the job fields); returns their number,
+ * -1 when memory for the per-thread buffers cannot be had, or -2 when a kernel weight is not
+ * finite in SCALAR (nothing is written then). The kernel comes in float64 (offsets (k,),
+ * weights (k, 3), 1 / surface_scale (3,): see taps_in_). */
 int64_t CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const int64_t *spans,
                              const SCALAR *mask, const SCALAR *width, const SCALAR *ddepth,
-                             const SCALAR *offsets, const SCALAR *weights,
-                             const SCALAR *inv_scale, SCALAR *dst, double focal_px,
+                             const double *offsets, const double *weights,
+                             const double *inv_scale, SCALAR *dst, double focal_px,
                              double width_scalar, double correction, double maxdd,
                              int64_t n_spans, int64_t k, int64_t h, int64_t w, int axis_y,
                              int follow, int copy, int threads) {
     enum { MAX_THREADS = 64 };
+    for (int64_t i = 0; i < 3 * k; ++i) /* every weight finite in SCALAR, checked first */
+        if (!(FABSF((SCALAR)weights[i]) <= SCALAR_MAX)) return -2;
     int64_t n = 0; /* active pixels */
     for (int64_t s = 0; s < n_spans; ++s) n += spans[3 * s + 2] - spans[3 * s + 1];
     if (n == 0 && !copy) return 0; /* nothing to compute or copy */
@@ -232,12 +261,14 @@ int64_t CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const i
     const size_t per_thread = (size_t)line_len * 5; /* window (4 lanes) + scales */
     const size_t list_bytes = ((size_t)(3 * n_lines + entries) * sizeof(int64_t) + 63) / 64 * 64;
     int owned;
+    const size_t taps = ((size_t)k * 5 + 4 + 3) / 4 * 4; /* taps_in_'s SCALARs, 4-aligned */
     char *block = (char *)workspace_acquire(
-        list_bytes + sizeof(SCALAR) * ((size_t)k * 4 + per_thread * (size_t)threads), &owned);
+        list_bytes + sizeof(SCALAR) * (taps + per_thread * (size_t)threads), &owned);
     if (!block) return -1;
+    SCALAR *memory = (SCALAR *)(block + list_bytes);
+    CAT(taps_in_, SUFFIX)(offsets, weights, inv_scale, k, memory);
     int64_t *lists = (int64_t *)block;
     memset(lists, 0, list_bytes);
-    SCALAR *memory = (SCALAR *)(block + list_bytes);
     int64_t *lines = lists, *ids = lists + 3 * n_lines;
     for (int pass = 0; pass < 2; ++pass) { /* count, then fill */
         for (int64_t s = 0; s < n_spans; ++s) {
@@ -262,11 +293,10 @@ int64_t CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const i
             for (int64_t q = 0; q < n_lines; ++q) lines[3 * q + 1] = 0;
         }
     }
-    SCALAR *weights4 = memory, max_offset = 0;
+    const SCALAR *weights4 = memory, *inv_s = memory + 4 * k, *offsets_s = memory + 4 * k + 4;
+    SCALAR max_offset = 0;
     for (int64_t t = 0; t < k; ++t) {
-        for (int ch = 0; ch < 3; ++ch) weights4[4 * t + ch] = weights[3 * t + ch];
-        weights4[4 * t + 3] = 0;
-        const SCALAR a = FABSF(offsets[t]);
+        const SCALAR a = FABSF(offsets_s[t]);
         if (!(a <= max_offset)) max_offset = a == a ? a : (SCALAR)INFINITY;
     }
     CAT(job_, SUFFIX) jobs[MAX_THREADS];
@@ -276,9 +306,9 @@ int64_t CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const i
         const int64_t first = q;
         while (q < n_lines && (t == threads - 1 || done < total * (t + 1) / threads))
             done += lines[3 * q++ + 2];
-        SCALAR *mine = memory + (size_t)k * 4 + per_thread * (size_t)t;
-        CAT(job_, SUFFIX) jb = {src, depth, spans, mask, width, ddepth, offsets, weights4,
-                                inv_scale, dst, lines, ids, focal_px, width_scalar,
+        SCALAR *mine = memory + taps + per_thread * (size_t)t;
+        CAT(job_, SUFFIX) jb = {src, depth, spans, mask, width, ddepth, offsets_s, weights4,
+                                inv_s, dst, lines, ids, focal_px, width_scalar,
                                 correction, maxdd, max_offset, k, h, w, first, q, strip, axis_y, follow, copy,
                                 mine, mine + 4 * (size_t)line_len};
         jobs[t] = jb;
