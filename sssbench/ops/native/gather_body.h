@@ -128,6 +128,25 @@ static inline void CAT(window_, SUFFIX)(const CAT(job_, SUFFIX) *j, SCALAR max_a
     *hi = pmax + r < n_axis - 1 ? pmax + r : n_axis - 1;
 }
 
+/* Ask for the cache lines an x pass will read on row `row` between columns c0 and c1 (its
+ * active pixels, a few pixels of the window around them): the planes, depth and the per-pixel
+ * inputs. Called one active row ahead, so that a far-away object's short rows, which the
+ * hardware prefetcher does not see as streams, are fetched while the row before is computed. */
+static inline void CAT(prefetch_row_, SUFFIX)(const CAT(job_, SUFFIX) *j, int64_t row,
+                                              int64_t c0, int64_t c1) {
+    const int64_t w = j->w, hw = j->h * w, step = 64 / (int64_t)sizeof(SCALAR);
+    c0 = c0 > 8 ? c0 - 8 : 0;
+    c1 = c1 + 8 < w ? c1 + 8 : w;
+    const SCALAR *rows[7] = {j->src + row * w, j->src + hw + row * w, j->src + 2 * hw + row * w,
+                             j->depth + row * w, j->mask ? j->mask + row * w : NULL,
+                             j->width ? j->width + row * w : NULL,
+                             j->ddepth ? j->ddepth + row * w : NULL};
+    for (int a = 0; a < 7; ++a)
+        if (rows[a])
+            for (int64_t c = c0; c < c1 + step; c += step)
+                __builtin_prefetch(rows[a] + (c < c1 ? c : c1 - 1));
+}
+
 /* This thread's lines: rows (x pass) or strips of j->strip columns (y pass). The spans
  * crossing a line are listed in j->ids in row order; a y pass clips them to its strip. */
 static inline __attribute__((always_inline)) void CAT(lines_, SUFFIX)(
@@ -143,6 +162,16 @@ static inline __attribute__((always_inline)) void CAT(lines_, SUFFIX)(
                     memcpy(j->dst + ch * hw + r * w + s0, j->src + ch * hw + r * w + s0,
                            sizeof(SCALAR) * (size_t)(s1 - s0));
         if (count == 0) continue;
+        if (!AXIS_Y && !j->copy) { /* the next active row of this thread, prefetched */
+            int64_t nq = q + 1;
+            while (nq < j->last && j->lines[3 * nq + 1] == 0) ++nq;
+            if (nq < j->last) {
+                const int64_t *nids = j->ids + j->lines[3 * nq];
+                const int64_t nc = j->lines[3 * nq + 1];
+                CAT(prefetch_row_, SUFFIX)(j, nq, j->spans[3 * nids[0] + 1],
+                                           j->spans[3 * nids[nc - 1] + 2]);
+            }
+        }
         SCALAR max_abs = 0;
         int64_t idx = 0;
         for (int64_t e = 0; e < count; ++e) { /* the scales, and the largest */
@@ -385,9 +414,12 @@ int64_t CAT(sss_spans_, SUFFIX)(const SCALAR *mask, int64_t h, int64_t w, int64_
         int64_t c = 0;
         while (c < w) {
             for (; c + BLOCK <= w; c += BLOCK) { /* skip blocks with no active pixel */
-                vec v[4];
-                __builtin_memcpy(v, m + c, sizeof v);
-                const lanes on = (v[0] > zero) | (v[1] > zero) | (v[2] > zero) | (v[3] > zero);
+                vec v0, v1, v2, v3; /* four loads into registers (an array went via the stack) */
+                __builtin_memcpy(&v0, m + c, sizeof v0);
+                __builtin_memcpy(&v1, m + c + BLOCK / 4, sizeof v1);
+                __builtin_memcpy(&v2, m + c + BLOCK / 2, sizeof v2);
+                __builtin_memcpy(&v3, m + c + 3 * BLOCK / 4, sizeof v3);
+                const lanes on = (v0 > zero) | (v1 > zero) | (v2 > zero) | (v3 > zero);
                 uint64_t bits[2]; /* the lane masks as words: no lane extracts */
                 __builtin_memcpy(bits, &on, sizeof on);
                 if (bits[0] | bits[1]) break;
@@ -396,9 +428,12 @@ int64_t CAT(sss_spans_, SUFFIX)(const SCALAR *mask, int64_t h, int64_t w, int64_
             if (c >= w) break;
             const int64_t c0 = c;
             for (; c + BLOCK <= w; c += BLOCK) { /* skip blocks of active pixels only */
-                vec v[4];
-                __builtin_memcpy(v, m + c, sizeof v);
-                const lanes on = (v[0] > zero) & (v[1] > zero) & (v[2] > zero) & (v[3] > zero);
+                vec v0, v1, v2, v3;
+                __builtin_memcpy(&v0, m + c, sizeof v0);
+                __builtin_memcpy(&v1, m + c + BLOCK / 4, sizeof v1);
+                __builtin_memcpy(&v2, m + c + BLOCK / 2, sizeof v2);
+                __builtin_memcpy(&v3, m + c + 3 * BLOCK / 4, sizeof v3);
+                const lanes on = (v0 > zero) & (v1 > zero) & (v2 > zero) & (v3 > zero);
                 uint64_t bits[2];
                 __builtin_memcpy(bits, &on, sizeof on);
                 if ((bits[0] & bits[1]) != ~(uint64_t)0) break;
