@@ -166,13 +166,15 @@ def _byte_range(t: torch.Tensor) -> tuple[int, int] | None:
     """``[first, end)`` addresses of the bytes ``t`` can touch (``None``: no element)."""
     if t.numel() == 0:
         return None
+    base, item = t.data_ptr(), t.element_size()
+    if t.is_contiguous():  # the rule: no walk over the strides
+        return base, base + t.numel() * item
     lo = hi = 0  # elements from the first one's address (data_ptr: storage offset included)
     for size, stride in zip(t.shape, t.stride(), strict=True):
         if stride >= 0:
             hi += (size - 1) * stride
         else:
             lo += (size - 1) * stride
-    base, item = t.data_ptr(), t.element_size()
     return base + lo * item, base + (hi + 1) * item
 
 

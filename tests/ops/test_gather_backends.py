@@ -173,6 +173,11 @@ def test_library_is_built_into_the_cache_dir(tmp_path):
     assert len(built) == 1 and outs[0] == str(tmp_path / "native")
 
 
+#: rows of the "larger image" (203 wide): at 90% cover over 2 x 16384 pixels, the work the C
+#: loop needs before it splits a pass over two threads (MIN_THREAD_WORK in gather_body.h)
+BIG_H = 180
+
+
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 @pytest.mark.parametrize("cover", [0.95, 0.12], ids=["dense", "sparse"])
 def test_native_lines_windows_and_threads_on_a_larger_image(dtype, cover):
@@ -180,8 +185,8 @@ def test_native_lines_windows_and_threads_on_a_larger_image(dtype, cover):
     kernels from a pixel wide to wider than the image, a per-pixel width with a few huge
     values (their window is the whole line) and both follow-surface modes: each line reads
     only the window its largest step can reach, which must hold every tap."""
-    g = scene(seed=5, h=90, w=203, dtype=dtype, cover=cover)
-    width = 0.05 + torch.rand(1, 1, 90, 203, generator=torch.Generator().manual_seed(2))
+    g = scene(seed=5, h=BIG_H, w=203, dtype=dtype, cover=cover)
+    width = 0.05 + torch.rand(1, 1, BIG_H, 203, generator=torch.Generator().manual_seed(2))
     width[0, 0, 40, 100:105] = 1e4  # taps clamp at both borders
     width = width.to(dtype)
     threads = torch.get_num_threads()
@@ -198,7 +203,7 @@ def test_native_lines_windows_and_threads_on_a_larger_image(dtype, cover):
 
 
 def _big_pass(seed):
-    g = scene(seed=seed, h=90, w=203, cover=0.9)
+    g = scene(seed=seed, h=BIG_H, w=203, cover=0.9)
     return separable_pass(g.diffuse, kernel(9), "y", g, follow_surface="lerp", surface_scale=3.0)
 
 
@@ -245,7 +250,7 @@ def test_native_pool_restarts_in_a_forked_child():
     threads = torch.get_num_threads()
     torch.set_num_threads(2)
     try:
-        g = scene(seed=1, h=90, w=203, cover=0.9)
+        g = scene(seed=1, h=BIG_H, w=203, cover=0.9)
         lib = native.library()
         args = (g.depth, g.mask, None, None,
                 torch.linspace(-4.0, 4.0, 9, dtype=torch.float64),
