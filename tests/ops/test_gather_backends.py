@@ -422,3 +422,48 @@ def test_sum_of_gaussians_native_equals_torch(dtype):
         got = op(g)
     torch.testing.assert_close(got, ref, **tol(dtype))
     assert not torch.allclose(ref, g.diffuse)
+
+
+@pytest.mark.parametrize("image_dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("kernel_dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("surface_scale", [1e-40, 2.5, "per-channel"])
+def test_native_converts_the_kernel_itself_as_the_torch_loop(
+    image_dtype, kernel_dtype, surface_scale
+):
+    """Without autograd the C loop takes the kernel's taps as they are and converts them to the
+    pass's dtype itself: offsets beyond its range clamp to its largest value (taps on the
+    border), 1 / surface_scale too (1e-40 mm overflows float32). The torch loop converts them
+    in torch (``_taps``, ``_inverse_scale``): the results must be bitwise equal."""
+    big = 1e300 if kernel_dtype == torch.float64 else 3e38
+    offsets = torch.tensor([-big, -2.5, -0.75, 0.0, 0.75, 2.5, big], dtype=kernel_dtype)
+    weights = torch.rand(7, 3, generator=torch.Generator().manual_seed(3), dtype=kernel_dtype)
+    k = Kernel1D(offsets, weights / weights.sum(0))
+    g = scene(seed=11, b=2, dtype=image_dtype)
+    # whole-mm depths: neighbours at equal depth, where 0 * an unclamped inf 1/scale is NaN
+    g = GBuffer(g.diffuse, torch.round(g.depth), g.fov_y, mask=g.mask)
+    if surface_scale == "per-channel":
+        surface_scale = torch.tensor([0.5, 1.5, 4.0], dtype=torch.float64)
+    width = torch.where(g.depth > 70, 0.0, 1.0).to(image_dtype)
+    for direction in ("x", "y"):
+        # a width of 0 at some pixels: an unclamped infinite offset would give inf * 0 = NaN
+        ref, got = both(g.diffuse, k, direction, g, follow_surface="lerp",
+                        surface_scale=surface_scale, width=width)  # fmt: skip
+        assert torch.equal(got, ref)
+
+
+@pytest.mark.parametrize("inplace", [False, True])
+@pytest.mark.parametrize("masked", ["some", "none"])
+def test_weights_beyond_the_pass_dtype_are_refused_by_both_loops(inplace, masked):
+    """Weights finite in float64 but not in float32: ``ValueError`` naming ``kernel.weights``
+    from either loop, also when no pixel is active (the C loop checks before it computes)
+    and before anything is written."""
+    k = Kernel1D(torch.tensor([-1.0, 0.0, 1.0], dtype=torch.float64),
+                 torch.full((3, 3), 1e300, dtype=torch.float64))  # fmt: skip
+    g = scene(seed=2, b=2, dtype=torch.float32)
+    if masked == "none":
+        g = GBuffer(g.diffuse, g.depth, g.fov_y, mask=torch.zeros_like(g.mask))
+    image = g.diffuse.clone()
+    for name in ("torch", "native"):
+        with backend(name), pytest.raises(ValueError, match="kernel.weights"):
+            separable_pass(image, k, "x", g, inplace=inplace)
+        assert torch.equal(image, g.diffuse)
