@@ -67,7 +67,8 @@ def native_pass(lib: object, image: Tensor, out: Tensor, args: tuple, copy: bool
     ``out`` ``(B, 3, H, W)`` contiguous may be ``image`` (the loop reads every sample of a row
     (x) or column strip (y) into its own buffer before it writes any result there); ``copy``:
     ``out`` is uninitialised and gets ``image``'s pixels everywhere else (copied line by line
-    as the loop goes, no separate full-image pass). Threads: ``torch.get_num_threads()``.
+    as the loop goes, no separate full-image pass). Threads: ``torch.get_num_threads()``, at
+    most one per 16384 pixels of work (see :mod:`sssbench.ops.gather`).
 
     Tensors already contiguous in the right dtype (the rule) are passed by address, image by
     image, without a torch call: on a far-away object the fixed cost of a pass is what its

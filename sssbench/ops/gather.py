@@ -20,8 +20,12 @@ pixels: the native loop's runs are rebuilt from the mask once per call (one read
 :func:`~sssbench.ops._stencil.image_spans`), the torch loop's index lists memoised per mask
 contents (:func:`~sssbench._memo.memoised`). Without autograd the native pass is called
 directly rather than through the dispatcher (whose argument binding cost more per pass than
-a small object's work); the operators are used when autograd records the pass or a graph is
-compiled.
+a small object's work), with the kernel's taps as they are (the C loop converts them to the
+pass's dtype itself, bitwise as :func:`_taps` does) and its tensors by address: such a pass
+makes no torch call but the stencil's output buffer, each of which cost ~25 µs of CPU on a
+call whose caches the previous frame's work had evicted (1080p, this machine), more than a
+far-away object's pass spends on some of its rows; the operators are used when autograd
+records the pass or a graph is compiled.
 
 Backends (:data:`BACKENDS`, chosen per block with :func:`backend`, default ``"native"``):
 
@@ -34,7 +38,12 @@ Backends (:data:`BACKENDS`, chosen per block with :func:`backend`, default ``"na
   direction and follow-surface mode compiles for tens of seconds).
 
 Threads: the C loop splits its lines over ``torch.get_num_threads()`` threads, so
-``torch.set_num_threads`` governs both. A ctypes library cannot use torch's OpenMP pool, so
+``torch.set_num_threads`` governs both, but gives each thread at least 16384 pixels of work
+(``MIN_THREAD_WORK`` in ``native/gather_body.h``): a split costs CPU time that does not scale
+with the pixels (a worker woken on a core whose caches hold other work, lines the other thread
+wrote moved across cores), measured 0.1–0.3 ms per two-pass call, 13 % of a 20k-pixel call's
+work; a smaller object is computed on the calling thread (its wall time is then up to twice
+what two idle cores would give). A ctypes library cannot use torch's OpenMP pool, so
 its workers are kept in a small pool of their own (``native/pool.h``) that sleep on a condition
 variable between passes and never spin: they take no core from torch's threads, and a pass is
 synchronous, so the two pools never compute at once. Measured reason to keep the pool rather
