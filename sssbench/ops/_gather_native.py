@@ -25,13 +25,15 @@ everywhere; :mod:`sssbench.ops.gather` decides which backend a pass uses.
 
 from __future__ import annotations
 
+import ctypes
+
 import torch
 
 from sssbench.ops import native
 from sssbench.ops._gather_torch import gather_torch
 from sssbench.ops._stencil import image_spans
 
-__all__ = ["gather", "gather_", "blend_", "native_pass", "run_pass"]
+__all__ = ["gather", "gather_", "blend_", "native_pass", "run_pass", "weights_overflow"]
 
 Tensor = torch.Tensor
 
@@ -46,44 +48,67 @@ _PASS_ARGS = (
 _N_TENSORS = 8  # image and the seven tensors above: what the backward differentiates
 
 
+def weights_overflow(weights: Tensor, dtype: torch.dtype) -> ValueError:
+    """The error for kernel ``weights`` that are not finite in the pass's ``dtype``."""
+    return ValueError(
+        f"kernel.weights overflow {dtype} (largest |weight| "
+        f"{float(weights.detach().abs().max()):g}): use float64 or normalise the kernel"
+    )
+
+
 def native_pass(lib: object, image: Tensor, out: Tensor, args: tuple, copy: bool) -> int:
     """One pass over a batch through the C loop (``native/gather_body.h``); the active pixel
     count. ``args``: the arguments after ``image`` of
-    :func:`~sssbench.ops._gather_torch.gather_torch`; ``out`` ``(B, 3, H, W)`` contiguous may
-    be ``image`` (the loop reads every sample of a row (x) or column strip (y) into its own
-    buffer before it writes any result there); ``copy``: ``out`` is uninitialised and gets
-    ``image``'s pixels everywhere else (copied line by line as the loop goes, no separate
-    full-image pass). Threads: ``torch.get_num_threads()``."""
+    :func:`~sssbench.ops._gather_torch.gather_torch`, but for the taps: ``offsets``,
+    ``weights`` and ``inv_scale`` may be of any float dtype (the kernel's own, float64 as a
+    rule; ``inv_scale`` also a sequence of 3 floats, 1 / surface_scale), and the C loop
+    converts them to ``image``'s dtype as :func:`~sssbench.ops.gather.separable_pass` does for
+    the torch loop (bitwise the same values; ``ValueError`` when a weight overflows it).
+    ``out`` ``(B, 3, H, W)`` contiguous may be ``image`` (the loop reads every sample of a row
+    (x) or column strip (y) into its own buffer before it writes any result there); ``copy``:
+    ``out`` is uninitialised and gets ``image``'s pixels everywhere else (copied line by line
+    as the loop goes, no separate full-image pass). Threads: ``torch.get_num_threads()``, at
+    most one per 16384 pixels of work (see :mod:`sssbench.ops.gather`).
+
+    Tensors already contiguous in the right dtype (the rule) are passed by address, image by
+    image, without a torch call: on a far-away object the fixed cost of a pass is what its
+    time is made of."""
     depth, strength, width, ddepth, offsets, weights, inv_scale, *scalars = args
     f_px, width_scalar, correction, maxdd, axis_y, follow = scalars
     b, _, h, w = image.shape
     dtype = image.dtype
-    keep = []  # contiguous copies must outlive the call
+    keep = []  # converted copies and ctypes arrays must outlive the call
 
-    def ptr(t: Tensor | None) -> int | None:
+    def planes(t: Tensor | None, want: torch.dtype = dtype) -> tuple[int | None, int]:
+        """(address of image 0, bytes from one image to the next) of ``t`` in ``want``."""
         if t is None:
-            return None
-        if t.dtype != dtype and t.is_floating_point():
-            t = t.to(dtype)
-        t = t.detach().contiguous()
-        keep.append(t)
-        return t.data_ptr()
+            return None, 0
+        if t.dtype != want or not t.is_contiguous():
+            t = t.detach().to(want).contiguous()
+            keep.append(t)
+        return t.data_ptr(), t.stride(0) * t.element_size()
 
-    def at(t: Tensor | None, bi: int) -> int | None:
-        return ptr(None if t is None else t[bi])
+    def f64(t: Tensor | tuple[float, ...]) -> int:
+        if isinstance(t, Tensor):
+            return planes(t, torch.float64)[0]
+        keep.append(arr := (ctypes.c_double * len(t))(*t))
+        return ctypes.addressof(arr)
 
     fn = lib.sss_gather_f32 if dtype == torch.float32 else lib.sss_gather_f64
+    if out.dtype != dtype or not out.is_contiguous():
+        raise ValueError(f"out must be contiguous {dtype}, got {out.dtype} strides {out.stride()}")
+    fields = [planes(t) for t in (image, depth, strength, width, ddepth, out)]
+    taps = (f64(offsets), f64(weights), f64(inv_scale))
     n_total = 0
     threads = torch.get_num_threads()
     for bi, spans in enumerate(image_spans(strength, (b, h, w))):
-        if not (copy or spans.shape[0]):
-            continue
+        src, z, mask, wid, dd, dst = (None if p is None else p + bi * step for p, step in fields)
         status = fn(
-            at(image, bi), at(depth, bi), ptr(spans), at(strength, bi), at(width, bi),
-            at(ddepth, bi), ptr(offsets), ptr(weights), ptr(inv_scale), out[bi].data_ptr(),
-            f_px, width_scalar, correction, maxdd, spans.shape[0], offsets.numel(), h, w,
-            int(axis_y), follow, int(copy), threads,
+            src, z, spans.data_ptr(), mask, wid, dd, *taps, dst, f_px, width_scalar, correction,
+            maxdd, spans.shape[0], offsets.numel(), h, w, int(axis_y), follow, int(copy), threads,
         )  # fmt: skip
+        if status == -2:
+            raise weights_overflow(weights, dtype)
         if status < 0:
             raise MemoryError(f"native gather: no memory for the line buffers of a {h}x{w} image")
         n_total += status
@@ -97,8 +122,9 @@ def run_pass(image: Tensor, args: tuple, inplace: bool) -> tuple[Tensor, int]:
     argument: :func:`~sssbench.ops.gather.check_writable`), only the active pixels touched;
     otherwise a new ``(B, 3, H, W)`` contiguous tensor, the active pixels blurred and the
     others ``image``'s. ``args`` as :func:`~sssbench.ops._gather_torch.gather_torch`'s after
-    ``image`` (validated by :func:`~sssbench.ops.gather.separable_pass`, the public entry).
-    The torch loop without the C library. Bumps no version counter: the operators below
+    ``image`` (validated by :func:`~sssbench.ops.gather.separable_pass`, the public entry;
+    with the C library the taps may also come as :func:`native_pass` takes them). The torch
+    loop without the C library. Bumps no version counter: the operators below
     (and :func:`~sssbench.ops.gather.separable_pass` when it calls this directly) do."""
     lib = native.library()
     if lib is None:

@@ -65,21 +65,28 @@ def image_spans(mask: torch.Tensor | None, shape: tuple[int, int, int]) -> list[
         rows = torch.arange(h, dtype=torch.int64)
         full = torch.stack([rows, torch.zeros_like(rows), torch.full_like(rows, w)], 1)
         return [full] * b
-    return call_scoped((mask,), "spans", lambda: [_runs(m[0], w) for m in mask])
+    return call_scoped((mask,), "spans", lambda: _runs(mask, h, w))
 
 
-def _runs(mask: torch.Tensor, w: int) -> torch.Tensor:
-    """The ``(S, 3)`` runs of one ``(H, W)`` mask (see :func:`image_spans`)."""
+def _runs(mask: torch.Tensor, h: int, w: int) -> list[torch.Tensor]:
+    """The ``(S, 3)`` runs of each image of a ``(B, 1, H, W)`` mask (see :func:`image_spans`):
+    one C scan per image, the images found by address (no torch call but the output's), or
+    ``torch.nonzero`` without the C library."""
     lib = native.library()
     fn = _SPANS.get(mask.dtype)
     if lib is None or fn is None or mask.device.type != "cpu":
-        return _runs_of_indices(torch.nonzero(mask.reshape(-1) > 0).squeeze(1), w)
-    m = mask.detach().contiguous()
-    h = m.shape[0]
+        return [_runs_of_indices(torch.nonzero(m.reshape(-1) > 0).squeeze(1), w) for m in mask]
+    m = mask if mask.is_contiguous() else mask.detach().contiguous()
+    step = m.stride(0) * m.element_size()
+    return [_scan(getattr(lib, fn), m.data_ptr() + bi * step, h, w) for bi in range(m.shape[0])]
+
+
+def _scan(fn: Callable[..., int], address: int, h: int, w: int) -> torch.Tensor:
+    """The runs of the ``(h, w)`` plane of mask values at ``address`` by the C scan ``fn``."""
     cap = 4 * h + 1024  # a few runs per row; counted exactly when there are more
     while True:
         out = torch.empty(cap, 3, dtype=torch.int64)
-        n = getattr(lib, fn)(m.data_ptr(), h, w, out.data_ptr(), cap)
+        n = fn(address, h, w, out.data_ptr(), cap)
         if n <= cap:
             return out[:n]
         cap = n

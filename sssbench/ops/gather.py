@@ -20,8 +20,12 @@ pixels: the native loop's runs are rebuilt from the mask once per call (one read
 :func:`~sssbench.ops._stencil.image_spans`), the torch loop's index lists memoised per mask
 contents (:func:`~sssbench._memo.memoised`). Without autograd the native pass is called
 directly rather than through the dispatcher (whose argument binding cost more per pass than
-a small object's work); the operators are used when autograd records the pass or a graph is
-compiled.
+a small object's work), with the kernel's taps as they are (the C loop converts them to the
+pass's dtype itself, bitwise as :func:`_taps` does) and its tensors by address: such a pass
+makes no torch call but the stencil's output buffer, each of which cost ~25 µs of CPU on a
+call whose caches the previous frame's work had evicted (1080p, this machine), more than a
+far-away object's pass spends on some of its rows; the operators are used when autograd
+records the pass or a graph is compiled.
 
 Backends (:data:`BACKENDS`, chosen per block with :func:`backend`, default ``"native"``):
 
@@ -34,7 +38,12 @@ Backends (:data:`BACKENDS`, chosen per block with :func:`backend`, default ``"na
   direction and follow-surface mode compiles for tens of seconds).
 
 Threads: the C loop splits its lines over ``torch.get_num_threads()`` threads, so
-``torch.set_num_threads`` governs both. A ctypes library cannot use torch's OpenMP pool, so
+``torch.set_num_threads`` governs both, but gives each thread at least 16384 pixels of work
+(``MIN_THREAD_WORK`` in ``native/gather_body.h``): a split costs CPU time that does not scale
+with the pixels (a worker woken on a core whose caches hold other work, lines the other thread
+wrote moved across cores), measured 0.1–0.3 ms per two-pass call, 13 % of a 20k-pixel call's
+work; a smaller object is computed on the calling thread (its wall time is then up to twice
+what two idle cores would give). A ctypes library cannot use torch's OpenMP pool, so
 its workers are kept in a small pool of their own (``native/pool.h``) that sleep on a condition
 variable between passes and never spin: they take no core from torch's threads, and a pass is
 synchronous, so the two pools never compute at once. Measured reason to keep the pool rather
@@ -59,7 +68,7 @@ from sssbench._memo import call_scoped, memo_scope
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.kernel1d import Kernel1D
 from sssbench.ops import native
-from sssbench.ops._gather_native import run_pass  # also registers torch.ops.sssbench.*
+from sssbench.ops._gather_native import run_pass, weights_overflow  # registers torch.ops.sssbench.*
 from sssbench.ops._gather_torch import SampleWeight, compiled_accumulate, gather_torch
 from sssbench.ops._stencil import image_spans, image_stencils
 from sssbench.ops.timing import PassRecord, add_record
@@ -166,13 +175,15 @@ def _byte_range(t: torch.Tensor) -> tuple[int, int] | None:
     """``[first, end)`` addresses of the bytes ``t`` can touch (``None``: no element)."""
     if t.numel() == 0:
         return None
-    lo = hi = t.storage_offset()
+    base, item = t.data_ptr(), t.element_size()
+    if t.is_contiguous():  # the rule: no walk over the strides
+        return base, base + t.numel() * item
+    lo = hi = 0  # elements from the first one's address (data_ptr: storage offset included)
     for size, stride in zip(t.shape, t.stride(), strict=True):
         if stride >= 0:
             hi += (size - 1) * stride
         else:
             lo += (size - 1) * stride
-    base, item = t.untyped_storage().data_ptr(), t.element_size()
     return base + lo * item, base + (hi + 1) * item
 
 
@@ -195,7 +206,8 @@ def check_writable(name: str, target: torch.Tensor, others: dict[str, torch.Tens
             "written in place outside inference mode: call inside torch.inference_mode(), or "
             "with inplace=False"
         )
-    if torch._debug_has_internal_overlap(target) != 0:  # 1: yes, 2: cannot tell
+    # 1: yes, 2: cannot tell (a contiguous tensor has none: not asked, a torch call less)
+    if not target.is_contiguous() and torch._debug_has_internal_overlap(target) != 0:
         raise ValueError(
             f"{name} has elements sharing memory (an expanded or stride-0 view, strides "
             f"{target.stride()}) and cannot be written in place: pass a tensor that owns its "
@@ -304,25 +316,29 @@ def _taps(kernel: Kernel1D, dtype: torch.dtype) -> tuple[torch.Tensor, torch.Ten
     offsets = kernel.offsets.to(torch.float64).clamp(-big, big).to(dtype)
     weights = kernel.weights.to(dtype)
     if not bool(torch.isfinite(weights).all()):
-        raise ValueError(
-            f"kernel.weights overflow {dtype} (largest |weight| "
-            f"{float(kernel.weights.abs().max()):g}): use float64 or normalise the kernel"
-        )
+        raise weights_overflow(kernel.weights, dtype)
     return offsets, weights
 
 
-def _inverse_scale(surface_scale: float | torch.Tensor | None, dtype: torch.dtype) -> torch.Tensor:
-    """``(3,)`` 1 / surface_scale in 1/mm (0: unused), computed in float64 and clamped to the
-    dtype's largest finite value (a surface_scale of 1e-40 mm must not give ``0 · inf``)."""
+def _reciprocal(surface_scale: float | torch.Tensor | None) -> torch.Tensor | tuple[float, ...]:
+    """1 / surface_scale per channel in float64 (1/mm; 0: unused): three floats for a scalar
+    (no torch call), a ``(3,)`` tensor (differentiable) for per-channel scales."""
     if surface_scale is None:
-        return torch.zeros(3, dtype=dtype)
+        return (0.0, 0.0, 0.0)
     if isinstance(surface_scale, torch.Tensor):  # per channel (differentiable)
-        inv = surface_scale.to(torch.float64).reciprocal()
-    else:
-        inv = torch.full((3,), 1.0 / float(surface_scale), dtype=torch.float64)
+        return surface_scale.to(torch.float64).reciprocal()
+    return (1.0 / float(surface_scale),) * 3
+
+
+def _inverse_scale(surface_scale: float | torch.Tensor | None, dtype: torch.dtype) -> torch.Tensor:
+    """``(3,)`` 1 / surface_scale in 1/mm (0: unused), computed in float64
+    (:func:`_reciprocal`) and clamped to the dtype's largest finite value (a surface_scale of
+    1e-40 mm must not give ``0 · inf``)."""
+    inv = _reciprocal(surface_scale)
+    if not isinstance(inv, torch.Tensor):
+        inv = torch.tensor(inv, dtype=torch.float64)
     big = torch.finfo(dtype).max
-    inv = torch.where(inv <= big, inv, big).to(dtype)
-    return inv
+    return torch.where(inv <= big, inv, big).to(dtype)
 
 
 def _pass_constants(
@@ -442,25 +458,31 @@ def separable_pass(
         correction, maxdd = float(stretch.correction), float(stretch.maxdd)
     per_pixel = width if isinstance(width, torch.Tensor) else None
     width_scalar = 0.0 if per_pixel is not None else float(width)
-    offsets, weights, inv_scale = _pass_constants(kernel, surface_scale, dtype)
     follow = FOLLOW_SURFACE.index(follow_surface)
     if inplace:
         check_writable("image", image, {
             "gbuffer.depth": gbuffer.depth, "gbuffer.mask": strength, "width": per_pixel,
             "guide": guide, "rotation.angles": None if rotation is None else rotation.angles,
         })  # fmt: skip
+    scale_t = surface_scale if isinstance(surface_scale, torch.Tensor) else None
     grads = torch.is_grad_enabled() and any(
         t is not None and t.requires_grad
-        for t in (image, gbuffer.depth, strength, per_pixel, offsets, weights, inv_scale, guide)
-    )
+        for t in (image, gbuffer.depth, strength, per_pixel, kernel.offsets, kernel.weights,
+                  scale_t, guide)
+    )  # fmt: skip
     inplace = inplace and not grads and image.is_contiguous()
     name_ = _backend_for(image, rotation, sample_weight)
-    args = (gbuffer.depth, strength, per_pixel, ddepth, offsets, weights, inv_scale, f_px,
-            width_scalar, correction, maxdd, axis == 2, follow)  # fmt: skip
+    direct = name_ == "native" and not (grads or torch.compiler.is_compiling())
+    if direct:  # the C loop converts the kernel's taps itself, as _pass_constants does
+        taps = (kernel.offsets, kernel.weights, _reciprocal(surface_scale))
+    else:
+        taps = _pass_constants(kernel, surface_scale, dtype)
+    args = (gbuffer.depth, strength, per_pixel, ddepth, *taps, f_px, width_scalar, correction,
+            maxdd, axis == 2, follow)  # fmt: skip
 
     start = time.perf_counter()
     with memo_scope():  # the stencil is built once per call (see sssbench._memo)
-        if name_ == "native" and (grads or torch.compiler.is_compiling()):
+        if name_ == "native" and not direct:
             # through the dispatcher: autograd records the operator (its backward is the
             # torch loop's), a compiled graph traces it
             if inplace:

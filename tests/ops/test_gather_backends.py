@@ -173,6 +173,11 @@ def test_library_is_built_into_the_cache_dir(tmp_path):
     assert len(built) == 1 and outs[0] == str(tmp_path / "native")
 
 
+#: rows of the "larger image" (203 wide): at 90% cover over 2 x 16384 pixels, the work the C
+#: loop needs before it splits a pass over two threads (MIN_THREAD_WORK in gather_body.h)
+BIG_H = 180
+
+
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 @pytest.mark.parametrize("cover", [0.95, 0.12], ids=["dense", "sparse"])
 def test_native_lines_windows_and_threads_on_a_larger_image(dtype, cover):
@@ -180,8 +185,8 @@ def test_native_lines_windows_and_threads_on_a_larger_image(dtype, cover):
     kernels from a pixel wide to wider than the image, a per-pixel width with a few huge
     values (their window is the whole line) and both follow-surface modes: each line reads
     only the window its largest step can reach, which must hold every tap."""
-    g = scene(seed=5, h=90, w=203, dtype=dtype, cover=cover)
-    width = 0.05 + torch.rand(1, 1, 90, 203, generator=torch.Generator().manual_seed(2))
+    g = scene(seed=5, h=BIG_H, w=203, dtype=dtype, cover=cover)
+    width = 0.05 + torch.rand(1, 1, BIG_H, 203, generator=torch.Generator().manual_seed(2))
     width[0, 0, 40, 100:105] = 1e4  # taps clamp at both borders
     width = width.to(dtype)
     threads = torch.get_num_threads()
@@ -198,7 +203,7 @@ def test_native_lines_windows_and_threads_on_a_larger_image(dtype, cover):
 
 
 def _big_pass(seed):
-    g = scene(seed=seed, h=90, w=203, cover=0.9)
+    g = scene(seed=seed, h=BIG_H, w=203, cover=0.9)
     return separable_pass(g.diffuse, kernel(9), "y", g, follow_surface="lerp", surface_scale=3.0)
 
 
@@ -245,7 +250,7 @@ def test_native_pool_restarts_in_a_forked_child():
     threads = torch.get_num_threads()
     torch.set_num_threads(2)
     try:
-        g = scene(seed=1, h=90, w=203, cover=0.9)
+        g = scene(seed=1, h=BIG_H, w=203, cover=0.9)
         lib = native.library()
         args = (g.depth, g.mask, None, None,
                 torch.linspace(-4.0, 4.0, 9, dtype=torch.float64),
@@ -417,3 +422,48 @@ def test_sum_of_gaussians_native_equals_torch(dtype):
         got = op(g)
     torch.testing.assert_close(got, ref, **tol(dtype))
     assert not torch.allclose(ref, g.diffuse)
+
+
+@pytest.mark.parametrize("image_dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("kernel_dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("surface_scale", [1e-40, 2.5, "per-channel"])
+def test_native_converts_the_kernel_itself_as_the_torch_loop(
+    image_dtype, kernel_dtype, surface_scale
+):
+    """Without autograd the C loop takes the kernel's taps as they are and converts them to the
+    pass's dtype itself: offsets beyond its range clamp to its largest value (taps on the
+    border), 1 / surface_scale too (1e-40 mm overflows float32). The torch loop converts them
+    in torch (``_taps``, ``_inverse_scale``): the results must be bitwise equal."""
+    big = 1e300 if kernel_dtype == torch.float64 else 3e38
+    offsets = torch.tensor([-big, -2.5, -0.75, 0.0, 0.75, 2.5, big], dtype=kernel_dtype)
+    weights = torch.rand(7, 3, generator=torch.Generator().manual_seed(3), dtype=kernel_dtype)
+    k = Kernel1D(offsets, weights / weights.sum(0))
+    g = scene(seed=11, b=2, dtype=image_dtype)
+    # whole-mm depths: neighbours at equal depth, where 0 * an unclamped inf 1/scale is NaN
+    g = GBuffer(g.diffuse, torch.round(g.depth), g.fov_y, mask=g.mask)
+    if surface_scale == "per-channel":
+        surface_scale = torch.tensor([0.5, 1.5, 4.0], dtype=torch.float64)
+    width = torch.where(g.depth > 70, 0.0, 1.0).to(image_dtype)
+    for direction in ("x", "y"):
+        # a width of 0 at some pixels: an unclamped infinite offset would give inf * 0 = NaN
+        ref, got = both(g.diffuse, k, direction, g, follow_surface="lerp",
+                        surface_scale=surface_scale, width=width)  # fmt: skip
+        assert torch.equal(got, ref)
+
+
+@pytest.mark.parametrize("inplace", [False, True])
+@pytest.mark.parametrize("masked", ["some", "none"])
+def test_weights_beyond_the_pass_dtype_are_refused_by_both_loops(inplace, masked):
+    """Weights finite in float64 but not in float32: ``ValueError`` naming ``kernel.weights``
+    from either loop, also when no pixel is active (the C loop checks before it computes)
+    and before anything is written."""
+    k = Kernel1D(torch.tensor([-1.0, 0.0, 1.0], dtype=torch.float64),
+                 torch.full((3, 3), 1e300, dtype=torch.float64))  # fmt: skip
+    g = scene(seed=2, b=2, dtype=torch.float32)
+    if masked == "none":
+        g = GBuffer(g.diffuse, g.depth, g.fov_y, mask=torch.zeros_like(g.mask))
+    image = g.diffuse.clone()
+    for name in ("torch", "native"):
+        with backend(name), pytest.raises(ValueError, match="kernel.weights"):
+            separable_pass(image, k, "x", g, inplace=inplace)
+        assert torch.equal(image, g.diffuse)
