@@ -321,7 +321,15 @@ def map_threads(fn: Callable[[_T], _R], items: Iterable[_T], workers: int) -> It
     uses one intra-op thread (restored after), so every item is computed by the same
     sequence of single-threaded kernels whatever ``workers`` is: the result does not depend
     on the number of threads. ``fn`` must write only its own outputs (no shared
-    accumulator)."""
+    accumulator). Autograd's modes are thread-local: the workers run ``fn`` under the
+    caller's inference mode and grad mode (tensors made under ``torch.inference_mode()`` can
+    only be written to under it)."""
+    inference, grad = torch.is_inference_mode_enabled(), torch.is_grad_enabled()
+
+    def in_callers_mode(item: _T) -> _R:
+        with torch.inference_mode(inference), torch.set_grad_enabled(grad):
+            return fn(item)
+
     prev = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
@@ -330,7 +338,7 @@ def map_threads(fn: Callable[[_T], _R], items: Iterable[_T], workers: int) -> It
         else:
             pool = ThreadPoolExecutor(workers, thread_name_prefix="reference")
             try:
-                yield from pool.map(fn, items)
+                yield from pool.map(in_callers_mode, items)
             finally:  # on an error or an interrupt, the items not started are dropped
                 pool.shutdown(wait=True, cancel_futures=True)
     finally:

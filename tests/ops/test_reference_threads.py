@@ -111,3 +111,17 @@ def test_map_threads_keeps_the_order_and_one_torch_thread_per_item(torch_threads
     with pytest.raises(RuntimeError, match="item 7"):
         list(far.map_threads(boom, range(20), 2))
     assert torch.get_num_threads() == 2  # restored, also after an error
+
+
+@pytest.mark.parametrize("method", ["multipole", "gather"])
+def test_threads_under_inference_mode(monkeypatch, method):
+    """Autograd's modes are thread-local: a threaded reference called under
+    ``torch.inference_mode()`` (as the runner calls it) must run its workers under it too
+    (tensors made in inference mode can only be written to there); the result is the
+    serial one outside inference mode."""
+    monkeypatch.setattr(reference, "_CENTRES", 97)
+    g = scene()
+    serial = reference_sss(g, PROFILE, method=method, threads=1)
+    with torch.inference_mode():
+        got = reference_sss(g, PROFILE, method=method, threads=2)
+    assert _rel_max(got, serial) <= 1e-12
