@@ -13,7 +13,8 @@ It cannot go stale or be corrupted by a run:
   which holds the code digest of the reference, the profile's digest and the stages);
 - a value is handed out as a deep copy of its tensors, so a run that writes into its G-buffer
   or its images (in place, under ``inference_mode``, through NumPy) never reaches the kept
-  one; the copy of a 512² G-buffer takes a few milliseconds;
+  one; the copy of a 512² G-buffer takes a few milliseconds; copies are made outside
+  inference mode, so they are normal tensors whichever mode the caller is in;
 - user files (``scene=file``) are never kept: the file may change between runs.
 
 Bounded: the :data:`MAX_ENTRIES` most recently used values are kept.
@@ -62,13 +63,23 @@ def remembered(kind: str, key: Mapping[str, Any], compute: Callable[[], T]) -> T
     with _LOCK:
         if k in _VALUES:
             _VALUES.move_to_end(k)
-            return copy.deepcopy(_VALUES[k])
+            return _copy(_VALUES[k])
     value = compute()
     with _LOCK:
-        _VALUES[k] = copy.deepcopy(value)
+        _VALUES[k] = _copy(value)
         while len(_VALUES) > MAX_ENTRIES:
             _VALUES.popitem(last=False)
     return value
+
+
+def _copy(value: T) -> T:
+    """A deep copy made outside inference mode: normal tensors, whatever mode the caller is
+    in (a tensor made under ``torch.inference_mode()`` can be written to only there, and a
+    value kept here serves callers in either mode)."""
+    import torch
+
+    with torch.inference_mode(False):
+        return copy.deepcopy(value)
 
 
 def clear() -> None:

@@ -86,3 +86,15 @@ def test_bounded():
         runmemo.remembered("x", {"i": i}, lambda: calls.append(1))
     runmemo.remembered("x", {"i": 0}, lambda: calls.append(1))  # the oldest was dropped
     assert len(calls) == runmemo.MAX_ENTRIES + 2
+
+
+def test_values_are_normal_tensors_whatever_the_callers_mode():
+    """A value built under ``torch.inference_mode()`` (as ``runner.prepare`` builds scenes)
+    is handed out later, outside it, as a normal tensor that can be written to."""
+    with torch.inference_mode():
+        inside = runmemo.remembered("x", {"k": 3}, lambda: torch.ones(3))
+    later = runmemo.remembered("x", {"k": 3}, lambda: torch.zeros(3))
+    assert inside.is_inference()  # the caller's own value, as computed
+    assert not later.is_inference()
+    later.add_(1.0)  # an inference tensor would raise here
+    assert torch.equal(later, torch.full((3,), 2.0))
