@@ -36,7 +36,7 @@ from typing import TypeVar
 import numpy as np
 import torch
 
-__all__ = ["memoised", "memo_scope", "call_scoped"]
+__all__ = ["memoised", "memo_scope", "call_scoped", "same_bits"]
 
 #: key -> (bitwise snapshots of the key tensors, value), least recently used first
 _MEMO: OrderedDict[tuple, tuple[tuple, object]] = OrderedDict()
@@ -75,7 +75,7 @@ def _libc_memcmp() -> Callable[[int, int, int], int] | None:
 _MEMCMP = _libc_memcmp()
 
 
-def _same_bits(snapshot: torch.Tensor | None, t: torch.Tensor | None) -> bool:
+def same_bits(snapshot: torch.Tensor | None, t: torch.Tensor | None) -> bool:
     """Whether ``t`` holds exactly the bits of ``snapshot`` (same shape and dtype).
 
     On the CPU by ``memcmp`` of the two contiguous byte ranges (NumPy without a C library):
@@ -99,14 +99,14 @@ def _same_bits(snapshot: torch.Tensor | None, t: torch.Tensor | None) -> bool:
 
 
 def _matches(snapshot: torch.Tensor | None, t: torch.Tensor | None, scope: dict | None) -> bool:
-    """:func:`_same_bits`, compared once per tensor and snapshot within a :func:`memo_scope`
+    """:func:`same_bits`, compared once per tensor and snapshot within a :func:`memo_scope`
     (several values memoised on one tensor share its snapshot, see :func:`_snapshot`)."""
     if snapshot is None or t is None:
         return snapshot is None and t is None
     key = ("bits", id(snapshot), *_ident(t))
     if scope is not None and key in scope:
         return True
-    same = _same_bits(snapshot, t)
+    same = same_bits(snapshot, t)
     if same and scope is not None:
         scope[key] = (snapshot, t)  # keeps both alive: their ids stay theirs
     return same
