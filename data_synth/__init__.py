@@ -8,10 +8,15 @@ the skin footprint of one pixel at its focus (:mod:`data_synth.scale`, :data:`SC
 
 Modules: :mod:`~data_synth.scenes` (the catalogue and builders), :mod:`~data_synth.render`
 (tracing, shading, shadows, thickness), :mod:`~data_synth.geometry` (rays and convex
-primitives), :mod:`~data_synth.head` (the ellipsoid head), :mod:`~data_synth.face` (the implicit
-face), :mod:`~data_synth.scale` (physical scale), :mod:`~data_synth.textures` (image textures).
+primitives), :mod:`~data_synth.mc_scenes` (the backlit slab and the scenes' analytic
+models for Monte Carlo), :mod:`~data_synth.head` (the ellipsoid head),
+:mod:`~data_synth.face` (the implicit face), :mod:`~data_synth.scale` (physical scale),
+:mod:`~data_synth.textures` (image textures).
 """
 
+# the Monte Carlo scenes' module registers its builder (backlit_slab) in SCENES; it reads the
+# catalogue's helpers, the catalogue never imports it (one direction: mc_scenes -> scenes)
+from data_synth import mc_scenes as _mc_scenes  # noqa: E402, F401
 from data_synth.face import FACE_PARTS
 from data_synth.head import HEAD_HEIGHT_MM, head_object
 from data_synth.render import OPTIONAL_FIELDS

@@ -845,5 +845,3 @@ def face_parts(
     spec, ctx = _context("face", resolution, seed, fields, dtype, params)
     return _face(ctx, **{**spec.defaults, **params})
 
-
-from data_synth import mc_scenes as _mc_scenes  # noqa: E402, F401 - registers backlit_slab

@@ -1,7 +1,7 @@
 """Claim 9 — the benchmark: every method (and the do-nothing baseline) × scenes × scales × taps.
 
 Runs the app's ``paper_benchmark`` preset (``paper_benchmark_quick`` with ``--quick``): every
-job of the preset's grid goes through :func:`sssbench.runner.execute` — the run function of
+job of the preset's grid goes through :func:`sssbench.run.runner.execute` — the run function of
 ``sssbench -m +experiment=paper_benchmark`` — into a fresh run store, with the app's shared
 reference cache. The section is then built from that store by :mod:`sssbench.report`: per
 scene and scale, the skill of every configuration against doing nothing, the Pareto front,
@@ -22,9 +22,11 @@ from pathlib import Path
 import pandas as pd
 
 from experiments.common import Context, Section, main, md_table, shrink_png
-from sssbench import report, runner
+from sssbench import report
 from sssbench.app import compose_spec, preset_grid
-from sssbench.warm import warm
+from sssbench.report import plots
+from sssbench.run import runner
+from sssbench.run.warm import warm
 
 TITLE = "9. The benchmark: error against run time, per scene and scale"
 
@@ -78,11 +80,11 @@ def run(ctx: Context) -> Section:
     fig_path = ctx.figures / "benchmark.png"
     ctx.figures.mkdir(parents=True, exist_ok=True)
     figures = []
-    if report._plot_error_vs_time(table, fig_path) is not None:
+    if plots.plot_error_vs_time(table, fig_path) is not None:
         shrink_png(fig_path)
         figures.append(f"figures/{fig_path.name}")
     budget_path = ctx.figures / "benchmark_budget.png"
-    if report._plot_budget(table, budget_path) is not None:
+    if plots.plot_budget(table, budget_path) is not None:
         shrink_png(budget_path)
         figures.append(f"figures/{budget_path.name}")
 

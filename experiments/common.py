@@ -254,9 +254,9 @@ SCENE_PARAMS: dict[str, dict[str, Any]] = {"pores": {"pixel_mm": 0.4}}
 
 
 def scene(name: str, resolution: tuple[int, int], fields: Sequence[str] | None = None, **params):
-    """The scene as the app builds it (:func:`sssbench.registry.build_scene`), float32, seed 0
+    """The scene as the app builds it (:func:`sssbench.run.registry.build_scene`), float32, seed 0
     (and :data:`SCENE_PARAMS`)."""
-    from sssbench import registry
+    from sssbench.run import registry
 
     params = {**SCENE_PARAMS.get(name, {}), **params}
     return registry.build_scene(
@@ -272,13 +272,13 @@ def reference(
     **params,
 ) -> torch.Tensor:
     """The exact :class:`~sssbench.ops.ReferenceSSS` image of a scene (all fields) from the
-    app's reference cache (:mod:`sssbench.refcache`, same key and directory as ``sssbench``
+    app's reference cache (:mod:`sssbench.store.refcache`, same key and directory as ``sssbench``
     runs): the reference is the expensive part. ``stages`` that change the light (e.g.
     translucency) are applied to the reference as the app applies them
-    (:func:`sssbench.registry.build_pipeline`)."""
-    from sssbench import registry
+    (:func:`sssbench.run.registry.build_pipeline`)."""
     from sssbench.ops import ReferenceSSS
-    from sssbench.refcache import cached_reference, reference_key
+    from sssbench.run import registry
+    from sssbench.store.refcache import cached_reference, reference_key
 
     params = {**SCENE_PARAMS.get(name, {}), **params}
     key = reference_key(
@@ -304,7 +304,7 @@ def reference(
 
 def errors(result: torch.Tensor, ref: torch.Tensor, g: Any) -> dict[str, float]:
     """``rel_rms`` and ``psnr`` over the SSS region (mask > 0, or everything)."""
-    from sssbench.metrics import psnr, rel_rms
+    from sssbench.score.metrics import psnr, rel_rms
 
     mask = None if g.mask is None else (g.mask > 0).to(result.dtype)
     ref = ref.to(result.dtype)

@@ -12,10 +12,10 @@ Errors are relative RMS against the exact reference over the stencil, with the d
 baseline's error and skill = 1 − err / err_baseline; for the disk (stochastic) the error is
 split into bias (error of the mean over seeds, its remaining noise² / seeds removed) and
 noise (RMS over pixels of the std across seeds, relative to the reference's RMS) by
-:func:`sssbench.runner.bias_noise`, the split the app's runs record. The accumulated disk is
+:func:`sssbench.run.runner.bias_noise`, the split the app's runs record. The accumulated disk is
 also run with ``surface_area=True`` (each sample weighted by its pixel's surface area, as the
 reference's cells; the engines leave it out). The separable rows (deterministic: all bias) carry
-their error budget (:func:`sssbench.budget.error_budget`: model / taps / screen, signed
+their error budget (:func:`sssbench.score.budget.error_budget`: model / taps / screen, signed
 contributions that add up to the rel RMS; the reconstruction convention stays inside screen),
 so a reader sees whether more taps could close the gap to the disk. Pareto: per scene, the
 rows no other row beats in both fetches per pixel and error (the baseline, 0 fetches,
@@ -34,11 +34,11 @@ import torch
 from experiments.common import Context, Section, errors, main, md_table, reference
 from experiments.common import scene as make
 from experiments.methods import SCREEN_SPACE, build
-from sssbench import budget as error_budget
 from sssbench.ops import DiskSSS, record_passes
 from sssbench.profiles import SumOfGaussians
 from sssbench.report import pareto_front
-from sssbench.runner import bias_noise
+from sssbench.run.runner import bias_noise
+from sssbench.score import budget as error_budget
 
 TITLE = "Engines' disk (HDRP / UE5 / EEVEE) vs separable kernels at equal fetches"
 SCENES = ("step_edge", "light_dot", "head_close")

@@ -3,7 +3,7 @@
 Against the pre-integrated baseline (skin_deon6, 7 importance taps), each extension's error
 change against the exact surface reference and its extra time (median of ``record_passes``
 sums, one thread). Every variant is the app's pipeline with that stage switched on
-(:func:`sssbench.registry.build_pipeline`, the same composition a ``sssbench translucency=on``
+(:func:`sssbench.run.registry.build_pipeline`, the same composition a ``sssbench translucency=on``
 run uses):
 
 * translucency (004 §3.2, eq. 3.10) on ``backlit_ear`` — transmitted light added to the
@@ -28,7 +28,7 @@ from experiments.common import scene as make
 from experiments.methods import build
 from sssbench.ops.curvature import CURVATURE_STRATEGIES
 from sssbench.profiles import SumOfGaussians
-from sssbench.registry import build_pipeline
+from sssbench.run.registry import build_pipeline
 
 TITLE = "8. Extensions: translucency, halo, Lab bilateral, curvature (004 §3.2–3.3)"
 

@@ -5,7 +5,7 @@ For every scene with an analytic Monte Carlo model (:data:`data_synth.mc_scenes.
 a plane with a shadow edge, a light dot, a thin slab lit from behind through a window — with
 and without the translucency stage — and a sphere under a directional light), every method
 and the do-nothing baseline ``identity`` run as the app runs them with ``reference=mc``
-(:func:`sssbench.app.compose_spec`, :func:`sssbench.runner.execute`; profile ``skin_jg10``,
+(:func:`sssbench.app.compose_spec`, :func:`sssbench.run.runner.execute`; profile ``skin_jg10``,
 simulated as the measured skin1 of JMLH01). Each run stores its relative RMS error against
 the exact profile reference (``rel_rms``) and against the MC, noise-corrected
 (``rel_rms_mc``, with its jackknife standard error), and the profile reference's own error
@@ -35,8 +35,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from experiments.common import Context, Section, main, md_table
-from sssbench import runner
 from sssbench.app import compose_spec
+from sssbench.run import runner
 
 TITLE = "The gap: diffusion profiles and screen-space methods against light transport"
 METHODS = ["identity", "preintegrated", "sum_of_gaussians", "low_rank", "jimenez2012"]

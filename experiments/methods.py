@@ -2,7 +2,7 @@
 
 ``factory(profile, samples) -> nn.Module`` builds method ``name`` exactly as a ``sssbench
 method=<name> samples=<n>`` run would (the app's config defaults, e.g. the 2012 kernel's
-width, through :func:`sssbench.app.compose_spec` and :func:`sssbench.registry.build_method`),
+width, through :func:`sssbench.app.compose_spec` and :func:`sssbench.run.registry.build_method`),
 so an experiment and a sweep never disagree on what a method is.
 """
 
@@ -13,9 +13,9 @@ from functools import cache
 
 from torch import nn
 
-from sssbench import registry
 from sssbench.app import compose_spec
-from sssbench.spec import RunSpec
+from sssbench.run import registry
+from sssbench.run.spec import RunSpec
 
 #: the screen-space methods the experiments compare (the baseline and the exact reference
 #: are handled by the experiments themselves)

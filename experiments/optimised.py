@@ -2,14 +2,14 @@
 
 For 5, 7, 9 and 13 taps at the portrait (0.3 mm/px) and medium (1 mm/px) scales, the
 pre-integrated kernel's taps are fitted by gradient descent through the method's own two
-depth-aware passes (:func:`sssbench.kernels.optimise.optimise`, default training set: a
+depth-aware passes (:func:`sssbench.tune.optimise.optimise`, default training set: a
 textured face, a shadow edge and a light disc at 96²) and evaluated on HELD-OUT scenes that
 share nothing with the training set (other geometry, textures and seeds, 128²): the procedural
 head, the sphere, and the skin patch textured by a photograph (``pores``). The error is the SSS
 stage's (the method's scattered diffuse against the exact :class:`~sssbench.ops.ReferenceSSS`,
 rel RMS over the mask), against the best of the published rules (importance, uniform, power)
 at equal taps and passes, with the do-nothing baseline (identity). The error budget
-(:mod:`sssbench.budget`) of the importance kernel at 7 taps shows what limits the gain.
+(:mod:`sssbench.score.budget`) of the importance kernel at 7 taps shows what limits the gain.
 
     python -m experiments.run optimised [--quick]
 """
@@ -24,12 +24,12 @@ import matplotlib.pyplot as plt
 import torch
 
 from experiments.common import Context, Section, main, md_table
-from sssbench.budget import error_budget
-from sssbench.kernels import optimise as opt
-from sssbench.metrics import rel_rms
+from sssbench.tune import optimise as opt
 from sssbench.ops import IdentitySSS, Jimenez2012SSS, PreintegratedSSS, SumOfGaussiansSSS
 from sssbench.profiles import SumOfGaussians
-from sssbench.verdict import VISIBLE_FLIP, VISIBLE_LOCAL_FLIP, is_visible, visibility_stats
+from sssbench.score.budget import error_budget
+from sssbench.score.metrics import rel_rms
+from sssbench.score.verdict import VISIBLE_FLIP, VISIBLE_LOCAL_FLIP, is_visible, visibility_stats
 
 TITLE = "Beyond the papers: taps optimised through the passes (issue 18)"
 SCALES = {"portrait": 0.3, "medium": 1.0}
@@ -88,7 +88,7 @@ def run(ctx: Context) -> Section:
             g = s.build(px)
             scenes.append((s.name, g, opt.sss_reference(s, g, prof, px)))
         ident = {name: _error(IdentitySSS(), g, ref) for name, g, ref in scenes}
-        # visible: the project's criterion (sssbench.verdict): the FLIP of the input against
+        # visible: the project's criterion (sssbench.score.verdict): the FLIP of the input against
         # the reference, its mean or its 99.9th percentile
         stats = {name: visibility_stats(ref, g.diffuse, g.mask) for name, g, ref in scenes}
         flips = {name: st[0] for name, st in stats.items()}
@@ -219,7 +219,7 @@ def run(ctx: Context) -> Section:
     measured = (
         f"On {len(held)} held-out scenes at {len(SCALES)} scales, SSS is visible (FLIP of "
         f"the input against the reference ≥ {VISIBLE_FLIP} on average or ≥ "
-        f"{VISIBLE_LOCAL_FLIP} at its 99.9th percentile, sssbench.verdict) in "
+        f"{VISIBLE_LOCAL_FLIP} at its 99.9th percentile, sssbench.score.verdict) in "
         f"{n_visible} scene-scale cases. "
         f"At {' and '.join(map(str, GOAL_TAPS))} taps the optimised "
         f"kernel has {100 * min(gains, default=float('nan')):.0f}–"

@@ -24,7 +24,7 @@ from experiments.common import Context, Section, errors, main, md_table, referen
 from experiments.common import scene as make
 from experiments.methods import build
 from sssbench.profiles import SumOfGaussians
-from sssbench.registry import build_pipeline
+from sssbench.run.registry import build_pipeline
 
 TITLE = "10. Leave out what a scene does not need: the automatic plan's savings and cost"
 STAGES = {

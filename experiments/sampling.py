@@ -18,9 +18,9 @@ import torch
 
 from experiments.common import Context, Section, errors, main, md_table, reference
 from experiments.common import scene as make
-from sssbench.metrics import psnr, rel_rms
 from sssbench.ops import PreintegratedSSS
 from sssbench.profiles import SumOfGaussians
+from sssbench.score.metrics import psnr, rel_rms
 
 TITLE = "5. Importance sampling and stochastic rotation (000 Fig. 12–13)"
 COUNTS = (9, 13, 17, 33, 65)

@@ -19,8 +19,8 @@ import torch
 import sssbench.ops as ops
 from experiments.common import Context, Section, errors, main, md_table, op_available, reference
 from experiments.common import scene as make
-from sssbench.metrics import rel_rms
 from sssbench.profiles import SumOfGaussians, fit_sum_of_gaussians
+from sssbench.score.metrics import rel_rms
 
 TITLE = "2. The step edge (000 Fig. 7)"
 

@@ -1,11 +1,26 @@
 """sssbench: screen-space subsurface scattering methods side by side against an exact reference.
 
-Layers (DESIGN §1): ``profiles -> kernels -> ops -> pipeline -> app -> tracking -> report``.
+The package's public face: :class:`GBuffer`, the gather :func:`backend`, :mod:`sssbench.io`
+and the version. The layers, bottom to top (docs/architecture.md, checked by import-linter):
+``gbuffer -> profiles -> kernels -> ops | mc -> score -> tune -> store -> run -> report -> app``.
 """
-
-from sssbench.gbuffer import GBuffer, pixel_size_mm, view_positions
-from sssbench.ops.gather import backend, get_backend
 
 __version__ = "0.1.0"
 
-__all__ = ["GBuffer", "pixel_size_mm", "view_positions", "backend", "get_backend", "__version__"]
+from sssbench import io  # noqa: E402 - users' G-buffers (reads __version__ for file headers)
+from sssbench.gbuffer import GBuffer, pixel_size_mm, view_positions  # noqa: E402
+from sssbench.ops.gather import backend, get_backend  # noqa: E402
+
+# the fitted kernels ('optimised') reach the operators as data: importing the fitting code
+# registers it as a kernel source (sssbench.kernels.sources)
+from sssbench.tune import optimise as _optimise  # noqa: E402, F401
+
+__all__ = [
+    "GBuffer",
+    "pixel_size_mm",
+    "view_positions",
+    "backend",
+    "get_backend",
+    "io",
+    "__version__",
+]

@@ -3,12 +3,12 @@
 :func:`main` checks the command line (one clear line and exit 2 for an unknown key, an empty
 value, a value of the wrong type or an unknown config-group option), composes the config from
 the package's ``conf/`` (:data:`CONF_DIR`, shipped inside the package), reads it once into a
-plain :class:`~sssbench.spec.RunSpec` (:func:`spec_from_cfg`; DESIGN §7: nothing below the app
-sees ``cfg``) and hands it to :func:`sssbench.runner.execute`. A sweep always runs to the end;
+plain :class:`~sssbench.run.spec.RunSpec` (:func:`spec_from_cfg`; DESIGN §7: nothing below the app
+sees ``cfg``) and hands it to :func:`sssbench.run.runner.execute`. A sweep always runs to the end;
 the process exits 1 afterwards if any of its runs failed (:class:`ExitStatusCallback`).
 
 Adding a method = one YAML file in ``conf/method/`` plus one entry in
-:data:`sssbench.registry.METHODS` (``docs/extending.md``).
+:data:`sssbench.run.registry.METHODS` (``docs/extending.md``).
 """
 
 from __future__ import annotations
@@ -24,11 +24,11 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
-from sssbench import registry
 from sssbench._checks import check_int
-from sssbench.runner import execute, run_label
-from sssbench.spec import DEFAULT_SEEDS, REFERENCES, RunSpec
-from sssbench.tracking import RunRecord, RunStore, config_hash
+from sssbench.run import registry
+from sssbench.run.runner import execute, run_label
+from sssbench.run.spec import DEFAULT_SEEDS, REFERENCES, RunSpec
+from sssbench.store.tracking import RunRecord, RunStore, config_hash
 
 log = logging.getLogger("sssbench")
 
@@ -217,9 +217,9 @@ def spec_from_cfg(cfg: Any, overridden: tuple[str, ...] = ()) -> RunSpec:
 
 def _reference_choice(c: dict[str, Any], scene: str) -> tuple[str, dict[str, Any], dict[str, Any]]:
     """``(reference, reference_params, mc_params)`` of the config, checked: ``reference`` one
-    of :data:`~sssbench.spec.REFERENCES`, Monte Carlo options (``reference_params.mc_*``)
+    of :data:`~sssbench.run.spec.REFERENCES`, Monte Carlo options (``reference_params.mc_*``)
     only with ``mc``, ``mc`` only for a scene with a Monte Carlo model."""
-    from sssbench.spec import MC_OPTIONS
+    from sssbench.run.spec import MC_OPTIONS
 
     reference = c.get("reference", "profile")
     if reference not in REFERENCES:
@@ -473,7 +473,7 @@ class ExitStatusCallback(_HydraCallback):
             mirror.start_sweep(str(Path(str(config.hydra.sweep.dir)).resolve()))
 
     def on_multirun_end(self, config: Any, **kwargs: Any) -> None:
-        from sssbench.refcache import STATS
+        from sssbench.store.refcache import STATS
 
         sweep_dir = Path(str(config.hydra.sweep.dir)).resolve()
         counts: dict[str, int] = {}
@@ -507,7 +507,7 @@ def _sweep_mirror(config: Any) -> Any:
     if not tracking.get("mlflow"):
         return None
     try:
-        from sssbench.mlflow_mirror import MlflowMirror
+        from sssbench.store.mlflow_mirror import MlflowMirror
 
         store = Path(str(config.store)).expanduser().resolve()
         return MlflowMirror(tracking.get("mlflow_uri"), directory=store.parent)

@@ -9,7 +9,7 @@ each named after its passes), writes them for a shader (:func:`shader_source`) o
         sampling=importance --format hlsl --out kernel.hlsl
 
 The method is composed exactly as the app composes a run (:func:`sssbench.app.compose_spec`,
-:func:`sssbench.registry.build_method`), so the defaults are the app's.
+:func:`sssbench.run.registry.build_method`), so the defaults are the app's.
 
 Shader conventions (transcribed from the separable SSS shader ``SSSSBlurPS``, 002 appendix,
 the shader of ``SeparableSSS.h``):
@@ -117,7 +117,7 @@ def method_kernels(method: nn.Module, name: str | None = None) -> list[NamedKern
     - SVD rank-N: per term ``low_rank<i>.x`` (horizontal) and ``low_rank<i>.y`` (vertical).
 
     Args:
-        method: the operator (e.g. from :func:`sssbench.registry.build_method`).
+        method: the operator (e.g. from :func:`sssbench.run.registry.build_method`).
         name: the method's name in messages (default: its class name).
 
     Raises:
@@ -309,8 +309,8 @@ def load_kernels(source: str | Path) -> list[NamedKernel]:
 def build_from_overrides(overrides: Sequence[str]) -> tuple[nn.Module, Any]:
     """The method (and its spec) the app would run for ``overrides`` (``method=...``,
     ``profile=...``, ``samples=...``, ``sampling=...``, ``method.params.x=...``)."""
-    from sssbench import registry
     from sssbench.app import check_overrides, compose_spec
+    from sssbench.run import registry
 
     problem = check_overrides(list(overrides))
     if problem:
@@ -353,7 +353,7 @@ def main(argv: list[str] | None = None) -> int:
         if not kernels:
             raise ValueError(f"method {spec.method} uses no blurred pass with these options")
         width = args.sss_width or default_sss_width(kernels, method)
-        from sssbench.registry import METHODS
+        from sssbench.run.registry import METHODS
 
         meta = {
             "method": spec.method,

@@ -6,7 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from sssbench.spec import RunSpec
+from sssbench.run.spec import RunSpec
 
 
 def small_spec(tmp_path: Path, **overrides: Any) -> RunSpec:

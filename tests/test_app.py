@@ -16,8 +16,9 @@ from pathlib import Path
 import pytest
 from hydra import compose, initialize_config_dir
 
-from sssbench import app, registry, report, runner
-from sssbench.tracking import RunStore, config_hash
+from sssbench import app, report
+from sssbench.run import registry, runner
+from sssbench.store.tracking import RunStore, config_hash
 
 REPO = Path(__file__).resolve().parents[1]
 TINY = ["scene=sphere", "resolution=[24,24]", "repeats=1", "warmup=0", "previews=true"]

@@ -1,4 +1,4 @@
-"""The bias / noise split of stochastic methods' errors (sssbench.runner.bias_noise), through
+"""The bias / noise split of stochastic methods' errors (sssbench.run.runner.bias_noise), through
 a run and into the report's summary table, on a synthetic method whose bias and noise are
 known by construction: the exact reference + a constant offset + seeded Gaussian noise."""
 
@@ -12,9 +12,9 @@ import torch
 from specs import small_spec
 from torch import nn
 
-from sssbench import registry, runner
 from sssbench.ops import ReferenceSSS
-from sssbench.spec import DEFAULT_SEEDS, RunSpec
+from sssbench.run import registry, runner
+from sssbench.run.spec import DEFAULT_SEEDS, RunSpec
 
 #: offset and noise σ of the synthetic method (the scene's irradiance is O(0.1–1))
 OFFSET, SIGMA = 0.02, 0.03
@@ -55,7 +55,7 @@ def test_a_run_splits_known_bias_and_noise(tmp_path, noisy_method):
     assert runner.execute(spec, tmp_path / "run").status == "ok"
     m = json.loads((tmp_path / "run" / "metrics.json").read_text())
     # the expected values, relative to the reference's RMS over the mask (as rel_rms)
-    from sssbench.registry import build_profile, build_scene
+    from sssbench.run.registry import build_profile, build_scene
 
     g = build_scene("step_edge", (24, 24), fields=("mask",), dtype="float64")
     ref = ReferenceSSS(build_profile("skin_jg10"))(g)

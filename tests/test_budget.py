@@ -8,16 +8,7 @@ import pytest
 import torch
 
 from data_synth import make_scene
-from sssbench.budget import (
-    converged,
-    error_budget,
-    flat_convolution,
-    footprint_mm,
-    method_kernel,
-    profile_kernel,
-)
 from sssbench.gbuffer import GBuffer
-from sssbench.metrics import rel_rms
 from sssbench.ops import (
     ArtistSSS,
     IdentitySSS,
@@ -28,6 +19,15 @@ from sssbench.ops import (
     SumOfGaussiansSSS,
 )
 from sssbench.profiles import SumOfGaussians
+from sssbench.score.budget import (
+    converged,
+    error_budget,
+    flat_convolution,
+    footprint_mm,
+    method_kernel,
+    profile_kernel,
+)
+from sssbench.score.metrics import rel_rms
 
 SKIN = SumOfGaussians.from_table("skin_jg10")
 RES = (48, 48)
@@ -170,13 +170,13 @@ def test_flat_plane_screen_part_is_only_the_reconstruction_convention():
 
 
 def test_a_runs_budget_adds_up_to_its_error(tmp_path):
-    """In a run (sssbench.runner) the budget's contributions add up to the run's rel RMS, on
+    """In a run (sssbench.run.runner) the budget's contributions add up to the run's rel RMS, on
     a scene whose pipeline adds specular after scattering (the budget splits the SSS stage
     only, so the specular is taken out of the reference it compares with)."""
     import json
 
-    from sssbench import runner
     from sssbench.app import compose_spec
+    from sssbench.run import runner
 
     spec = compose_spec(
         "scene=sphere",

@@ -22,7 +22,7 @@ def _python_blocks(path: Path) -> list[str]:
 
 
 def test_extending_examples_run():
-    from sssbench import registry
+    from sssbench.run import registry
 
     saved = (dict(registry.METHODS), dict(registry.PROFILE_KINDS), dict(registry.STAGES))
     module = types.ModuleType("sssbench_docs_example")

@@ -9,7 +9,6 @@ import re
 import pytest
 import torch
 
-from sssbench import registry
 from sssbench.export import (
     kernels_json,
     load_kernels,
@@ -17,6 +16,7 @@ from sssbench.export import (
     method_kernels,
     shader_source,
 )
+from sssbench.run import registry
 
 # --------------------------------------------------------------------------- a small parser
 _NUM = r"[-+0-9.eE]+"

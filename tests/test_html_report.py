@@ -59,6 +59,7 @@ def test_plots_tell_samplings_apart_and_label_ticks(sweep):
 
     matplotlib.use("Agg")
     from sssbench import report
+    from sssbench.report import plots
 
     runs, _ = report.load_runs(sweep / "store.sqlite")
     table = report.summary_table(runs)
@@ -73,7 +74,7 @@ def test_plots_tell_samplings_apart_and_label_ticks(sweep):
 
     plt.Figure.savefig = keep
     try:
-        report._plot_error_vs_time(table, sweep / "evt.png")
+        plots.plot_error_vs_time(table, sweep / "evt.png")
     finally:
         plt.Figure.savefig = real_savefig
     fig = captured["fig"]

@@ -370,7 +370,7 @@ def test_read_back_scene_gives_the_same_sss(tmp_path, suffix):
     """A scene written and read back scatters to exactly the same image."""
     import data_synth
     from sssbench.ops import PreintegratedSSS
-    from sssbench.pipeline import Pipeline
+    from sssbench.ops.pipeline import Pipeline
     from sssbench.profiles import SumOfGaussians
 
     g = data_synth.make_scene("head", (48, 40), fields=data_synth.OPTIONAL_FIELDS)

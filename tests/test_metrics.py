@@ -7,8 +7,8 @@ import math
 import pytest
 import torch
 
-from sssbench import metrics
-from sssbench.metrics import delta_e, flip, psnr, rel_rms, rmse, ssim, tonemap
+from sssbench.score import metrics
+from sssbench.score.metrics import delta_e, flip, psnr, rel_rms, rmse, ssim, tonemap
 
 
 def _ramp(b: int = 1, h: int = 16, w: int = 16, dtype=torch.float64) -> torch.Tensor:

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from sssbench.mlflow_mirror import (
+from sssbench.store.mlflow_mirror import (
     MAX_KEY_LENGTH,
     MAX_PARAM_VALUE_LENGTH,
     MlflowMirror,
@@ -39,7 +39,7 @@ def store_dir(tmp_path_factory):
 # ----------------------------------------------------------------------------- without mlflow
 def test_importing_sssbench_does_not_import_mlflow():
     code = (
-        "import sys, sssbench, sssbench.app, sssbench.io, sssbench.mlflow_mirror\n"
+        "import sys, sssbench, sssbench.app, sssbench.io, sssbench.store.mlflow_mirror\n"
         "print(sorted(m for m in sys.modules if m.split('.')[0] == 'mlflow'))"
     )
     env = {**os.environ, "PYTHONPATH": str(REPO)}

@@ -5,7 +5,7 @@ import torch
 
 from data_synth import make_scene
 from sssbench.ops import CurvatureModulation, PreintegratedSSS, ReferenceSSS, Translucency
-from sssbench.pipeline import Pipeline
+from sssbench.ops.pipeline import Pipeline
 from sssbench.profiles import SumOfGaussians
 
 PROFILE = SumOfGaussians.from_table("skin_deon6")

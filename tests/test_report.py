@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 
 from sssbench import report
-from sssbench.tracking import PassStats, RunRecord, RunStore, config_hash
+from sssbench.store.tracking import PassStats, RunRecord, RunStore, config_hash
 
 
 def _fill(store: RunStore) -> list[dict]:

@@ -1,4 +1,4 @@
-"""The in-process memo of a sweep's per-scene work (sssbench.runmemo): runs share the scene's
+"""The in-process memo of a sweep's per-scene work (sssbench.run.runmemo): runs share the scene's
 G-buffer and the baseline's scores, and no run can change what the next one gets."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import torch
 from specs import small_spec
 from torch import nn
 
-from sssbench import registry, runmemo, runner
+from sssbench.run import registry, runmemo, runner
 
 
 class VandalSSS(nn.Module):

@@ -9,7 +9,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from sssbench.tracking import PassStats, RunRecord, RunStore, config_hash, utc_now
+from sssbench.store.tracking import PassStats, RunRecord, RunStore, config_hash, utc_now
 
 
 def _run(i: int = 0, status: str = "ok", **kw) -> RunRecord:

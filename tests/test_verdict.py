@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 import torch
 
-from sssbench.verdict import (
+from sssbench.score.verdict import (
     BASELINE,
     VISIBLE_FLIP,
     VISIBLE_LOCAL_FLIP,

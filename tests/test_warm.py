@@ -1,4 +1,4 @@
-"""Warming a sweep's caches in parallel (sssbench.warm): the runs that follow find every
+"""Warming a sweep's caches in parallel (sssbench.run.warm): the runs that follow find every
 entry they read already cached, and store the same numbers as runs that computed them."""
 
 from __future__ import annotations
@@ -9,9 +9,9 @@ import json
 import pytest
 from specs import small_spec
 
-from sssbench import runmemo, runner
-from sssbench.spec import RunSpec
-from sssbench.warm import group_by_scene, warm
+from sssbench.run import runmemo, runner
+from sssbench.run.spec import RunSpec
+from sssbench.run.warm import group_by_scene, warm
 
 
 def _spec(tmp_path, scene: str, method: str, samples: int | None, cache: str) -> RunSpec:

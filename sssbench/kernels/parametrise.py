@@ -1,8 +1,8 @@
-"""Parametrisations of a method's kernel for the fit of :mod:`sssbench.kernels.optimise`.
+"""Parametrisations of a method's kernel for the fit of :mod:`sssbench.tune.optimise`.
 
 A parametrisation holds unconstrained parameters (an ``nn.Module``) whose every value is a
 valid kernel for its method, and knows which attributes of the method the kernel lives in.
-The one optimiser loop (:func:`sssbench.kernels.optimise.fit_taps`) writes
+The one optimiser loop (:func:`sssbench.tune.optimise.fit_taps`) writes
 :meth:`Parametrisation.value` into the method, runs the method's own passes and steps the
 parameters; the best parameters become a :class:`Fitted` (detached), which is what is cached
 and what :meth:`Parametrisation.install` puts into a method built with

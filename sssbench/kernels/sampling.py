@@ -28,7 +28,7 @@ __all__ = [
 
 #: the published placement rules (000 §7, 002 appendix), which every kernel builder accepts
 SAMPLINGS = ("uniform", "power", "importance")
-#: taps fitted by gradient descent through the passes (:mod:`sssbench.kernels.optimise`); a
+#: taps fitted by gradient descent through the passes (:mod:`sssbench.tune.optimise`); a
 #: method option, not a placement rule: ``tap_positions`` does not take it
 OPTIMISED = "optimised"
 #: the ``sampling`` choices of the pre-integrated method: the rules and ``optimised``

@@ -464,7 +464,7 @@ def scene_mc(
         ValueError: the scene has no Monte Carlo model.
     """
     from data_synth.mc_scenes import SphereMC, mc_model
-    from sssbench.refcache import code_digest
+    from sssbench._digest import code_digest
 
     model = mc_model(scene, gbuffer, params)
     medium = medium_for(material)

@@ -38,7 +38,7 @@ class ArtistSSS(SeparableMethod):
     against skin_jg10); the same σ' with ``s`` = 1–2 mm scores skill 0.62–0.72. The table's
     ``s`` is therefore probably not a σ scale in mm as printed (000 §5 does not say how the
     fit was made); we keep the table as printed and report the mismatch
-    (``sssbench.budget``'s ``err_model`` shows it) rather than invent a scale.
+    (``sssbench.score.budget``'s ``err_model`` shows it) rather than invent a scale.
 
     Args:
         near: σ'_n, scalar or ``(3,)`` in [0, 1].

@@ -28,8 +28,8 @@ _CACHE: OrderedDict[tuple, nn.Module] = OrderedDict()
 
 
 def _key(value: Any) -> Any:
+    from sssbench._digest import profile_digest
     from sssbench.profiles.base import Profile
-    from sssbench.refcache import profile_digest
 
     if isinstance(value, Profile):
         return ("profile", profile_digest(value))

@@ -9,8 +9,8 @@ from sssbench._checks import check_choice, check_magnitude, check_method_options
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.jimenez2012 import JIMENEZ2012_PRESETS, jimenez2012
 from sssbench.kernels.kernel1d import Kernel1D
-from sssbench.kernels.optimise import check_optimised_sampling, use_optimised
 from sssbench.kernels.sampling import OPTIMISED
+from sssbench.kernels.sources import check_optimised_sampling, use_optimised
 from sssbench.ops.functional import functional
 from sssbench.ops.method import SeparableMethod
 from sssbench.ops.preintegrated import two_pass
@@ -58,12 +58,12 @@ class Jimenez2012SSS(SeparableMethod):
             strength, falloff and width fitted by gradient descent through these very passes
             (this method's options included) against the exact reference of ``profile`` (all
             its channels) on training scenes at one pixel footprint
-            (:func:`sssbench.kernels.optimise.optimise`,
+            (:func:`sssbench.tune.optimise.optimise`,
             :class:`~sssbench.kernels.parametrise.Jimenez2012Parameters`; disk-cached; fitted
             for 0.05–5 mm per pixel), starting from the given parameters and 002's presets at
             the given width, whichever is best on the training set. The taps stay the 2012
             kernel builder's. The footprint is ``pixel_mm`` when given, else the G-buffer's of
-            each call snapped to the nearest of :data:`~sssbench.kernels.optimise.FOOTPRINTS`
+            each call snapped to the nearest of :data:`~sssbench.tune.optimise.FOOTPRINTS`
             (as :class:`~sssbench.ops.PreintegratedSSS`); ``kernel``, ``strength``,
             ``falloff`` and ``width`` then hold the fitted values of the last call (``kernel``
             is ``None`` before the first). ``surface_scale`` stays the given ``width`` (or the
@@ -120,11 +120,11 @@ class Jimenez2012SSS(SeparableMethod):
             strength, falloff, samples, profile=profile, quadrature=quadrature
         )
         self.samples = samples
-        #: the kernel's parameters, kept for its continuous form (sssbench.budget)
+        #: the kernel's parameters, kept for its continuous form (sssbench.score.budget)
         self.strength, self.falloff, self.base_profile = strength, falloff, profile
         self.quadrature = quadrature
         #: the fits of ``sampling="optimised"`` per footprint and the options they start from
-        #: (:func:`~sssbench.kernels.optimise.use_optimised`)
+        #: (:func:`~sssbench.tune.optimise.use_optimised`)
         self.fitted: dict[float, object] = {}
         self.fit_options = dict(
             strength=strength, falloff=falloff, width=width, follow_surface=follow_surface,

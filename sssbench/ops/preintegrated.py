@@ -7,9 +7,9 @@ import torch
 from sssbench._checks import check_choice, check_magnitude, check_method_options
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.kernel1d import Kernel1D
-from sssbench.kernels.optimise import check_optimised_sampling, use_optimised
 from sssbench.kernels.preintegrated import preintegrated
 from sssbench.kernels.sampling import METHOD_SAMPLINGS, OPTIMISED
+from sssbench.kernels.sources import check_optimised_sampling, use_optimised
 from sssbench.ops.functional import functional
 from sssbench.ops.gather import separable_pass
 from sssbench.ops.halo import HALO_KINDS, halo_weight
@@ -47,11 +47,11 @@ class PreintegratedSSS(SeparableMethod):
         sampling: tap placement, one of ``uniform``, ``power``, ``importance`` (000 §7) or
             ``optimised``: taps fitted by gradient descent through these very passes (this
             method's options included) against the exact reference on training scenes at one
-            pixel footprint (:func:`sssbench.kernels.optimise.optimise`, disk-cached; fitted
+            pixel footprint (:func:`sssbench.tune.optimise.optimise`, disk-cached; fitted
             for 0.05–5 mm per pixel). The footprint is ``pixel_mm`` when given, else the
-            footprint of the G-buffer of each call (:func:`sssbench.budget.footprint_mm`, the
+            footprint of the G-buffer of each call (:func:`sssbench.score.budget.footprint_mm`, the
             median over the mask) snapped to the nearest of
-            :data:`~sssbench.kernels.optimise.FOOTPRINTS` — a choice: the fit sees how taps fall
+            :data:`~sssbench.tune.optimise.FOOTPRINTS` — a choice: the fit sees how taps fall
             on pixels of one size, and a log grid of ratio ≤ 1.7 keeps a run within ~30 % of
             the footprint its kernel was fitted at while reusing the cache. ``kernel`` then
             holds the kernel of the last call (``None`` before the first).
@@ -118,7 +118,7 @@ class PreintegratedSSS(SeparableMethod):
         self.halo_sigma = halo_sigma
         self.pixel_mm = pixel_mm
         #: the fits of ``sampling="optimised"`` per footprint, and the options they are fitted
-        #: with (:func:`~sssbench.kernels.optimise.use_optimised`)
+        #: with (:func:`~sssbench.tune.optimise.use_optimised`)
         self.fitted: dict[float, object] = {}
         self.fit_options = dict(follow_surface=follow_surface, rotation=rotation, seed=seed,
                                 halo=halo, halo_sigma=halo_sigma)  # fmt: skip

@@ -20,9 +20,9 @@ from sssbench._checks import (
 from sssbench._memo import memoised
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.kernel1d import Kernel1D
-from sssbench.kernels.optimise import check_optimised_sampling, use_optimised
 from sssbench.kernels.preintegrated import preintegrated
 from sssbench.kernels.sampling import MAX_SAMPLES, METHOD_SAMPLINGS, OPTIMISED
+from sssbench.kernels.sources import check_optimised_sampling, use_optimised
 from sssbench.ops._stencil import image_stencils
 from sssbench.ops.functional import functional
 from sssbench.ops.gather import Stretch, blend_on_stencil, separable_pass
@@ -228,12 +228,12 @@ class SumOfGaussiansSSS(SeparableMethod):
             ``"power"`` (same extent), ``"importance"`` (whole line) or ``"optimised"``: each
             Gaussian's tap set fitted by gradient descent through these very passes (this
             method's options included) against the exact reference on training scenes at one
-            pixel footprint (:func:`sssbench.kernels.optimise.optimise`,
+            pixel footprint (:func:`sssbench.tune.optimise.optimise`,
             :class:`~sssbench.kernels.parametrise.PerGaussianTaps`: offsets and weights per
             Gaussian, each set normalised; variances and blend weights stay; disk-cached;
             fitted for 0.05–5 mm per pixel). The footprint is ``pixel_mm`` when given, else
             the G-buffer's of each call snapped to the nearest of
-            :data:`~sssbench.kernels.optimise.FOOTPRINTS` (as
+            :data:`~sssbench.tune.optimise.FOOTPRINTS` (as
             :class:`~sssbench.ops.PreintegratedSSS`); ``steps`` then holds the tap sets of
             the last call (``None`` before the first).
         stretch: JG10 stretch factors or ``None``.
@@ -299,7 +299,7 @@ class SumOfGaussiansSSS(SeparableMethod):
         check_choice("sampling", sampling, METHOD_SAMPLINGS)
         self.pixel_mm = check_optimised_sampling(sampling, samples, pixel_mm)
         #: the fits of ``sampling="optimised"`` per footprint and the options they are fitted
-        #: with, as given (:func:`~sssbench.kernels.optimise.use_optimised`)
+        #: with, as given (:func:`~sssbench.tune.optimise.use_optimised`)
         self.fitted: dict[float, object] = {}
         self.fit_options = dict(
             stretch=stretch, lod=lod, lod_threshold=lod_threshold,

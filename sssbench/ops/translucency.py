@@ -143,7 +143,7 @@ def translucency(
             ``translucency`` and ``width``.
         intensity: radiance scale of the (directional) light, >= 0.
         apply_albedo: multiply by ``albedo`` when present, as 004 §3.2 does ("multiplied by
-            the diffuse emission"). :class:`~sssbench.pipeline.Pipeline` passes ``False``:
+            the diffuse emission"). :class:`~sssbench.ops.pipeline.Pipeline` passes ``False``:
             its texturing stage applies albedo to diffuse and transmitted light together.
 
     Returns:

@@ -121,8 +121,9 @@ def test_scene_without_a_model_is_a_clear_error():
 
 # ----------------------------------------------------------------------------- the app
 def test_app_reference_mc_stores_both_errors(tmp_path, monkeypatch):
-    from sssbench import app, runner
-    from sssbench.tracking import RunStore
+    from sssbench import app
+    from sssbench.run import runner
+    from sssbench.store.tracking import RunStore
 
     monkeypatch.setenv("SSSBENCH_CACHE_DIR", str(tmp_path / "cache"))
     common = [

@@ -3,7 +3,7 @@
 The benchmark scenes (step_edge, light_dot and the procedural face at its portrait scale;
 head_close at 256², where its cheek shows visible SSS; skin_jg10) are scored like the app:
 rel RMS against the exact reference over the mask; skill = 1 − err / err(identity)
-(:mod:`sssbench.verdict`). The bar is skill > 0.3. The artist model's default (000 Table 2,
+(:mod:`sssbench.score.verdict`). The bar is skill > 0.3. The artist model's default (000 Table 2,
 multi-layer close fit) misses it on every scene: its far Gaussian is 3.4× wider than the
 profile it was fitted to (see :class:`~sssbench.ops.ArtistSSS`); that is asserted as a
 known failure, with the numbers, so a fix shows up.
@@ -18,9 +18,9 @@ import yaml
 
 from data_synth import make_scene
 from sssbench import ops
-from sssbench.metrics import rel_rms
 from sssbench.profiles import SumOfGaussians
-from sssbench.verdict import skill, visible
+from sssbench.score.metrics import rel_rms
+from sssbench.score.verdict import skill, visible
 
 SKIN = SumOfGaussians.from_table("skin_jg10")
 CONF = Path(__file__).resolve().parents[2] / "sssbench" / "conf" / "method"

@@ -404,8 +404,8 @@ def test_app_runs_the_disk_with_burley_and_gaussian_profiles(tmp_path, profile):
     # its error split into bias and noise over the default 4 seeds
     import json
 
-    from sssbench import runner
     from sssbench.app import compose_spec
+    from sssbench.run import runner
 
     spec = compose_spec(
         "method=disk",

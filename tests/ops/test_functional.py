@@ -65,8 +65,8 @@ def test_twin_reuses_the_kernel_and_never_a_stale_one(scene):
 
 
 def test_every_registered_operator_prints_its_settings():
-    from sssbench import registry
     from sssbench.app import compose_spec
+    from sssbench.run import registry
 
     p = SumOfGaussians.from_table("skin_jg10")
     for name, entry in registry.METHODS.items():

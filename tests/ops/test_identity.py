@@ -9,7 +9,7 @@ import yaml
 
 from data_synth import make_scene
 from sssbench.ops import CurvatureModulation, IdentitySSS, PreintegratedSSS
-from sssbench.pipeline import Pipeline
+from sssbench.ops.pipeline import Pipeline
 from sssbench.profiles import SumOfGaussians
 
 PROFILE = SumOfGaussians.from_table("skin_jg10")

@@ -10,9 +10,9 @@ from scipy.special import ndtr
 
 from data_synth import make_scene
 from sssbench.gbuffer import GBuffer
-from sssbench.metrics import rel_rms
 from sssbench.ops import LowRankSSS, ReferenceSSS, low_rank_sss, record_passes
 from sssbench.profiles import SumOfGaussians
+from sssbench.score.metrics import rel_rms
 
 
 def compact_profile() -> SumOfGaussians:

@@ -8,9 +8,9 @@ import torch
 from oracles import FOV, rel_rms_np, step_gbuffer, step_response
 
 from sssbench.gbuffer import GBuffer
-from sssbench.metrics import rel_rms
 from sssbench.ops import PreintegratedSSS, ReferenceSSS
 from sssbench.profiles import SumOfGaussians
+from sssbench.score.metrics import rel_rms
 
 PIX = 0.25  # mm per pixel
 

@@ -12,8 +12,8 @@ import torch
 
 from data_synth import make_scene
 from sssbench import ops
-from sssbench.metrics import rel_rms
 from sssbench.profiles import SumOfGaussians
+from sssbench.score.metrics import rel_rms
 
 os.environ.setdefault("TQDM_DISABLE", "1")
 

@@ -8,7 +8,6 @@ import torch
 from oracles import FOV, flat
 
 from sssbench.gbuffer import GBuffer
-from sssbench.metrics import rel_rms
 from sssbench.ops import (
     ReferenceSSS,
     SumOfGaussiansSSS,
@@ -20,6 +19,7 @@ from sssbench.ops import (
 )
 from sssbench.profiles import SumOfGaussians
 from sssbench.profiles.sum_of_gaussians import SOG_TABLES
+from sssbench.score.metrics import rel_rms
 
 #: 003 Table 7.1, the printed w'_i (rows narrowest first; columns R, G, B)
 TABLE_7_1_BLEND = {

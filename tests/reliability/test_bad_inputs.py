@@ -412,7 +412,7 @@ CASES: list[tuple[str, Callable[[], object], type, list[str]]] = [
     ),
     (
         "unknown_app_method",
-        lambda: importlib.import_module("sssbench.registry").method_class("nope"),
+        lambda: importlib.import_module("sssbench.run.registry").method_class("nope"),
         ValueError,
         ["method", "one of", "preintegrated", "nope"],
     ),

@@ -10,7 +10,7 @@ import sqlite3
 import pytest
 
 from sssbench import report
-from sssbench.tracking import RunRecord, RunStore
+from sssbench.store.tracking import RunRecord, RunStore
 
 
 def _foreign_sqlite(path):

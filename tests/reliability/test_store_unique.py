@@ -8,7 +8,7 @@ import sqlite3
 
 import pytest
 
-from sssbench.tracking import PassStats, RunRecord, RunStore, config_hash
+from sssbench.store.tracking import PassStats, RunRecord, RunStore, config_hash
 
 POINTS = 12
 

@@ -13,7 +13,7 @@ import sys
 import time
 from pathlib import Path
 
-from sssbench.tracking import STATUSES, RunStore
+from sssbench.store.tracking import STATUSES, RunStore
 
 REPO = Path(__file__).resolve().parents[2]
 TINY = ["scene=sphere", "resolution=[16,16]", "warmup=0", "previews=false"]

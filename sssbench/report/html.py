@@ -29,6 +29,17 @@ from typing import Any
 import pandas as pd
 import torch
 
+from sssbench.report.tables import (
+    BASELINE,
+    MISSING,
+    REFERENCE,
+    _flags,
+    _fmt,
+    group_keys,
+    label,
+    recommendations,
+)
+
 __all__ = ["write_html"]
 
 _CSS = """
@@ -77,7 +88,7 @@ def _file_png(path: Path) -> str:
 
 
 def _rgb(image: torch.Tensor) -> Any:
-    from sssbench.metrics import tonemap
+    from sssbench.score.metrics import tonemap
 
     return tonemap(image[:1].double().clamp(min=0)).squeeze(0).permute(1, 2, 0).clamp(0, 1).numpy()
 
@@ -122,8 +133,6 @@ def _config(run_dir: Any) -> str:
 
 
 def _table(df: pd.DataFrame, columns: list[str]) -> str:
-    from sssbench.report import _fmt
-
     head = "".join(f"<th>{html.escape(c)}</th>" for c in columns)
     rows = []
     for _, r in df.iterrows():
@@ -143,17 +152,7 @@ def write_html(table: pd.DataFrame, out_dir: Path, source: str, plots: list[Path
         source: the store or sweep the report covers (shown in the title).
         plots: PNG plots to embed.
     """
-    from sssbench.previews import relative_error
-    from sssbench.report import (
-        BASELINE,
-        MISSING,
-        REFERENCE,
-        _flags,
-        group_keys,
-        label,
-        recommendations,
-    )
-
+    from sssbench.score.previews import relative_error
     parts = [
         "<!doctype html><html><head><meta charset='utf-8'>",
         f"<title>sssbench report — {html.escape(source)}</title><style>{_CSS}</style>",

@@ -10,12 +10,12 @@ import torch
 
 from data_synth import make_scene
 from sssbench.kernels import Kernel1D, jimenez2012
-from sssbench.kernels import optimise as opt
-from sssbench.metrics import rel_rms
+from sssbench.tune import optimise as opt
 from sssbench.ops import Jimenez2012SSS, ReferenceSSS, SumOfGaussiansSSS
 from sssbench.profiles import SumOfGaussians
-from sssbench.registry import build_method
-from tests.kernels.test_optimise import _noise_plane, _one_thread  # noqa: F401 (autouse)
+from sssbench.run.registry import build_method
+from sssbench.score.metrics import rel_rms
+from tests.tune.test_optimise import _noise_plane, _one_thread  # noqa: F401 (autouse)
 
 PROFILE = SumOfGaussians.from_table("skin_deon6")
 SHADER = {"strength": (0.48, 0.41, 0.28), "falloff": (1.0, 0.37, 0.3)}  # 002's shader defaults

@@ -7,10 +7,10 @@ of a sweep, and the experiments call it for their grids. It
 2. builds the scene with the fields the pipeline needs, runs the pipeline ``warmup`` times
    untimed and ``repeats`` times timed (per pass: median / min / max; run time = sum of the
    pass medians);
-3. loads the exact reference from the cache (:mod:`sssbench.refcache`) or computes it;
-4. computes the metrics (:mod:`sssbench.metrics`) over the SSS region (mask > 0), the
+3. loads the exact reference from the cache (:mod:`sssbench.store.refcache`) or computes it;
+4. computes the metrics (:mod:`sssbench.score.metrics`) over the SSS region (mask > 0), the
    do-nothing baseline's errors on the same scene and the run's skill against it
-   (:mod:`sssbench.verdict`), and the error budget (:mod:`sssbench.budget`) — or, for a
+   (:mod:`sssbench.score.verdict`), and the error budget (:mod:`sssbench.score.budget`) — or, for a
    stochastic method, its error split into bias and noise over ``seeds`` method seeds
    (:func:`bias_noise`);
 5. writes ``metrics.json``, ``passes.csv``, ``point.json`` and previews into the run directory
@@ -44,11 +44,11 @@ from typing import Any
 
 import torch
 
-from sssbench import registry, runmemo
-from sssbench.metrics import METRICS
-from sssbench.refcache import cached_reference, reference_key
-from sssbench.spec import RunSpec
-from sssbench.tracking import PassStats, RunRecord, RunStore, config_hash, utc_now
+from sssbench.run import registry, runmemo
+from sssbench.run.spec import RunSpec
+from sssbench.score.metrics import METRICS
+from sssbench.store.refcache import cached_reference, reference_key
+from sssbench.store.tracking import PassStats, RunRecord, RunStore, config_hash, utc_now
 
 log = logging.getLogger("sssbench")
 
@@ -66,7 +66,7 @@ __all__ = [
 ]
 
 #: per-run numbers copied into the store's metrics: the image metrics
-#: (:data:`sssbench.metrics.METRICS`), then these
+#: (:data:`sssbench.score.metrics.METRICS`), then these
 METRIC_KEYS = (
     *METRICS,
     "rel_rms_identity",
@@ -244,7 +244,7 @@ def _scene_key(spec: RunSpec, profile: Any, **extra: Any) -> dict[str, Any]:
 
 def _scene(spec: RunSpec, fields: tuple[str, ...]) -> Any:
     """The run's G-buffer; a synthetic scene is built once per process for all the runs on
-    it (:mod:`sssbench.runmemo`), a user's file is read every time."""
+    it (:mod:`sssbench.run.runmemo`), a user's file is read every time."""
 
     def build() -> Any:
         return registry.build_scene(
@@ -301,9 +301,9 @@ def _baseline(
     """The do-nothing baseline on the run's scene (the SSS stage left out, the other stages
     as the reference runs them): ``(image, rel RMS, mean FLIP, local FLIP)`` against the
     reference. The same for every method of a sweep on the scene, so computed once per
-    process (:mod:`sssbench.runmemo`, keyed by the reference's cache key and the stages)."""
-    from sssbench import verdict
-    from sssbench.metrics import rel_rms
+    process (:mod:`sssbench.run.runmemo`, keyed by the reference's cache key and the stages)."""
+    from sssbench.score import verdict
+    from sssbench.score.metrics import rel_rms
 
     def compute() -> tuple[torch.Tensor, float, float, float]:
         with torch.inference_mode():
@@ -371,8 +371,8 @@ def _pipelines(spec: RunSpec, profile: Any) -> tuple[Any, Any]:
 
 def measure(spec: RunSpec, run_dir: Path) -> tuple[dict[str, Any], list[PassStats]]:
     """Build, time, compare; return the ``metrics.json`` payload and the pass statistics."""
-    from sssbench import verdict
-    from sssbench.metrics import compute_all
+    from sssbench.score import verdict
+    from sssbench.score.metrics import compute_all
 
     with torch_settings(spec.threads, spec.backend):
         profile = registry.build_profile(spec.profile, spec.profile_kind, **spec.profile_params)
@@ -460,7 +460,7 @@ def measure(spec: RunSpec, run_dir: Path) -> tuple[dict[str, Any], list[PassStat
     }
     if spec.previews:
         from sssbench.io import write_image_exr
-        from sssbench.previews import preview_strip
+        from sssbench.score.previews import preview_strip
 
         payload["previews"] = preview_strip(
             run_dir, result, reference, title=f"{spec.scene} · {spec.method}"
@@ -484,7 +484,7 @@ def bias_noise(
 ) -> dict[str, float]:
     """A stochastic method's error over ``K = len(images)`` seeds, split into bias and noise.
 
-    All relative to the reference's RMS over the mask (as :func:`sssbench.metrics.rel_rms`),
+    All relative to the reference's RMS over the mask (as :func:`sssbench.score.metrics.rel_rms`),
     per image of the batch, then averaged over it:
 
     - ``rel_rms``: the mean over seeds of each seed's rel RMS error;
@@ -504,7 +504,7 @@ def bias_noise(
     Returns:
         ``{"rel_rms", "bias_rel_rms", "noise_rel_rms", "seeds"}``.
     """
-    from sssbench.metrics import rel_rms
+    from sssbench.score.metrics import rel_rms
 
     if len(images) < 2:
         raise ValueError(f"images must hold >= 2 seeds' results, got {len(images)}")
@@ -607,8 +607,8 @@ def _budget_inputs(
     computed on fronto-parallel planes only (the bilinear reference's FFT path); on curved
     surfaces the bilinear reference costs minutes per image, so ``err_recon`` is NaN there
     and the convention's share stays inside ``err_screen`` (docs/error_budget.md)."""
-    from sssbench import budget
     from sssbench.ops import ReferenceSSS
+    from sssbench.score import budget
 
     if (
         spec.method in ("reference", "identity")
@@ -673,9 +673,9 @@ def _budget(
     gbuffer: Any,
     reference: torch.Tensor,
 ) -> dict[str, float]:
-    """The run's error budget (:func:`sssbench.budget.error_budget`, docs/error_budget.md);
+    """The run's error budget (:func:`sssbench.score.budget.error_budget`, docs/error_budget.md);
     empty where :func:`_budget_inputs` says the run has none."""
-    from sssbench import budget
+    from sssbench.score import budget
 
     inputs = _budget_inputs(spec, profile, gbuffer, reference)
     if inputs is None:
@@ -873,10 +873,10 @@ def _mirror(
     h: str,
     sweep_dir: str | Path | None,
 ) -> None:
-    """Mirror the run into MLflow (:mod:`sssbench.mlflow_mirror`) under its sweep's parent
+    """Mirror the run into MLflow (:mod:`sssbench.store.mlflow_mirror`) under its sweep's parent
     run. The store stays the source of truth: a failure here is logged, never raised."""
     try:
-        from sssbench.mlflow_mirror import MlflowMirror
+        from sssbench.store.mlflow_mirror import MlflowMirror
 
         mirror = MlflowMirror(spec.mlflow_uri, directory=spec.store.parent)
         parent = mirror.find_sweep(sweep_dir) if sweep_dir else None

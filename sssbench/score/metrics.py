@@ -1,4 +1,4 @@
-"""Quality metrics of a result against a reference (DESIGN §1: ``sssbench/metrics.py``).
+"""Quality metrics of a result against a reference (DESIGN §1: ``sssbench/score/metrics.py``).
 
 Every metric takes a result and a reference of shape ``(B, 3, H, W)`` (linear radiance, >= 0 is
 not required by the error metrics but is by the tone-mapped ones) and an optional mask

@@ -100,7 +100,7 @@ def visibility_stats(
     reference: torch.Tensor, diffuse: torch.Tensor, mask: torch.Tensor | None = None
 ) -> tuple[float, float]:
     """The mean FLIP and its :data:`VISIBLE_QUANTILE` between the reference and the
-    unblurred input over the mask (:func:`sssbench.metrics.flip_map`, tone-mapped LDR at 67
+    unblurred input over the mask (:func:`sssbench.score.metrics.flip_map`, tone-mapped LDR at 67
     pixels per degree).
 
     Args:
@@ -110,11 +110,11 @@ def visibility_stats(
             is taken over the pixels with a positive weight (all images of the batch pooled).
 
     Returns:
-        ``(mean, local)``: the mean FLIP (as :func:`sssbench.metrics.flip`) and the
+        ``(mean, local)``: the mean FLIP (as :func:`sssbench.score.metrics.flip`) and the
         :data:`VISIBLE_QUANTILE` quantile of the per-pixel FLIP; compare with
         :func:`is_visible`.
     """
-    from sssbench.metrics import flip_map
+    from sssbench.score.metrics import flip_map
 
     fmap = flip_map(diffuse, reference).astype(np.float64)
     if mask is None:

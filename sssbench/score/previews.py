@@ -50,7 +50,7 @@ def preview_strip(
     import matplotlib.image
     import matplotlib.pyplot as plt
 
-    from sssbench.metrics import tonemap
+    from sssbench.score.metrics import tonemap
 
     run_dir = Path(run_dir)
     images = {}

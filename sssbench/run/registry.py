@@ -1,6 +1,6 @@
 """The one registry of methods, profiles, scenes and pipeline stages.
 
-The app (:mod:`sssbench.app`), the runner (:mod:`sssbench.runner`), the experiments and the
+The app (:mod:`sssbench.app`), the runner (:mod:`sssbench.run.runner`), the experiments and the
 library all build what a run names through these functions, so a name means the same thing
 everywhere. Everything here takes plain values (DESIGN §7: no config objects below the app).
 
@@ -202,7 +202,7 @@ def build_method(
 
 
 def method_from_spec(spec: Any, profile: Any, **changes: Any) -> nn.Module:
-    """The method a run spec names (:class:`sssbench.spec.RunSpec`: its ``method``,
+    """The method a run spec names (:class:`sssbench.run.spec.RunSpec`: its ``method``,
     ``samples``, ``sampling``, ``seed`` and ``method_params``), with ``changes`` replacing any
     of ``samples``, ``sampling``, ``seed`` or ``params`` (e.g. more taps for a converged
     limit, another seed for a noise estimate)."""
@@ -291,7 +291,7 @@ def _texturing(profile: Any, mode: str = "post") -> dict[str, Any]:
 
 #: stage name -> (``f(profile, **params) -> Pipeline keyword arguments``, applies to the
 #: reference). A new stage on the irradiance returns ``{"irradiance": [module]}``
-#: (:class:`~sssbench.pipeline.Pipeline`'s ``irradiance``; docs/extending.md). Stages that
+#: (:class:`~sssbench.ops.pipeline.Pipeline`'s ``irradiance``; docs/extending.md). Stages that
 #: apply to the reference change the light it integrates (translucency adds transmitted
 #: light to the irradiance; texturing applies albedo): the reference pipeline gets them too,
 #: so the comparison stays like with like. The others (curvature modulation, halo reduction) are
@@ -322,7 +322,7 @@ def build_pipeline(
             being scattered (see :data:`STAGES`).
         auto: the pipeline's automatic plan (leave out stages the scene does not need).
     """
-    from sssbench.pipeline import Pipeline
+    from sssbench.ops.pipeline import Pipeline
 
     kwargs: dict[str, Any] = {}
     for name, params in (stages or {}).items():

@@ -72,7 +72,7 @@ from typing import Any
 import torch
 from torch import nn
 
-from sssbench._checks import check_choice, check_int, check_magnitude, check_scalar
+from sssbench._checks import check_choice, check_int, check_scalar
 from sssbench.kernels.kernel1d import Kernel1D
 from sssbench.kernels.parametrise import (
     Fitted,
@@ -82,6 +82,11 @@ from sssbench.kernels.parametrise import (
     SymmetricTaps,
 )
 from sssbench.kernels.sampling import OPTIMISED, SAMPLINGS
+from sssbench.kernels.sources import (
+    MAX_OPTIMISED_TAPS,
+    check_optimised_sampling,
+    register_kernel_source,
+)
 from sssbench.profiles.base import Profile
 
 __all__ = [
@@ -115,9 +120,6 @@ __all__ = [
 
 log = logging.getLogger("sssbench")
 
-#: largest tap count fitted (a step costs about linearly in taps; beyond this the importance
-#: rule's discretisation error is already small, see experiments/sections/sampling.md)
-MAX_OPTIMISED_TAPS = 33
 #: footprints (mm per pixel) kernels are fitted at when a method resolves its kernel from the
 #: run's G-buffer: a log grid (ratio ≈ 1.4–1.7), a run uses the nearest (:func:`nearest_footprint`)
 FOOTPRINTS = (0.05, 0.07, 0.1, 0.15, 0.2, 0.3, 0.5, 0.7, 1.0, 1.5, 2.0, 3.0, 5.0)
@@ -177,7 +179,7 @@ DEFAULT_TRAINING = (
 def rel_rms_loss(
     result: torch.Tensor, reference: torch.Tensor, mask: torch.Tensor | None
 ) -> torch.Tensor:
-    """Differentiable rel RMS over the SSS region, as :func:`sssbench.metrics.rel_rms`:
+    """Differentiable rel RMS over the SSS region, as :func:`sssbench.score.metrics.rel_rms`:
     ``√(Σ m (M − R)² / Σ m R²)`` with ``m = [mask > 0]`` (every pixel without a mask), B = 1."""
     ref = reference.to(result.dtype)
     m = torch.ones_like(result[:, :1]) if mask is None else (mask > 0).to(result.dtype)
@@ -355,7 +357,7 @@ def _base_profile(method: nn.Module) -> Profile:
     return SumOfGaussians.from_table(p) if isinstance(p, str) else p
 
 
-#: method name (as :data:`sssbench.registry.METHODS`) -> how its kernel is fitted
+#: method name (as :data:`sssbench.run.registry.METHODS`) -> how its kernel is fitted
 METHOD_FITS: dict[str, MethodFit] = {
     "preintegrated": MethodFit(
         "PreintegratedSSS", SymmetricTaps, lambda m: SymmetricTaps(m.kernel),
@@ -384,7 +386,7 @@ def kernel_cache_dir() -> Path:
 def _jsonable(value: Any) -> Any:
     """An option as JSON (a dataclass such as a ``Stretch`` by its fields, tensors and tuples
     as lists, a profile by its content digest)."""
-    from sssbench.refcache import profile_digest
+    from sssbench._digest import profile_digest
 
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
         return {"type": type(value).__name__, **_jsonable(dataclasses.asdict(value))}
@@ -410,7 +412,7 @@ def cache_key(
     lr: float,
 ) -> dict[str, Any]:
     """Everything an optimised kernel depends on (module doc)."""
-    from sssbench.refcache import code_digest, profile_digest
+    from sssbench._digest import code_digest, profile_digest
 
     return {
         "kind": "optimised kernel",
@@ -474,7 +476,7 @@ _STORED = ("init_loss", "loss", "rule_losses", "start", "losses", "seconds")
 
 
 def _cache_path(key: Mapping[str, Any], cache_dir: Path | None) -> Path:
-    from sssbench.tracking import config_hash
+    from sssbench.store.tracking import config_hash
 
     return (cache_dir or kernel_cache_dir()) / f"optimised_{config_hash(dict(key))}.json"
 
@@ -509,10 +511,10 @@ def sss_reference(
     scene: TrainingScene, gbuffer: Any, profile: Profile, pixel_mm: float
 ) -> torch.Tensor:
     """``ReferenceSSS(profile)(gbuffer)`` for ``gbuffer = scene.build(pixel_mm)``, from the
-    shared reference cache (:mod:`sssbench.refcache`) under its own key: the SSS stage only
+    shared reference cache (:mod:`sssbench.store.refcache`) under its own key: the SSS stage only
     (the scattered diffuse), not a pipeline image."""
     from sssbench.ops import ReferenceSSS
-    from sssbench.refcache import cached_reference, reference_key
+    from sssbench.store.refcache import cached_reference, reference_key
 
     key = reference_key(
         scene=scene.name,
@@ -673,26 +675,10 @@ def nearest_footprint(pixel_mm: float) -> float:
 
 
 # ------------------------------------------------------------------- methods' use
-def check_optimised_sampling(sampling: str, samples: int, pixel_mm: float | None) -> float | None:
-    """Validate a method's ``samples`` and ``pixel_mm`` against its ``sampling``: fitted
-    kernels stop at :data:`MAX_OPTIMISED_TAPS`, and ``pixel_mm`` (the footprint, mm per
-    pixel) is only for ``sampling="optimised"``. Returns ``pixel_mm``."""
-    if sampling == OPTIMISED:
-        check_int("samples (with sampling='optimised')", samples, 1, MAX_OPTIMISED_TAPS)
-    if pixel_mm is None:
-        return None
-    if sampling != OPTIMISED:
-        raise ValueError(
-            f"pixel_mm is the footprint of sampling='optimised' kernels; it must be None "
-            f"with sampling={sampling!r}"
-        )
-    return check_magnitude("pixel_mm", pixel_mm, "length")
-
-
 def use_optimised(method: nn.Module, gbuffer: Any | None = None) -> OptimisedKernel:
     """Install into ``method`` (built with ``sampling="optimised"``) the kernel fitted at its
     footprint: its ``pixel_mm`` when set, else the footprint of ``gbuffer``
-    (:func:`sssbench.budget.footprint_mm`, the median over the mask; B = 1) snapped to the
+    (:func:`sssbench.score.budget.footprint_mm`, the median over the mask; B = 1) snapped to the
     nearest of :data:`FOOTPRINTS`. Fitted on first use (:func:`optimise` with the method's
     ``samples`` and ``fit_options``, then from the disk cache), memoised per footprint in
     ``method.fitted``.
@@ -704,7 +690,7 @@ def use_optimised(method: nn.Module, gbuffer: Any | None = None) -> OptimisedKer
     spec = METHOD_FITS[name]
     pixel_mm = method.pixel_mm
     if pixel_mm is None:
-        from sssbench.budget import footprint_mm
+        from sssbench.score.budget import footprint_mm
 
         if gbuffer is None or gbuffer.shape[0] != 1:
             raise ValueError(
@@ -719,3 +705,8 @@ def use_optimised(method: nn.Module, gbuffer: Any | None = None) -> OptimisedKer
     fit = method.fitted[pixel_mm]
     spec.parametrisation.install(method, fit.fitted)
     return fit
+
+
+# the operators find the fitted kernels through the kernel-source registry (no import of
+# this module from below: docs/architecture.md)
+register_kernel_source(OPTIMISED, use_optimised)

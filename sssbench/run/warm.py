@@ -5,7 +5,7 @@ exact references and the error budget's converged limits), not on the timed pass
 entries are pure functions of the scene, the profile and the method, so they can be computed
 by several processes at once; the passes must be timed alone (two timed runs side by side
 share the memory bandwidth and the caches). :func:`warm` computes every entry a list of runs
-will read with :func:`sssbench.runner.prepare`, one scene (and scale) per task, in
+will read with :func:`sssbench.run.runner.prepare`, one scene (and scale) per task, in
 ``workers`` processes of one thread each; the runs then find them cached.
 
 A task that fails is reported and skipped: the run itself computes what is missing and
@@ -20,7 +20,7 @@ from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 
 from sssbench._checks import check_int
-from sssbench.spec import RunSpec
+from sssbench.run.spec import RunSpec
 
 __all__ = ["warm", "group_by_scene"]
 
@@ -65,7 +65,7 @@ def _init_worker() -> None:
 
 def _prepare_group(specs: list[RunSpec]) -> list[str]:
     """Prepare every run of one group; the errors, one line each."""
-    from sssbench import runner
+    from sssbench.run import runner
 
     errors = []
     for spec in specs:

@@ -12,8 +12,6 @@ recomputed. Hits and misses are counted in :data:`STATS` (logged once per sweep,
 
 from __future__ import annotations
 
-import functools
-import hashlib
 import json
 import logging
 import os
@@ -25,58 +23,28 @@ from typing import Any
 
 import torch
 
-from sssbench.tracking import config_hash
+from sssbench._digest import code_digest, profile_digest
+from sssbench.store.tracking import config_hash
 
 log = logging.getLogger("sssbench")
 
-__all__ = ["default_cache_dir", "profile_digest", "reference_key", "cached_reference", "STATS"]
+__all__ = [
+    "code_digest",
+    "default_cache_dir",
+    "profile_digest",
+    "reference_key",
+    "cached_reference",
+    "STATS",
+]
 
 #: hits / misses of this process
 STATS = {"hit": 0, "miss": 0}
-
-
-@functools.cache
-def code_digest() -> str:
-    """A digest of every Python source file of :mod:`sssbench` and :mod:`data_synth` (read
-    once per process). Cached images depend on the scene builders, the profiles, the
-    reference, the methods and the pipeline; keying on all of the code is conservative (any
-    change recomputes) and can never serve an image made by other code."""
-    import data_synth
-    import sssbench
-
-    h = hashlib.sha256()
-    for package in (sssbench, data_synth):
-        root = Path(package.__file__).parent
-        for path in sorted(root.rglob("*.py")):
-            h.update(str(path.relative_to(root.parent)).encode())
-            h.update(path.read_bytes())
-    return h.hexdigest()[:16]
 
 
 def default_cache_dir() -> Path:
     """``$SSSBENCH_CACHE_DIR/references``, else ``~/.cache/sssbench/references``."""
     root = os.environ.get("SSSBENCH_CACHE_DIR")
     return (Path(root) if root else Path.home() / ".cache" / "sssbench") / "references"
-
-
-def profile_digest(profile: Any) -> str:
-    """A digest of a profile's content: its class and every tensor / number it holds."""
-    h = hashlib.sha256(type(profile).__qualname__.encode())
-
-    def add(name: str, value: Any) -> None:
-        if isinstance(value, torch.Tensor):
-            t = value.detach().cpu().contiguous().to(torch.float64)
-            h.update(f"{name}:{tuple(t.shape)}".encode())
-            h.update(t.numpy().tobytes())
-        elif isinstance(value, (int, float, str, bool, type(None))):
-            h.update(f"{name}={value!r}".encode())
-        elif isinstance(value, (list, tuple)):
-            for i, v in enumerate(value):
-                add(f"{name}[{i}]", v)
-
-    for name, value in sorted(vars(profile).items()):
-        add(name, value)
-    return h.hexdigest()[:24]
 
 
 def reference_key(

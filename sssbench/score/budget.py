@@ -18,7 +18,7 @@ that add up to it exactly:
   mask borders read by the gather, level of detail).
 
 Each part is reported as its rel RMS (``‖part‖ / ‖R‖`` over the mask, the denominator of
-:func:`sssbench.metrics.rel_rms`) and as its *contribution* ``⟨part, M_N − R⟩ / (‖R‖ ‖M_N −
+:func:`sssbench.score.metrics.rel_rms`) and as its *contribution* ``⟨part, M_N − R⟩ / (‖R‖ ‖M_N −
 R‖)``: the contributions add up exactly to the total rel RMS (a part that cancels another
 has a negative contribution). The norms add up only in quadrature when the parts are
 orthogonal; the budget reports ``quadrature = √Σ norm²`` next to the total to show how close.
@@ -357,7 +357,8 @@ def converged(
 
 
 def _rms(x: torch.Tensor, mask: torch.Tensor) -> float:
-    """RMS over pixels and channels, the mask as weights (as :func:`sssbench.metrics.rmse`)."""
+    """RMS over pixels and channels, the mask as weights (as
+    :func:`sssbench.score.metrics.rmse`)."""
     wsum = float(mask.sum()) * x.shape[1]
     return math.sqrt(float((x * x * mask).sum()) / wsum)
 

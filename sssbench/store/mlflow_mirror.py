@@ -1,6 +1,6 @@
 """Mirror the app's runs into MLflow (optional: ``pip install "sssbench[mlflow]"``).
 
-The run store (:mod:`sssbench.tracking`) stays the source of truth; the mirror copies each
+The run store (:mod:`sssbench.store.tracking`) stays the source of truth; the mirror copies each
 finished run into an MLflow tracking store so that sweeps can be browsed and compared in the
 MLflow UI (``mlflow ui --backend-store-uri sqlite:///<dir>/mlflow.db``):
 
@@ -16,7 +16,7 @@ By default the tracking store is a local SQLite file ``<directory>/mlflow.db`` w
 MLflow's usage telemetry is switched off (``MLFLOW_DISABLE_TELEMETRY``) before MLflow is
 imported, unless the environment already says otherwise.
 
-``import sssbench`` and ``import sssbench.mlflow_mirror`` never import MLflow; constructing a
+``import sssbench`` and ``import sssbench.store.mlflow_mirror`` never import MLflow; constructing a
 :class:`MlflowMirror` does, and without MLflow it raises one ``ImportError`` saying what to
 install.
 """

@@ -29,14 +29,14 @@ class RunSpec:
     """Everything one run needs, as plain values.
 
     Attributes:
-        scene, scene_params: a scene name of :func:`sssbench.registry.scene_names` and its
+        scene, scene_params: a scene name of :func:`sssbench.run.registry.scene_names` and its
             builder's keyword arguments (``pixel_mm``: mm of skin per pixel at the focus).
-        method, method_params: a key of :data:`sssbench.registry.METHODS` and its options.
+        method, method_params: a key of :data:`sssbench.run.registry.METHODS` and its options.
         profile, profile_kind, profile_params: the diffusion profile.
         sampling: tap placement, ``None`` for methods without one.
         samples: taps per pass, ``None`` for methods without a tap count.
         stages: pipeline stage name -> its parameters (``None`` = off); see
-            :data:`sssbench.registry.STAGES`.
+            :data:`sssbench.run.registry.STAGES`.
         ignored: options given explicitly that the method does not take (e.g. ``samples``
             for the baseline in a samples sweep): not passed to the method, but part of the
             point, so two such requests are never merged.
@@ -48,7 +48,7 @@ class RunSpec:
             command line as ``reference_params.mc_*``); in the point with ``reference``.
         budget: compute the error budget (model / taps / screen space) of the run.
         seeds: how many method seeds a stochastic method (the disk, stochastic rotation) is
-            evaluated with, its error split into bias and noise (:func:`sssbench.runner.
+            evaluated with, its error split into bias and noise (:func:`sssbench.run.runner.
             bias_noise`); in the point only when not :data:`DEFAULT_SEEDS`, so the points of
             deterministic methods and earlier runs keep their hash.
         The rest is run control (not part of the point): repeats, warm-up, threads, backend,

@@ -1,0 +1,62 @@
+"""Content digests that key caches (the reference cache, fitted kernels, Monte Carlo images,
+the functional operators' module cache): of a profile's content and of all of the code.
+
+Kept at the bottom of the house so that operators and Monte Carlo may key their caches
+without reaching up into the run store (docs/architecture.md).
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import importlib.util
+from pathlib import Path
+from typing import Any
+
+import torch
+
+__all__ = ["code_digest", "profile_digest"]
+
+
+def _package_root(name: str) -> Path:
+    """The folder of package ``name``, found without importing it (its files are read here,
+    never run)."""
+    spec = importlib.util.find_spec(name)
+    if spec is None or spec.origin is None:
+        raise ImportError(f"package {name!r} not found")
+    return Path(spec.origin).parent
+
+
+@functools.cache
+def code_digest() -> str:
+    """A digest of every Python source file of :mod:`sssbench` and :mod:`data_synth` (read
+    once per process). Cached images depend on the scene builders, the profiles, the
+    reference, the methods and the pipeline; keying on all of the code is conservative (any
+    change recomputes) and can never serve an image made by other code."""
+    h = hashlib.sha256()
+    for package in ("sssbench", "data_synth"):
+        root = _package_root(package)
+        for path in sorted(root.rglob("*.py")):
+            h.update(str(path.relative_to(root.parent)).encode())
+            h.update(path.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def profile_digest(profile: Any) -> str:
+    """A digest of a profile's content: its class and every tensor / number it holds."""
+    h = hashlib.sha256(type(profile).__qualname__.encode())
+
+    def add(name: str, value: Any) -> None:
+        if isinstance(value, torch.Tensor):
+            t = value.detach().cpu().contiguous().to(torch.float64)
+            h.update(f"{name}:{tuple(t.shape)}".encode())
+            h.update(t.numpy().tobytes())
+        elif isinstance(value, (int, float, str, bool, type(None))):
+            h.update(f"{name}={value!r}".encode())
+        elif isinstance(value, (list, tuple)):
+            for i, v in enumerate(value):
+                add(f"{name}[{i}]", v)
+
+    for name, value in sorted(vars(profile).items()):
+        add(name, value)
+    return h.hexdigest()[:24]
