@@ -70,7 +70,8 @@ def test_a_run_splits_known_bias_and_noise(tmp_path, noisy_method):
     assert m["rel_rms"] == pytest.approx((OFFSET**2 + SIGMA**2) ** 0.5 / ref_rms, rel=0.06)
     assert m["skill"] == pytest.approx(1 - m["rel_rms"] / m["rel_rms_identity"], rel=1e-9)
     # and the report's summary table carries the split
-    from sssbench.report import MD_COLUMNS, load_runs, summary_table
+    from sssbench.report import load_runs, summary_table
+    from sssbench.report.tables import MD_COLUMNS
 
     table = summary_table(load_runs(tmp_path / "s.sqlite")[0])
     row = table[table["method"] == noisy_method].iloc[0]

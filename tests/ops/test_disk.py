@@ -405,7 +405,7 @@ def test_app_runs_the_disk_with_burley_and_gaussian_profiles(tmp_path, profile):
     import json
 
     from sssbench.app import compose_spec
-    from sssbench.run import runner
+    from sssbench.run import registry, runner
 
     spec = compose_spec(
         "method=disk",
@@ -419,7 +419,7 @@ def test_app_runs_the_disk_with_burley_and_gaussian_profiles(tmp_path, profile):
         store=tmp_path / "s.sqlite",
     )
     assert spec.samples == 32
-    built = runner.registry.build_profile(spec.profile, spec.profile_kind, **spec.profile_params)
+    built = registry.build_profile(spec.profile, spec.profile_kind, **spec.profile_params)
     if profile == "burley_skin1":
         want = BurleyNormalized.from_albedo_mfp([0.436, 0.2273, 0.131], [3.673, 1.367, 0.683])
         assert torch.equal(built.d, want.d) and torch.equal(built.albedo, want.albedo)

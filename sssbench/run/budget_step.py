@@ -1,0 +1,137 @@
+"""A run's error budget step: the cached inputs (the method converged in taps, the
+bilinear-reconstruction reference) and the budget's parts (docs/error_budget.md)."""
+
+from __future__ import annotations
+
+import inspect
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+
+from sssbench.run import registry
+from sssbench.run.inputs import reference_stages, scene_key, without_specular
+from sssbench.run.spec import RunSpec
+from sssbench.store.refcache import cached_reference
+
+__all__ = ["BUDGET_START", "BUDGET_MAX", "BudgetInputs", "budget_inputs", "budget_metrics"]
+
+#: the tap ladder of the converged method in a run's budget: 17, 33, 65, 129, 257 taps
+#: (independent of the run's own count, so one cached limit serves a whole samples sweep)
+BUDGET_START, BUDGET_MAX = 17, 257
+
+
+@dataclass
+class BudgetInputs:
+    """What a run's error budget reads from the reference cache, and how it builds the
+    method at a tap count."""
+
+    build: Any  # samples -> the run's method at that tap count
+    g64: Any  # the G-buffer in float64
+    limit: tuple[torch.Tensor, int, float]  # converged image, its taps, its last change
+    bilinear: torch.Tensor | None  # the bilinear-reconstruction reference (flat scenes)
+
+
+def budget_inputs(
+    spec: RunSpec, profile: Any, gbuffer: Any, reference: torch.Tensor
+) -> BudgetInputs | None:
+    """The budget's cached inputs (computed and stored on a miss), or ``None`` when the run
+    has no budget: the reference and the baseline, stochastic estimators (their error is
+    bias plus noise, not taps), methods without a tap count, and runs where a stage changes
+    the light (the budget's flat-plane model has no stages).
+
+    The method converged in taps and the bilinear-reconstruction reference do not depend on
+    the run's tap count: one cached entry serves a whole samples sweep. ``err_recon`` is
+    computed on fronto-parallel planes only (the bilinear reference's FFT path); on curved
+    surfaces the bilinear reference costs minutes per image, so ``err_recon`` is NaN there
+    and the convention's share stays inside ``err_screen`` (docs/error_budget.md)."""
+    from sssbench.ops import ReferenceSSS
+    from sssbench.score import budget
+
+    if (
+        spec.method in ("reference", "identity")
+        or not registry.METHODS[spec.method].deterministic
+        or not registry.method_takes(spec.method, "samples")
+        or reference_stages(spec)
+        or spec.samples is None
+    ):
+        return None
+
+    # fitted taps (sampling="optimised") exist for the run's own tap count only; the converged
+    # limit is reached by the method's own placement rule at many taps (the pre-integrated
+    # kernel's importance sampling, the sum of Gaussians' uniform taps, the 2012 builder's)
+    limit_sampling = (
+        registry.default_option(spec.method, "sampling")
+        if spec.sampling == "optimised"
+        else spec.sampling
+    )
+
+    def build(samples: int) -> Any:
+        sampling = spec.sampling if samples == spec.samples else limit_sampling
+        return registry.method_from_spec(spec, profile, samples=samples, sampling=sampling)
+
+    key = scene_key(spec, profile)
+    g64 = gbuffer.to(torch.float64)
+    scale = float(reference.double().pow(2).mean().sqrt()) or 1.0
+    limit_key = {
+        **key,
+        "budget_limit": [spec.method, spec.method_params, limit_sampling, BUDGET_START, BUDGET_MAX],
+    }
+
+    def compute_limit() -> torch.Tensor:
+        image, n, change = budget.converged(
+            build, BUDGET_START, g64, max_samples=BUDGET_MAX, scale=scale
+        )
+        return torch.cat([image.reshape(-1), torch.tensor([float(n), change], dtype=image.dtype)])
+
+    packed, _, _ = cached_reference(limit_key, compute_limit, spec.reference_cache)
+    packed = packed.double()
+    limit = (packed[:-2].reshape(g64.diffuse.shape), int(packed[-2]), float(packed[-1]))
+    bil = None
+    flat = bool(gbuffer.depth.min() == gbuffer.depth.max())
+    if flat and "reconstruction" in inspect.signature(ReferenceSSS.__init__).parameters:
+        bil_key = {
+            **key,
+            "reference_params": {**spec.reference_params, "reconstruction": "bilinear"},
+        }
+        bil, _, _ = cached_reference(
+            bil_key,
+            lambda: ReferenceSSS(
+                profile, **{**spec.reference_params, "reconstruction": "bilinear"}
+            )(gbuffer),
+            spec.reference_cache,
+            shape=tuple(gbuffer.diffuse.shape),
+        )
+    return BudgetInputs(build, g64, limit, bil)
+
+
+def budget_metrics(
+    spec: RunSpec,
+    profile: Any,
+    gbuffer: Any,
+    reference: torch.Tensor,
+) -> dict[str, float]:
+    """The run's error budget (:func:`sssbench.score.budget.error_budget`, docs/error_budget.md);
+    empty where :func:`budget_inputs` says the run has none."""
+    from sssbench.score import budget
+
+    inputs = budget_inputs(spec, profile, gbuffer, reference)
+    if inputs is None:
+        return {}
+    # the budget splits the SSS stage's error: the reference without the specular the
+    # pipeline adds after scattering (on the stencil), as the method alone computes it
+    sss_reference = without_specular(reference, gbuffer)
+    result = budget.error_budget(
+        inputs.build,
+        spec.samples,
+        inputs.g64,
+        profile,
+        reference=sss_reference,
+        reference_bilinear=inputs.bilinear,
+        limit=inputs.limit,
+        recon=inputs.bilinear is not None,
+    ).as_dict()
+    keys = [k for k in result if k.startswith(("err_", "contribution_"))] + ["taps_residual"]
+    return {k: float(result[k]) for k in keys if k != "err_total"} | {
+        "converged_samples": int(result["converged_samples"])
+    }

@@ -1,0 +1,216 @@
+"""A run's inputs: its profile, pipelines and G-buffer (a synthetic scene built once per
+process, :mod:`sssbench.run.runmemo`), the exact reference from the cache, the region the
+metrics cover, the do-nothing baseline scored once per scene, and the check that the method
+left its G-buffer untouched."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from sssbench.run import registry, runmemo
+from sssbench.run.spec import RunSpec
+from sssbench.store.refcache import cached_reference, reference_key
+
+__all__ = [
+    "Built",
+    "baseline",
+    "build",
+    "check_untouched",
+    "error_scale",
+    "metric_mask",
+    "pipelines",
+    "reference_image",
+    "reference_stages",
+    "run_pixel_mm",
+    "scene_gbuffer",
+    "scene_key",
+    "without_specular",
+]
+
+
+@dataclass
+class Built:
+    """What a run is made of: its profile, its pipeline and the reference's, the G-buffer
+    fields both need, and the G-buffer (B, C, H, W fields, mm)."""
+
+    profile: Any
+    pipeline: Any
+    ref_pipeline: Any
+    fields: tuple[str, ...]
+    gbuffer: Any
+
+
+def build(spec: RunSpec) -> Built:
+    """Build the run's profile, pipelines and G-buffer (the fields both pipelines need)."""
+    profile = registry.build_profile(spec.profile, spec.profile_kind, **spec.profile_params)
+    pipeline, ref_pipeline = pipelines(spec, profile)
+    fields = tuple(sorted(set(pipeline.needs) | set(ref_pipeline.needs)))
+    return Built(profile, pipeline, ref_pipeline, fields, scene_gbuffer(spec, fields))
+
+
+def reference_image(
+    spec: RunSpec, gbuffer: Any, profile: Any, pipeline: Any, cache_dir: Path | None
+) -> tuple[torch.Tensor, bool, float]:
+    """The reference image (``pipeline``: the run's reference pipeline), from the cache."""
+    key = scene_key(
+        spec, profile, reference_params=spec.reference_params, stages=reference_stages(spec)
+    )
+    image, hit, ms = cached_reference(
+        key, lambda: pipeline.run(gbuffer).image, cache_dir, shape=tuple(gbuffer.diffuse.shape)
+    )
+    return image.to(gbuffer.dtype), hit, ms
+
+
+def scene_key(spec: RunSpec, profile: Any, **extra: Any) -> dict[str, Any]:
+    """The cache key of an image computed from the run's scene and profile (plus ``extra``)."""
+    return reference_key(
+        scene=spec.scene,
+        scene_params=spec.scene_params,
+        profile=profile,
+        resolution=spec.resolution,
+        seed=spec.seed,
+        dtype=spec.dtype,
+        **extra,
+    )
+
+
+def scene_gbuffer(spec: RunSpec, fields: tuple[str, ...]) -> Any:
+    """The run's G-buffer; a synthetic scene is built once per process for all the runs on
+    it (:mod:`sssbench.run.runmemo`), a user's file is read every time."""
+
+    def build() -> Any:
+        return registry.build_scene(
+            spec.scene,
+            spec.resolution,
+            seed=spec.seed,
+            fields=fields,
+            dtype=spec.dtype,
+            params=spec.scene_params,
+        )
+
+    if spec.scene == registry.FILE_SCENE:
+        return build()
+    key = {
+        "scene": spec.scene,
+        "params": spec.scene_params,
+        "resolution": list(spec.resolution),
+        "seed": spec.seed,
+        "fields": list(fields),
+        "dtype": spec.dtype,
+    }
+    return runmemo.remembered("scene", key, build)
+
+
+def check_untouched(gbuffer: Any, pristine: Any, method: str) -> None:
+    """Raise if the method's run changed its G-buffer (compared bit for bit with
+    ``pristine``, the same scene as built): the reference, the baseline and the budget are
+    computed from that G-buffer, and would silently score a different scene."""
+    from dataclasses import fields as dc_fields
+
+    from sssbench._memo import same_bits  # bit for bit: NaN == NaN, -0.0 != 0.0
+
+    changed = [
+        f.name
+        for f in dc_fields(gbuffer)
+        if isinstance(getattr(gbuffer, f.name), torch.Tensor)
+        and not same_bits(getattr(pristine, f.name), getattr(gbuffer, f.name))
+    ]
+    if changed:
+        raise RuntimeError(
+            f"method {method!r} wrote into its G-buffer ({', '.join(changed)} changed): a "
+            "method must return a new image and leave its input as it was (the reference, "
+            "the baseline and the error budget are computed from that input)"
+        )
+
+
+def baseline(
+    spec: RunSpec,
+    gbuffer: Any,
+    profile: Any,
+    reference: torch.Tensor,
+    mask: torch.Tensor | None,
+) -> tuple[torch.Tensor, float, float, float]:
+    """The do-nothing baseline on the run's scene (the SSS stage left out, the other stages
+    as the reference runs them): ``(image, rel RMS, mean FLIP, local FLIP)`` against the
+    reference. The same for every method of a sweep on the scene, so computed once per
+    process (:mod:`sssbench.run.runmemo`, keyed by the reference's cache key and the stages)."""
+    from sssbench.score import verdict
+    from sssbench.score.metrics import rel_rms
+
+    def compute() -> tuple[torch.Tensor, float, float, float]:
+        with torch.inference_mode():
+            identity = (
+                registry.build_pipeline(
+                    registry.build_method("identity", profile),
+                    profile,
+                    spec.stages,
+                    for_reference=True,
+                )
+                .run(gbuffer)
+                .image
+            )
+        identity = identity.clone()  # a normal tensor (deep-copyable outside inference mode)
+        flip_mean, flip_local = verdict.visibility_stats(reference, identity, mask)
+        return identity, rel_rms(identity, reference, mask), flip_mean, flip_local
+
+    if spec.scene == registry.FILE_SCENE:
+        return compute()
+    key = scene_key(
+        spec, profile, reference_params=spec.reference_params, stages=reference_stages(spec)
+    ) | {"reference": spec.reference, "baseline_stages": spec.stages}
+    return runmemo.remembered("baseline", key, compute)
+
+
+def reference_stages(spec: RunSpec) -> dict[str, Any]:
+    return {k: v for k, v in spec.stages.items() if v is not None and registry.STAGES[k][1]}
+
+
+def metric_mask(gbuffer: Any, dtype: torch.dtype) -> torch.Tensor | None:
+    if gbuffer.mask is None:
+        return None
+    support = (gbuffer.mask > 0).to(dtype)
+    if bool(support.reshape(support.shape[0], -1).sum(1).gt(0).all()):
+        return support
+    return None
+
+
+def pipelines(spec: RunSpec, profile: Any) -> tuple[Any, Any]:
+    """The run's pipeline (its method and stages) and its reference's pipeline."""
+    from sssbench.ops import ReferenceSSS
+
+    method = registry.method_from_spec(spec, profile)
+    pipeline = registry.build_pipeline(method, profile, spec.stages)
+    ref_pipeline = registry.build_pipeline(
+        ReferenceSSS(profile, **spec.reference_params), profile, spec.stages, for_reference=True
+    )
+    return pipeline, ref_pipeline
+
+
+def error_scale(result: torch.Tensor, reference: torch.Tensor) -> float:
+    """The run's largest |error| relative to the reference peak (the preview's scale)."""
+    err = (result[:1] - reference[:1]).abs().mean(1)
+    peak = float(reference[:1].max()) or 1.0
+    return float(err.max()) / peak
+
+
+def run_pixel_mm(gbuffer: Any) -> float:
+    """Footprint of a pixel (mm) at the median depth of the SSS region (mask > 0, or all)."""
+    from sssbench.gbuffer import pixel_size_mm
+
+    depth = gbuffer.depth[:1]
+    if gbuffer.mask is not None and bool((gbuffer.mask[:1] > 0).any()):
+        depth = depth[gbuffer.mask[:1] > 0]
+    z = float(depth.double().median())
+    return float(pixel_size_mm(torch.tensor(z), gbuffer.fov_y, gbuffer.shape[1]))
+
+
+def without_specular(image: torch.Tensor, gbuffer: Any) -> torch.Tensor:
+    """``image`` before the specular the pipeline adds after scattering (on the stencil)."""
+    if gbuffer.specular is None:
+        return image
+    active = (gbuffer.mask_or_ones() > 0).to(image.dtype)
+    return image - gbuffer.specular.to(image.dtype) * active

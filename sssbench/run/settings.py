@@ -1,0 +1,150 @@
+"""A run's process settings and timing: torch threads and the gather backend for the run
+(restored after it), the wall-time limit, the versions recorded, and the per-pass statistics
+over timed repeats (median / min / max)."""
+
+from __future__ import annotations
+
+import contextlib
+import platform
+import signal
+import statistics
+import threading
+import time
+from collections.abc import Iterator
+from importlib import metadata
+from typing import Any
+
+import torch
+
+from sssbench.store.tracking import PassStats
+
+__all__ = [
+    "RunTimeout",
+    "backend_used",
+    "pass_stats",
+    "time_limit",
+    "time_runs",
+    "torch_settings",
+    "versions",
+]
+
+
+def pass_stats(runs: list[list[Any]]) -> list[PassStats]:
+    """Per-pass median / min / max over repeats (passes matched by position and name)."""
+    if not runs:
+        return []
+    n = len(runs[0])
+    for r in runs[1:]:
+        if [p.name for p in r] != [p.name for p in runs[0]]:
+            raise RuntimeError(
+                "the pipeline ran different passes in different repeats: "
+                f"{[p.name for p in runs[0]]} vs {[p.name for p in r]}"
+            )
+    out = []
+    for i in range(n):
+        ms = [r[i].ms for r in runs]
+        first = runs[0][i]
+        out.append(
+            PassStats(
+                first.name,
+                first.samples,
+                first.pixels,
+                statistics.median(ms),
+                min(ms),
+                max(ms),
+                len(ms),
+            )
+        )
+    return out
+
+
+def time_runs(
+    pipeline: Any, gbuffer: Any, warmup: int, repeats: int
+) -> tuple[Any, list[PassStats]]:
+    """Run ``pipeline`` on ``gbuffer`` ``warmup`` times untimed, then ``repeats`` times timed
+    (inference mode); return the last run's output and the per-pass statistics."""
+    with torch.inference_mode():
+        for _ in range(warmup):
+            pipeline.run(gbuffer)
+        records = []
+        for _ in range(repeats):
+            out = pipeline.run(gbuffer)
+            records.append(out.records)
+    return out, pass_stats(records)
+
+
+class RunTimeout(Exception):
+    """The run exceeded ``timeout_s``."""
+
+
+@contextlib.contextmanager
+def time_limit(seconds: float | None) -> Iterator[None]:
+    """Raise :class:`RunTimeout` after ``seconds`` of wall time (SIGALRM in the main thread;
+    elsewhere the limit is checked when the block ends)."""
+    if not seconds or seconds <= 0:
+        yield
+        return
+    start = time.monotonic()
+    use_signal = (
+        hasattr(signal, "setitimer") and threading.current_thread() is threading.main_thread()
+    )
+    if use_signal:
+
+        def handler(signum: int, frame: Any) -> None:
+            raise RunTimeout(f"run exceeded timeout_s={seconds:g} s")
+
+        previous = signal.signal(signal.SIGALRM, handler)
+        signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        if use_signal:
+            signal.setitimer(signal.ITIMER_REAL, 0)
+            signal.signal(signal.SIGALRM, previous)
+    if time.monotonic() - start > seconds:
+        raise RunTimeout(f"run exceeded timeout_s={seconds:g} s")
+
+
+@contextlib.contextmanager
+def torch_settings(threads: int | None, backend: str) -> Iterator[None]:
+    """Set torch's intra-op threads and the gather backend for a block; restore both."""
+    from sssbench.ops import backend as use_backend
+
+    before_threads = torch.get_num_threads()
+    if threads is not None:
+        torch.set_num_threads(int(threads))
+    try:
+        with use_backend(backend):
+            yield
+    finally:
+        torch.set_num_threads(before_threads)
+
+
+def backend_used(backend: str) -> str:
+    """The tap-loop backend a run really used: ``native`` falls back to ``torch`` without a C
+    compiler (see :mod:`sssbench.ops.native`)."""
+    from sssbench.ops import native
+
+    return "torch" if backend == "native" and native.library() is None else backend
+
+
+def versions() -> dict[str, str]:
+    """Python and package versions of the run."""
+    out = {"python": platform.python_version()}
+    for pkg in (
+        "sssbench",
+        "torch",
+        "kornia",
+        "numpy",
+        "scikit-image",
+        "hydra-core",
+        "flip-evaluator",
+        "pandas",
+        "openexr",
+        "mlflow",
+    ):
+        try:
+            out[pkg] = metadata.version(pkg)
+        except metadata.PackageNotFoundError:
+            out[pkg] = "not installed"
+    return out
