@@ -844,4 +844,3 @@ def face_parts(
     """
     spec, ctx = _context("face", resolution, seed, fields, dtype, params)
     return _face(ctx, **{**spec.defaults, **params})
-

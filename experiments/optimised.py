@@ -24,12 +24,12 @@ import matplotlib.pyplot as plt
 import torch
 
 from experiments.common import Context, Section, main, md_table
-from sssbench.tune import optimise as opt
 from sssbench.ops import IdentitySSS, Jimenez2012SSS, PreintegratedSSS, SumOfGaussiansSSS
 from sssbench.profiles import SumOfGaussians
 from sssbench.score.budget import error_budget
 from sssbench.score.metrics import rel_rms
 from sssbench.score.verdict import VISIBLE_FLIP, VISIBLE_LOCAL_FLIP, is_visible, visibility_stats
+from sssbench.tune import optimise as opt
 
 TITLE = "Beyond the papers: taps optimised through the passes (issue 18)"
 SCALES = {"portrait": 0.3, "medium": 1.0}

@@ -17,7 +17,6 @@ job writes names its config hash and its store); given a store, every point in i
 Tables use pandas, plots matplotlib with the Agg backend.
 """
 
-
 from __future__ import annotations
 
 import sys
@@ -94,12 +93,9 @@ def write_report(
     return Report(out, csv_path, md_path, plot, bars, table, budget, page)
 
 
-
 def print_report(report: Report, file: Any = None) -> None:
     file = file or sys.stdout
     print(format_console(report.table), file=file)
     print("", file=file)
     for p in report.paths():
         print(f"report: {p}", file=file)
-
-

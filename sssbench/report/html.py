@@ -153,6 +153,7 @@ def write_html(table: pd.DataFrame, out_dir: Path, source: str, plots: list[Path
         plots: PNG plots to embed.
     """
     from sssbench.score.previews import relative_error
+
     parts = [
         "<!doctype html><html><head><meta charset='utf-8'>",
         f"<title>sssbench report — {html.escape(source)}</title><style>{_CSS}</style>",

@@ -299,5 +299,3 @@ def plot_budget(table: pd.DataFrame, path: Path) -> Path | None:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
-
-

@@ -488,7 +488,6 @@ def summary_markdown(table: pd.DataFrame, source: str) -> str:
     return "\n".join(parts) + "\n"
 
 
-
 def format_console(table: pd.DataFrame) -> str:
     """A compact text table for the terminal: sampling and scale shown, skill against doing
     nothing, flags (``*`` best, ``P`` Pareto, ``!`` worse than doing nothing, ``~`` SSS not

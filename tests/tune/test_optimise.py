@@ -10,11 +10,11 @@ import torch
 from data_synth import make_scene
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels import Kernel1D, preintegrated
-from sssbench.tune import optimise as opt
 from sssbench.ops import PreintegratedSSS, ReferenceSSS
 from sssbench.ops.preintegrated import two_pass
 from sssbench.profiles import SumOfGaussians
 from sssbench.score.metrics import rel_rms
+from sssbench.tune import optimise as opt
 
 PROFILE = SumOfGaussians.from_table("skin_deon6")
 

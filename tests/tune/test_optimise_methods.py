@@ -10,11 +10,11 @@ import torch
 
 from data_synth import make_scene
 from sssbench.kernels import Kernel1D, jimenez2012
-from sssbench.tune import optimise as opt
 from sssbench.ops import Jimenez2012SSS, ReferenceSSS, SumOfGaussiansSSS
 from sssbench.profiles import SumOfGaussians
 from sssbench.run.registry import build_method
 from sssbench.score.metrics import rel_rms
+from sssbench.tune import optimise as opt
 from tests.tune.test_optimise import _noise_plane, _one_thread  # noqa: F401 (autouse)
 
 PROFILE = SumOfGaussians.from_table("skin_deon6")
