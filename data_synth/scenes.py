@@ -1,5 +1,8 @@
 """The scene catalogue: :data:`SCENES`, :func:`make_scene` and the builders (DESIGN §2, §3, §5).
 
+One module because it is the catalogue: each builder is a short function registered next to
+its defaults and documented scale; splitting it would scatter the registry.
+
 Every scene is a builder registered in :data:`SCENES` and built by :func:`make_scene`. Shared
 conventions:
 

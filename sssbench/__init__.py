@@ -5,15 +5,14 @@ and the version. The layers, bottom to top (docs/architecture.md, checked by imp
 ``gbuffer -> profiles -> kernels -> ops | mc -> score -> tune -> store -> run -> report -> app``.
 """
 
-__version__ = "0.1.0"
-
-from sssbench import io  # noqa: E402 - users' G-buffers (reads __version__ for file headers)
-from sssbench.gbuffer import GBuffer, pixel_size_mm, view_positions  # noqa: E402
-from sssbench.ops.gather import backend, get_backend  # noqa: E402
+from sssbench import io  # users' G-buffers
+from sssbench._version import __version__
+from sssbench.gbuffer import GBuffer, pixel_size_mm, view_positions
+from sssbench.ops.gather import backend, get_backend
 
 # the fitted kernels ('optimised') reach the operators as data: importing the fitting code
 # registers it as a kernel source (sssbench.kernels.sources)
-from sssbench.tune import optimise as _optimise  # noqa: E402, F401
+from sssbench.tune import optimise as _optimise  # noqa: F401
 
 __all__ = [
     "GBuffer",

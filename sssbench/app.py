@@ -1,5 +1,8 @@
 """The Hydra entry point (DESIGN §6): ``sssbench`` and ``python -m sssbench``.
 
+One module because the app is one edge: the command-line checks, the Hydra composition and the
+callbacks read the same config schema; splitting them would spread that schema over files.
+
 :func:`main` checks the command line (one clear line and exit 2 for an unknown key, an empty
 value, a value of the wrong type or an unknown config-group option), composes the config from
 the package's ``conf/`` (:data:`CONF_DIR`, shipped inside the package), reads it once into a

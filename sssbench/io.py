@@ -88,7 +88,7 @@ _SUFFIXES = (".exr", ".npz")
 
 
 def _version() -> str:
-    from sssbench import __version__
+    from sssbench._version import __version__
 
     return __version__
 

@@ -1,5 +1,8 @@
 """Multipole evaluation of the exact reference for Gaussians wider than a pixel.
 
+One module because the multipole expansion, its Taylor coefficients and its error bound are
+one derivation; each part cites the others' equations.
+
 The reference sums, for every target pixel ``i`` and every Gaussian ``g`` of a sum of
 Gaussians (001 eq. 6–7), ``F_g(p_i) = ∫ q(p) G(v_g, |p − p_i|) dA`` over the visible surface,
 ``q`` the reconstructed irradiance (per channel) or the stencil. This module evaluates it from

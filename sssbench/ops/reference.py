@@ -1,5 +1,8 @@
 """The exact reference: the surface integral of 000 eq. 1 over the visible pixels (DESIGN §4).
 
+One module because the reference's cell integral, its tiling over threads and its cache
+digest are one exact computation; the far field and the flat-plane path are already apart.
+
 Every pixel gathers every neighbour within the profile's support, weighted by the integral of
 the radial profile over the neighbour's world-space footprint at the true 3D distance between
 the two surface points. This is the quantity every screen-space method approximates; on a flat

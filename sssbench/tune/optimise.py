@@ -1,5 +1,8 @@
 """Kernels optimised by gradient descent through the method's own passes (issue 18).
 
+One module because the fit, its training scenes, its cache key and the methods' fitted
+parametrisations change together (a cached fit is keyed by all of them).
+
 Every published rule places taps without looking at the pixel grid, the irradiance
 reconstruction of the gather (linear interpolation) or the depth-aware pass that applies
 them (importance sampling, 000 §7; a power law, 002 appendix; uniform taps). Here a method's
