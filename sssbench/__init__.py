@@ -5,7 +5,7 @@ and the version. The layers, bottom to top (docs/architecture.md, checked by imp
 ``gbuffer -> profiles -> kernels -> ops | mc -> score -> tune -> store -> run -> report -> app``.
 """
 
-from sssbench import io  # users' G-buffers
+from sssbench import _moved, io  # users' G-buffers
 from sssbench._version import __version__
 from sssbench.gbuffer import GBuffer, pixel_size_mm, view_positions
 from sssbench.ops.gather import backend, get_backend
@@ -13,6 +13,9 @@ from sssbench.ops.gather import backend, get_backend
 # the fitted kernels ('optimised') reach the operators as data: importing the fitting code
 # registers it as a kernel source (sssbench.kernels.sources)
 from sssbench.tune import optimise as _optimise  # noqa: F401
+
+# old import paths (sssbench.runner, sssbench.report's html_report, ...) stay aliases
+_moved.install()
 
 __all__ = [
     "GBuffer",
