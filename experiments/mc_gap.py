@@ -266,17 +266,23 @@ def _ranking(label: str, sc: dict, kind: str, methods: list[str]) -> tuple[str, 
         text = f"closest {best} ({100 * err[best][0]:.3g} ± {100 * err[best][1]:.2g} %)"
         if tied:
             text += " tied (not resolved) with " + ", ".join(tied)
-    better = [a for a, v in against_identity.items() if v.verdict == "closer"]
-    worse = [a for a, v in against_identity.items() if v.verdict == "worse"]
-    same = [a for a, v in against_identity.items() if not v.resolved]
+
+    def named(verdicts: tuple[str, ...]) -> str:
+        return ", ".join(
+            f"{a} ({100 * v.diff:+.2g} ± {100 * v.se:.1g} %)"
+            for a, v in against_identity.items()
+            if v.verdict in verdicts or (verdicts == ("",) and not v.resolved)
+        )
+
     if "identity" in methods:
         parts = []
-        if better:
-            parts.append("better than doing nothing: " + ", ".join(better))
-        if worse:
-            parts.append("worse than doing nothing: " + ", ".join(worse))
-        if same:
-            parts.append("not distinguishable from doing nothing: " + ", ".join(same))
+        for head, which in (
+            ("better than doing nothing", ("closer",)),
+            ("worse than doing nothing", ("worse",)),
+            ("not distinguishable from doing nothing", ("",)),
+        ):
+            if named(which):
+                parts.append(f"{head}: {named(which)}")
         text += "; " + "; ".join(parts)
     return text, {"resolved_pairs": resolved, "best": best, "tied": tied,
                   "vs_identity": {a: v.verdict for a, v in against_identity.items()}}  # fmt: skip
@@ -492,7 +498,8 @@ def run(ctx: Context) -> Section:
     body = (
         "Per scene (every comparison by sssbench.mc.significance.compare: resolved beyond "
         f"{K_SIGMA:g} paired jackknife standard errors over the MC batches; differences below "
-        f"{100 * TOL:g} % are 'no difference'):\n\n- "
+        f"{100 * TOL:g} % are 'no difference'; the numbers after a method are its error minus "
+        "identity's, in percentage points, ± s.e.):\n\n- "
         + "\n- ".join(sentences)
         + "\n\nThe profile reference's own error against light transport (the same for every "
         "method of a scene). Normalised: both sides divided by their own diffuse albedo (the "

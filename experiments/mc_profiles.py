@@ -137,6 +137,11 @@ def _pm(v: float, se: float, scale: float = 100.0, sign: bool = False) -> str:
     return f"{scale * v:{f}} ± {scale * se:.2g}"
 
 
+def _who(v, a: str, b: str) -> str:  # noqa: ANN001 - a Comparison of a against b
+    """``"a closer"`` / ``"b closer"`` for a resolved comparison, else its verdict."""
+    return {"closer": f"{a} closer", "worse": f"{b} closer"}.get(v.verdict, v.verdict)
+
+
 def _entries_text(entries: list[tuple[str, int]]) -> str:
     """``apple R/G/B, cream G`` from (material, channel) pairs."""
     by: dict[str, list[str]] = {}
@@ -250,11 +255,11 @@ def run(ctx: Context) -> Section:
             lead = (
                 f"{band} ({int(n_set[b])} entries): mean |error| {a} "
                 f"{_pm(float(mean_v[0, ia, b]), float(mean_se[ia, b]))} %, {b_} "
-                f"{_pm(float(mean_v[0, ib, b]), float(mean_se[ib, b]))} % — {a} "
-                f"{vm.verdict}" + ("" if vm.resolved else "") + "; median "
+                f"{_pm(float(mean_v[0, ib, b]), float(mean_se[ib, b]))} % — "
+                f"{_who(vm, a, b_)}; median "
                 f"{_pm(float(median_v[0, ia, b]), float(median_se[ia, b]))} % vs "
-                f"{_pm(float(median_v[0, ib, b]), float(median_se[ib, b]))} % — {a} "
-                f"{vmed.verdict}"
+                f"{_pm(float(median_v[0, ib, b]), float(median_se[ib, b]))} % — "
+                f"{_who(vmed, a, b_)}"
             )
             lead += (
                 f". Per entry, {a} closer on {len(wins)} ({_entries_text(wins)}), {b_} closer "
