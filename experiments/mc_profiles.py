@@ -541,7 +541,7 @@ def run(ctx: Context) -> Section:
     ax.set_ylim(0.3 * float(shown.min()), 3 * float(shown.max()))  # the MC's range
     ax.set_xlabel("r (mm)")
     ax.set_ylabel("r R(r) (mm⁻¹)")
-    ax.set_title(f"{show}: searchlight, MC ({photons:.3g} photons) vs models")
+    ax.set_title(f"{show}: searchlight MC ({photons:.3g} photons) vs models", fontsize=9)
     ax.legend(fontsize=7)
     ax = axes[1]
     x = np.arange(len(BANDS))
@@ -553,7 +553,7 @@ def run(ctx: Context) -> Section:
     ax.set_xticks(x, BAND_NAMES, rotation=30, fontsize=7)
     ax.set_yscale("log")
     ax.set_ylabel("|relative error| of the band energy (%)")
-    ax.set_title(f"vs MC: mean ± s.e. (bars), median (–); {len(materials)} materials × RGB")
+    ax.set_title(f"vs MC, {len(materials)} materials × RGB: mean ± s.e., median –", fontsize=9)
     ax.legend(fontsize=6)
     link = ctx.figure(fig)
 
