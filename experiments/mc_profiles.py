@@ -73,7 +73,8 @@ LOSSLESS_PHOTONS = 30_000
 SKIPPED = {
     "cream": "its walks are the longest of the table (σa = 0.0002 mm⁻¹ in red: 7.6e7 "
     "collisions and 89 s for 1e5 photons per channel on an idle core, ~10× that at 1e6), which "
-    "did not fit the compute budget of the shared machine (load 10–15 on 2 cores during the run)",
+    "did not fit the compute budget of the shared machine (load average 10–25 on 2 cores "
+    "during the runs)",
 }
 #: worker processes per channel walk (the machine has 2 cores)
 WORKERS = 2
