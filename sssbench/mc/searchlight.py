@@ -69,7 +69,17 @@ class SearchlightResult:
         fraction, fraction_stderr: ``(K, 3)`` fraction of the entering flux that leaves
             through each annulus (``∫ 2πr R dr`` over it) and its standard error.
         total, total_stderr: ``(3,)`` total diffuse reflectance (all radii) and its error.
-        escaped: ``(3,)`` weight fraction terminated beyond ``2·radii[-1]`` (module doc).
+        escaped: ``(3,)`` weight fraction terminated beyond ``2·radii[-1]`` (module doc): the
+            energy the walk cuts off. ``total + escaped`` bounds the true diffuse reflectance
+            from above (exact for a lossless medium, whose cut-off photons all return).
+        escaped_stderr: ``(3,)`` its standard error.
+        reflected, reflected_stderr: ``(3,)`` ``total + escaped`` per photon and its standard
+            error (each photon ends in one fate: the scores add).
+        groups: ``(G, K + 2, 3)`` independent batch sums per group of photons (photon ``i``
+            in group ``i mod G``): rows ``0..K−1`` the annuli, ``K`` all top exits (total),
+            ``K + 1`` the cut-off (escaped); divide by ``group_photons`` for per-group
+            estimates (jackknife standard errors, :mod:`sssbench.mc.significance`).
+        group_photons: ``(G,)`` photons per group (per channel).
         photons: photons per channel.
         interactions: collisions simulated over the three channels.
         seconds: wall time of the three walks of the run that produced it (a cache hit
@@ -82,6 +92,11 @@ class SearchlightResult:
     total: torch.Tensor
     total_stderr: torch.Tensor
     escaped: torch.Tensor
+    escaped_stderr: torch.Tensor
+    reflected: torch.Tensor
+    reflected_stderr: torch.Tensor
+    groups: torch.Tensor
+    group_photons: torch.Tensor
     photons: int
     interactions: int
     seconds: float
@@ -100,6 +115,31 @@ class SearchlightResult:
     def R_stderr(self) -> torch.Tensor:  # noqa: N802
         return self.fraction_stderr / self.area
 
+    def band(self, lo: float, hi: float) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(energy, stderr)`` ``(3,)`` of the light leaving through ``lo <= r < hi`` (mm),
+        which must be annulus edges. The standard error is the exact per-photon one: a
+        photon leaves through at most one annulus, so the band's second moment is the sum of
+        the annuli's, ``Σw²/N = (N − 1) se_k² + m_k²`` each."""
+        r = self.radii
+        inside = (r[:-1] >= lo - 1e-12) & (r[1:] <= hi + 1e-12)
+        edges = set(r.tolist())
+        if (
+            not inside.any()
+            or not any(abs(lo - e) < 1e-12 for e in edges)
+            or not any(abs(hi - e) < 1e-12 for e in edges)
+        ):
+            raise ValueError(f"band [{lo}, {hi}) is not a union of annuli of {r.tolist()}")
+        n = self.photons
+        m = self.fraction[inside]
+        second = ((n - 1) * self.fraction_stderr[inside] ** 2 + m * m).sum(0)
+        mean = m.sum(0)
+        var = (second - mean * mean).clamp_min(0.0) * (n / max(n - 1, 1))
+        return mean, torch.sqrt(var / n)
+
+
+#: independent groups of photons per walk (jackknife standard errors of relative errors and
+#: of comparisons between models; :mod:`sssbench.mc.significance`)
+GROUPS = 16
 
 #: absorbing channels are cut no closer than this many mean free paths (their walks end by
 #: absorption anyway; a cut at twice a radius of a few mean free paths — Chicken1 red: 25 mm
@@ -158,6 +198,8 @@ def searchlight_result(
     batch: int = 1 << 17,
     cache: bool = True,
     progress: bool | None = None,
+    groups: int = GROUPS,
+    workers: int = 1,
 ) -> SearchlightResult:
     """The searchlight profile of ``material`` (module doc), from the cache or a new walk.
 
@@ -170,6 +212,9 @@ def searchlight_result(
         batch: photons advanced together (part of the cache key: it orders the draws).
         cache: read and write the disk cache.
         progress: tqdm bars (None = only for runs longer than ~3 s).
+        groups: independent groups of photons tallied apart (jackknife standard errors).
+        workers: processes per channel walk (:func:`sssbench.mc.walk.walk`; part of the key:
+            the draws differ).
     """
     ss, sa, eta = _coefficients(material)
     radii = _radii(radii_mm)
@@ -183,11 +228,14 @@ def searchlight_result(
         "photons": photons,
         "seed": seed,
         "batch": batch,
+        "groups": groups,
+        "workers": workers,
         "code": mc_digest(),
     }
 
     def compute() -> dict:
-        return _walk_channels(ss, sa, eta, radii, photons, seed, batch, progress)
+        return _walk_channels(ss, sa, eta, radii, photons, seed, batch, progress, groups,
+                              workers)  # fmt: skip
 
     return SearchlightResult(radii=radii, **cached_entry("searchlight", key, compute, cache))
 
@@ -201,10 +249,12 @@ def _walk_channels(
     seed: int,
     batch: int,
     progress: bool | None,
+    groups: int = 1,
+    workers: int = 1,
 ) -> dict:
     """One walk per channel; the fields of :class:`SearchlightResult` but ``radii``."""
     st = ss + sa
-    frac, frac_se, tot, tot_se, esc = [], [], [], [], []
+    frac, frac_se, tot, tot_se, esc, esc_se, refl, refl_se, grp = ([] for _ in range(9))
     inter, secs = 0, 0.0
     for c in range(3):
         t = walk(
@@ -217,6 +267,8 @@ def _walk_channels(
             kill_radius=_kill_radius(float(radii[-1] * st[c]), float(sa[c])),
             batch=batch,
             progress=progress,
+            groups=groups,
+            workers=workers,
         )
         m, e = mean_stderr(t.radial[0], t.radial[1], photons)
         frac.append(m)
@@ -224,7 +276,16 @@ def _walk_channels(
         m, e = mean_stderr(t.top[0], t.top[1], photons)
         tot.append(m)
         tot_se.append(e)
-        esc.append(t.escaped[0] / photons)
+        m, e = mean_stderr(t.escaped[0], t.escaped[1], photons)
+        esc.append(m)
+        esc_se.append(e)
+        m, e = t.estimate("top+escaped")
+        refl.append(torch.tensor(m, dtype=_F64))
+        refl_se.append(torch.tensor(e, dtype=_F64))
+        k = t.radial.shape[1]
+        # (G, K + 2): annuli, all top exits, escaped (by_group: 5 fates, then the K bins)
+        grp.append(torch.cat([t.by_group[:, 5 : 5 + k], t.by_group[:, [0, 4]]], 1))
+        gphot = t.group_photons
         inter += t.interactions
         secs += t.seconds
     result = {
@@ -233,6 +294,11 @@ def _walk_channels(
         "total": torch.stack(tot),
         "total_stderr": torch.stack(tot_se),
         "escaped": torch.stack(esc),
+        "escaped_stderr": torch.stack(esc_se),
+        "reflected": torch.stack(refl),
+        "reflected_stderr": torch.stack(refl_se),
+        "groups": torch.stack(grp, 2),
+        "group_photons": gphot,
         "photons": photons,
         "interactions": inter,
         "seconds": secs,

@@ -93,6 +93,12 @@ class WalkTally:
             (they sum to N).
         radial: ``(2, K)`` = ``(Σw, Σw²)`` of top exits per radial bin ``[edges[k], edges[k+1])``
             of the exit point's distance from the entry point (mfp), or ``None``.
+        by_group: ``(G, 5 + K)`` = Σw per group of photons (photon ``i`` of the launch order
+            is in group ``i mod G``) of each fate (the order of ``_FATES``: top, bottom,
+            absorbed, roulette, escaped) and of each radial bin: independent batch
+            estimates for jackknife standard errors of non-linear statistics
+            (:mod:`sssbench.mc.significance`). ``G = 1`` unless ``groups`` was given.
+        group_photons: ``(G,)`` photons per group.
     """
 
     photons: int
@@ -105,11 +111,14 @@ class WalkTally:
     escaped: torch.Tensor
     counts: dict[str, int]
     radial: torch.Tensor | None = None
+    by_group: torch.Tensor | None = None
+    group_photons: torch.Tensor | None = None
 
     def estimate(self, which: str) -> tuple[float, float]:
         """``(mean, stderr)`` per photon of ``"top"``, ``"bottom"``, ``"absorbed"`` or
-        ``"escaped"``."""
-        s = getattr(self, which)
+        ``"escaped"``, or of several fates together (``"top+escaped"``: each photon ends in
+        one fate, so the sums add, squares included)."""
+        s = sum(getattr(self, f) for f in which.split("+"))
         m, e = mean_stderr(s[0], s[1], self.photons)
         return float(m), float(e)
 
@@ -122,12 +131,16 @@ class WalkTally:
     def total(cls, parts: list[WalkTally], seconds: float) -> WalkTally:
         """The tally of independent walks together (sums of their float64 sums and counts)."""
         radial = None if parts[0].radial is None else sum(p.radial for p in parts)
+        by_group = None if parts[0].by_group is None else sum(p.by_group for p in parts)
+        gphot = None if parts[0].group_photons is None else sum(p.group_photons for p in parts)
         return cls(
             photons=sum(p.photons for p in parts),
             interactions=sum(p.interactions for p in parts),
             seconds=seconds,
             counts={f: sum(p.counts[f] for p in parts) for f in _FATES},
             radial=radial,
+            by_group=by_group,
+            group_photons=gphot,
             **{f: sum(getattr(p, f) for p in parts) for f in _FATES},
         )
 
@@ -208,6 +221,7 @@ def walk(
     progress: bool | None = None,
     threads: int | None = 1,
     workers: int = 1,
+    groups: int = 1,
 ) -> WalkTally:
     """Run the walk (module doc) and return its tallies.
 
@@ -231,6 +245,10 @@ def walk(
             (:func:`_share_seed`; one thread each), their tallies
             summed (:func:`sssbench.mc.parallel.run_jobs`). The result depends on
             ``workers``; ``seconds`` is the wall time of the whole.
+        groups: independent groups of photons tallied apart (``WalkTally.by_group``; photon
+            ``i`` of the launch order in group ``i mod groups``; with ``workers`` > 1 group
+            ``g`` of every share is pooled). Changes no draw: the estimates are the same
+            for every ``groups``.
     """
     a = check_scalar("albedo", albedo, 0.0, 1.0)
     photons = check_int("photons", photons, 2)
@@ -254,10 +272,11 @@ def walk(
     seed = check_int("seed", seed, 0)
     batch = check_int("batch", batch, 1)
     workers = check_int("workers", workers, 1)
+    groups = check_int("groups", groups, 1)
     if workers > 1:
         kwargs = dict(g=g, eta=eta, thickness=thickness, radial_edges=radial_edges,
                       roulette_radius=roulette_radius, kill_radius=kill_radius, batch=batch,
-                      progress=False, threads=1)  # fmt: skip
+                      progress=False, threads=1, groups=groups)  # fmt: skip
         shares = [photons // workers + (i < photons % workers) for i in range(workers)]
         jobs = [(a, n, _share_seed(seed, i), kwargs) for i, n in enumerate(shares) if n >= 2]
         t0 = time.perf_counter()
@@ -280,6 +299,7 @@ def walk(
                 batch=batch,
                 progress=progress,
                 threads=None,
+                groups=groups,
             )
         finally:
             torch.set_num_threads(saved)
@@ -297,18 +317,20 @@ def walk(
     r02 = roulette_radius**2 if roul else math.inf
     kill2 = kill_radius**2
 
-    def fresh(n: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    def fresh(n: int, first: int) -> tuple[torch.Tensor, ...]:
         pos = torch.zeros(3, n, dtype=_F32)
         dirn = torch.zeros(3, n, dtype=_F32)
         dirn[2] = 1.0
-        return pos, dirn, torch.ones(n, dtype=_F32), torch.full((n,), r02, dtype=_F32)
+        grp = torch.arange(first, first + n, dtype=torch.int64) % groups
+        return pos, dirn, torch.ones(n, dtype=_F32), torch.full((n,), r02, dtype=_F32), grp
 
-    pos, dirn, w, thr2 = fresh(min(batch, photons))
+    pos, dirn, w, thr2, grp = fresh(min(batch, photons), 0)
     launched = pos.shape[1]
     nbins = 0 if edges is None else edges.numel() - 1
     edges32 = None if edges is None else edges.to(_F32)
     # per-step tallies in one bincount: code 0 = alive, 1.. = _FATES, 6 + k = top exit in bin k
     acc = torch.zeros(3, len(_FATES) + 1 + nbins, dtype=_F64)  # Σw, Σw², count
+    gacc = torch.zeros(groups * acc.shape[1], dtype=_F64)  # Σw per (group, code)
     inter = torch.zeros((), dtype=torch.int64)
     bar = _progress(photons, progress)
 
@@ -366,17 +388,21 @@ def walk(
         acc[0] += torch.bincount(fi, weights=wd, minlength=m)
         acc[1] += torch.bincount(fi, weights=wd * wd, minlength=m)
         acc[2] += torch.bincount(fi, minlength=m)
+        if groups > 1:
+            gacc += torch.bincount(grp[dead_idx] * m + fi, weights=wd, minlength=groups * m)
         n_new = min(n_dead, photons - launched)
         if n_new:
             slots = dead_idx[:n_new]
-            p0, d0, w0, t0_ = fresh(n_new)
+            p0, d0, w0, t0_, g0 = fresh(n_new, launched)
             pos[:, slots], dirn[:, slots], w[slots], thr2[slots] = p0, d0, w0, t0_
+            grp[slots] = g0
             launched += n_new
         if n_new < n_dead:  # draining: keep only live photons
             dead = torch.zeros(n, dtype=torch.bool)
             dead[dead_idx[n_new:]] = True
             keep = torch.nonzero(~dead).flatten()
             pos, dirn, w, thr2 = pos[:, keep], dirn[:, keep], w[keep], thr2[keep]
+            grp = grp[keep]
     bar.close()
     seconds = time.perf_counter() - t0
     radial = acc[:, len(_FATES) + 1 :]
@@ -384,7 +410,16 @@ def walk(
     sums["top"] += radial[:2].sum(1)
     counts = {f: int(acc[2, i + 1]) for i, f in enumerate(_FATES)}
     counts["top"] += int(radial[2].sum())
+    if groups > 1:
+        gsum = gacc.view(groups, acc.shape[1])[:, 1:].clone()  # drop code 0 (alive)
+    else:
+        gsum = acc[0, 1:].clone().view(1, -1)
+    gsum[:, 0] += gsum[:, len(_FATES) :].sum(1)  # binned top exits are top exits too
+    gphot = torch.tensor([photons // groups + (i < photons % groups) for i in range(groups)],
+                         dtype=torch.int64)  # fmt: skip
     return WalkTally(
+        by_group=gsum,
+        group_photons=gphot,
         photons=photons,
         interactions=int(inter),
         seconds=seconds,
