@@ -470,3 +470,32 @@ def test_sum_of_gaussians_flags_are_checked_on_construction(kw):
     # a NaN or "no" read as True: the same class (a constructor leaving a value unchecked)
     with pytest.raises(TypeError, match=next(iter(kw))):
         SumOfGaussiansSSS(SumOfGaussians.from_table("skin_jg10"), **kw)
+
+
+def test_a_stochastic_run_at_the_largest_seed_keeps_its_further_seeds_valid(tmp_path, monkeypatch):
+    """The bias / noise split evaluates seeds s + 1 … s + K − 1: at s = 2³² − 1 they wrap within
+    the generators' range (before: 2³², which the generator folds onto seed 0)."""
+    from specs import small_spec
+
+    from sssbench.run import registry, stochastic
+
+    seen = []
+
+    class Image:
+        image = torch.zeros(1)
+
+    class Pipeline:
+        def run(self, gbuffer):
+            return Image()
+
+    def method_from_spec(spec, profile, seed, params):
+        seen.append(checks.check_seed("seed", seed))
+        return object()
+
+    monkeypatch.setattr(stochastic, "is_stochastic", lambda *a: True)
+    monkeypatch.setattr(registry, "method_from_spec", method_from_spec)
+    monkeypatch.setattr(registry, "build_pipeline", lambda *a: Pipeline())
+    monkeypatch.setattr(stochastic, "bias_noise", lambda *a: {})
+    spec = small_spec(tmp_path, seed=checks.MAX_SEED, seeds=3)
+    stochastic.seed_split(spec, object(), None, None, torch.zeros(1), torch.zeros(1), None)
+    assert seen == [0, 1]
