@@ -292,9 +292,11 @@ def _quiet_stderr() -> Any:
         contextlib.redirect_stdout(text),
         contextlib.redirect_stderr(text),
     ):
-        saved = {fd: os.dup(fd) for fd in (1, 2)}
-        for fd in saved:
-            os.dup2(tmp.fileno(), fd)
+        saved = {}
+        for fd in (1, 2):
+            with contextlib.suppress(OSError):  # a closed descriptor: nothing to redirect
+                saved[fd] = os.dup(fd)
+                os.dup2(tmp.fileno(), fd)
 
         def captured() -> str:
             _flush_all()
