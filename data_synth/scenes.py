@@ -65,7 +65,7 @@ from data_synth.render import (
 )
 from data_synth.scale import focus_depth, resolve_pixel_mm
 from data_synth.textures import bilinear_wrap, texture
-from sssbench._checks import check_choice, check_int, check_scalar
+from sssbench._checks import check_choice, check_int, check_scalar, check_seed
 from sssbench.gbuffer import GBuffer, view_positions
 
 __all__ = [
@@ -177,7 +177,7 @@ def _context(name, resolution, seed, fields, dtype, params) -> tuple[SceneSpec, 
         raise ValueError(f"resolution must be a pair (H, W) of integers, got {resolution!r}")
     h = check_int("resolution[0] (H)", resolution[0], 1, _MAX_SIDE)
     w = check_int("resolution[1] (W)", resolution[1], 1, _MAX_SIDE)
-    seed = check_int("seed", seed, 0)
+    seed = check_seed("seed", seed)
     if dtype not in (torch.float32, torch.float64):
         raise TypeError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
     if fields is None:

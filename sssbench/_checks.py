@@ -32,8 +32,12 @@ MAGNITUDES: dict[str, tuple[float, float, str]] = {
     "coefficient": (1e-6, 1e6, "mm⁻¹"),
     "factor": (1e-6, 1e6, ""),
 }
-#: largest rotation / sampling seed (a ``torch.Generator`` seed is a signed 64-bit integer)
-MAX_SEED = 2**63 - 1
+#: largest seed of every API that takes one (rotation, scenes, Monte Carlo, optimised kernels):
+#: the CPU ``torch.Generator`` (MT19937) keeps only the low 32 bits of its seed, so a wider seed
+#: would be accepted and silently folded (``s`` and ``s + 2³²`` give the same stream). Seeds are
+#: therefore refused above 2³² − 1 (``docs/reliability.md``), and the seeds derived from one
+#: (per batch, worker, channel) are hashes of it (:func:`derive_seed`), never ``seed · k + i``.
+MAX_SEED = 2**32 - 1
 
 
 def check_tensor(
@@ -215,8 +219,31 @@ def check_magnitude(
 
 
 def check_seed(name: str, value: object) -> int:
-    """A seed for ``torch.Generator``: an integer in [0, :data:`MAX_SEED`]."""
-    return check_int(name, value, 0, MAX_SEED)
+    """A seed as the user gave it: an integer in [0, :data:`MAX_SEED`] (2³² − 1, all of whose
+    bits the generator honours), else one line naming ``name`` and the range."""
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise TypeError(
+            f"{name} must be an integer seed in [0, {MAX_SEED}], got {type(value).__name__} "
+            f"{value!r}"
+        )
+    if not 0 <= value <= MAX_SEED:
+        raise ValueError(
+            f"{name} must be an integer seed in [0, {MAX_SEED}] (2^32 - 1: the generator keeps "
+            f"32 bits of a seed), got {value}"
+        )
+    return value
+
+
+def derive_seed(seed: int, *keys: object) -> int:
+    """A generator seed in [0, :data:`MAX_SEED`] for the stream ``keys`` (a batch, a worker,
+    a channel …) of the user's ``seed``: a 32-bit BLAKE2b hash of both, so that distinct
+    ``(seed, keys)`` give unrelated streams (equal only by a 2⁻³² chance, not by arithmetic)
+    instead of ``seed · k + i`` overflowing 32 bits or landing systematically on another
+    seed's stream. ``seed`` must already be checked."""
+    import hashlib
+
+    text = " ".join(map(str, ("sssbench.seed", seed, *keys)))
+    return int.from_bytes(hashlib.blake2b(text.encode(), digest_size=4).digest(), "little")
 
 
 def check_method_options(surface_scale: object, seed: object) -> None:

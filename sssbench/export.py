@@ -376,7 +376,13 @@ def main(argv: list[str] | None = None) -> int:
     if args.out is None:
         sys.stdout.write(text)
     else:
-        Path(args.out).write_text(text)
+        try:
+            Path(args.out).write_text(text)
+        except OSError as exc:  # an unwritable --out: one line, no traceback
+            why = exc.strerror or type(exc).__name__
+            print(f"sssbench-export-kernel: --out {args.out}: cannot write ({why})",
+                  file=sys.stderr)  # fmt: skip
+            return 2
         print(f"sssbench-export-kernel: {len(kernels)} kernel(s) written to {args.out}")
     return 0
 

@@ -1,5 +1,9 @@
 """Users' own G-buffers and result images on disk: OpenEXR and ``.npz`` (docs/io.md).
 
+One module because it is one surface: both formats share the field table, the checks of what a
+file holds and the one-line diagnosis of a bad or damaged file (the EXR header read here before
+the binding sees the file).
+
 A G-buffer file holds the fields of a :class:`~sssbench.gbuffer.GBuffer` under fixed names:
 
 ============  =========================================  ======================================
@@ -27,9 +31,20 @@ float64 study. ``fov_y`` is written as a ``double`` attribute, so it round-trips
 both dtypes. ``.npz`` keeps float32 and float64 as they are. An EXR holds one image (B = 1);
 batches go to ``.npz``.
 
+``profile_id`` (integer material index per pixel) is the ``.npz`` array ``profile_id`` (its
+integer dtype kept) and the OpenEXR UINT channel ``profile_id.I`` (read back as int64; values
+above 2³² − 1 are refused on writing, naming the field). Every field of a G-buffer therefore
+round-trips through both formats (``tests/test_io.py``).
+
 Every problem with a file is one ``ValueError`` line naming the file and what is wrong
 (missing channel with the ones present, units, non-finite or non-positive depth, mismatched
-sizes, not an EXR, ``fov_y`` missing or out of range).
+sizes, not an EXR, ``fov_y`` missing or out of range). A path that is a directory is an
+``IsADirectoryError`` saying so. A **damaged** EXR is one line too, said before anything large
+is allocated: its header is parsed here first, so a header cut short is "truncated", a data
+window whose decoded channels would exceed :data:`MAX_EXR_BYTES` is "too large", and a file the
+OpenEXR library cannot read (missing pixel data: "has 0 parts") is "damaged or truncated";
+the library's own warnings are swallowed at the file-descriptor level (nothing else reaches
+stderr).
 
 Example:
     >>> import tempfile, os, torch
@@ -41,9 +56,13 @@ Example:
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import math
 import os
+import struct
+import sys
+import tempfile
 import threading
 from collections.abc import Iterable
 from dataclasses import fields as dataclass_fields
@@ -58,6 +77,7 @@ from sssbench.gbuffer import GBuffer
 
 __all__ = [
     "EXR_CHANNELS",
+    "MAX_EXR_BYTES",
     "OPTIONAL_FIELDS",
     "read_gbuffer",
     "write_gbuffer",
@@ -77,6 +97,11 @@ EXR_CHANNELS: dict[str, tuple[str, ...]] = {
     "mask": ("mask.A",),
     "thickness": ("thickness.Y",),
 }
+#: the integer field's OpenEXR channel (UINT: 32 bits)
+_PROFILE_ID_CHANNEL = "profile_id.I"
+#: largest decoded size of an EXR's channels read (float32 per sample): 4 GiB, a 16384² image
+#: with four channels; a header claiming more is refused before the library allocates it
+MAX_EXR_BYTES = 1 << 32
 #: channels also accepted when reading, in place of the written name
 _EXR_ALIASES = {"mask.A": ("mask.Y",)}
 #: the fields a file may leave out (the same names as ``data_synth.OPTIONAL_FIELDS``)
@@ -118,29 +143,207 @@ def _atomic_target(path: Path) -> Path:
     return path.with_name(f".{path.stem}.{os.getpid()}.{threading.get_ident()}.tmp{path.suffix}")
 
 
-# ----------------------------------------------------------------------------- OpenEXR core
-def _read_exr(path: Path) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
-    """Header and channels (name -> pixel array as stored) of a single-part EXR."""
+def _check_file(path: Path) -> None:
+    """An existing regular file, else one line: "is a directory" or "no such file"."""
+    if path.is_dir():
+        raise IsADirectoryError(f"{path}: is a directory, expected a {path.suffix} file")
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such file")
+
+
+def _check_write_target(path: Path) -> None:
+    if path.is_dir():
+        raise IsADirectoryError(f"{path}: is a directory, expected a {path.suffix} file to write")
+
+
+# ----------------------------------------------------------------------------- OpenEXR core
+class _Truncated(Exception):
+    """The header ends before its end marker."""
+
+
+def _exr_headers(data: bytes) -> list[dict[str, Any]]:
+    """The parts' headers of an EXR, parsed here (no pixel is read or allocated): per part
+    ``data_window`` ``(xmin, ymin, xmax, ymax)`` and ``channels`` ``[(name, pixel type,
+    x sampling, y sampling)]``. Raises ``_Truncated`` when the bytes end inside a header."""
+    pos = 8
+    flags = struct.unpack_from("<I", data, 4)[0] if len(data) >= 8 else 0
+    if len(data) < 8:
+        raise _Truncated
+    multipart = bool(flags & 0x1000)
+
+    def cstring() -> bytes:
+        nonlocal pos
+        end = data.find(b"\0", pos)
+        if end < 0:
+            raise _Truncated
+        text, pos = data[pos:end], end + 1
+        return text
+
+    parts: list[dict[str, Any]] = []
+    while True:
+        header: dict[str, Any] = {}
+        attributes = 0
+        while True:
+            name = cstring()
+            if not name:
+                break
+            attributes += 1
+            kind = cstring()
+            if pos + 4 > len(data):
+                raise _Truncated
+            size = struct.unpack_from("<i", data, pos)[0]
+            pos += 4
+            if size < 0 or pos + size > len(data):
+                raise _Truncated
+            value = data[pos : pos + size]
+            pos += size
+            if name == b"dataWindow" and kind == b"box2i" and size == 16:
+                header["data_window"] = struct.unpack("<4i", value)
+            elif name == b"channels" and kind == b"chlist":
+                header["channels"] = _chlist(value)
+        if not attributes and parts:  # the empty header ending a multi-part list
+            break
+        parts.append(header)
+        if not multipart:
+            break
+    return parts
+
+
+def _chlist(value: bytes) -> list[tuple[str, int, int, int]]:
+    out, pos = [], 0
+    while pos < len(value) and value[pos] != 0:
+        end = value.find(b"\0", pos)
+        if end < 0 or end + 17 > len(value):
+            break
+        pixel_type, _, xs, ys = struct.unpack_from("<iiii", value, end + 1)
+        out.append((value[pos:end].decode("utf-8", "replace"), pixel_type, xs, ys))
+        pos = end + 17
+    return out
+
+
+def _check_exr_header(path: Path) -> None:
+    """Refuse a damaged EXR from its header alone, before the library allocates anything:
+    a header cut short (truncated), a data window that is empty, inverted or whose decoded
+    channels exceed :data:`MAX_EXR_BYTES` (too large)."""
+    size = path.stat().st_size
+    chunk = 1 << 16  # a header is a few kB; read more only if it is longer
+    while True:
+        with open(path, "rb") as f:
+            data = f.read(chunk)
+        try:
+            parts = _exr_headers(data)
+            break
+        except _Truncated:
+            if len(data) >= size:
+                raise ValueError(
+                    f"{path}: damaged OpenEXR file: truncated (the header ends early, at "
+                    f"{size} bytes)"
+                ) from None
+            chunk *= 16
+    for header in parts:
+        window = header.get("data_window")
+        if window is None or "channels" not in header:
+            raise ValueError(
+                f"{path}: damaged OpenEXR file: no dataWindow or channels in its header"
+            )
+        xmin, ymin, xmax, ymax = window
+        w, h = xmax - xmin + 1, ymax - ymin + 1
+        if w < 1 or h < 1:
+            raise ValueError(f"{path}: damaged OpenEXR file: empty data window {window}")
+        samples = sum(
+            -(-w // max(xs, 1)) * -(-h // max(ys, 1)) for *_, xs, ys in header["channels"]
+        )
+        decoded = 4 * samples
+        if decoded > MAX_EXR_BYTES:
+            raise ValueError(
+                f"{path}: OpenEXR file too large (or a damaged header): it claims a {w}x{h} "
+                f"data window with {len(header['channels'])} channel(s), "
+                f"{decoded / 2**30:.3g} GiB decoded, over the {MAX_EXR_BYTES / 2**30:g} GiB "
+                "sssbench reads"
+            )
+
+
+_STDERR_LOCK = threading.Lock()
+
+
+def _flush_all() -> None:
+    """Flush Python's and C's standard streams (``fflush(NULL)``)."""
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    with contextlib.suppress(Exception):
+        import ctypes
+
+        ctypes.CDLL(None).fflush(None)
+
+
+@contextlib.contextmanager
+def _quiet_stderr() -> Any:
+    """Send file descriptors 1 and 2, and Python's ``sys.stdout`` / ``sys.stderr``, to a
+    temporary file while the OpenEXR library runs (it prints its own errors at the C level and
+    "Warning: …" lines through Python's stdout); yields a function returning what it wrote."""
+    import io as _io
+
+    text = _io.StringIO()
+    _flush_all()  # what was written before goes where it was meant to
+    with (
+        _STDERR_LOCK,
+        tempfile.TemporaryFile() as tmp,
+        contextlib.redirect_stdout(text),
+        contextlib.redirect_stderr(text),
+    ):
+        saved = {}
+        for fd in (1, 2):
+            with contextlib.suppress(OSError):  # a closed descriptor: nothing to redirect
+                saved[fd] = os.dup(fd)
+                os.dup2(tmp.fileno(), fd)
+
+        def captured() -> str:
+            _flush_all()
+            tmp.seek(0)
+            return tmp.read().decode("utf-8", "replace") + text.getvalue()
+
+        try:
+            yield captured
+        finally:
+            _flush_all()  # C stdio buffers the library's lines when stdout is not a terminal
+            for fd, copy in saved.items():
+                os.dup2(copy, fd)
+                os.close(copy)
+
+
+def _read_exr(path: Path) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """Header and channels (name -> pixel array as stored) of a single-part EXR."""
+    _check_file(path)
     with open(path, "rb") as f:
         magic = f.read(4)
     if magic != _EXR_MAGIC:
         raise ValueError(
             f"{path}: not an OpenEXR file (starts with {magic!r}, expected {_EXR_MAGIC!r})"
         )
+    _check_exr_header(path)
     exr = _openexr()
-    try:
-        file = exr.File(str(path), separate_channels=True)
-    except Exception as exc:
-        raise ValueError(f"{path}: unreadable OpenEXR file ({type(exc).__name__}: {exc})") from exc
-    if len(file.parts) != 1:
+    with _quiet_stderr() as captured:
+        try:
+            file = exr.File(str(path), separate_channels=True)
+            parts = len(file.parts)
+            if parts == 1:
+                header = dict(file.header())
+                channels = {name: np.asarray(c.pixels) for name, c in file.channels().items()}
+        except Exception as exc:
+            detail = f"{type(exc).__name__}: {exc}".replace("\n", " ")
+            raise ValueError(f"{path}: damaged or truncated OpenEXR file ({detail})") from exc
+        said = (captured().strip().splitlines() or [""])[0].replace(f"{path}: ", "").strip()
+    if parts == 0:  # the library's answer to missing pixel data
+        hint = f": {said[:160]}" if said else ""
         raise ValueError(
-            f"{path}: has {len(file.parts)} parts; sssbench reads single-part EXR files "
+            f"{path}: damaged or truncated OpenEXR file (the OpenEXR library read no part{hint})"
+        )
+    if parts != 1:
+        raise ValueError(
+            f"{path}: has {parts} parts; sssbench reads single-part EXR files "
             "(one image; write batches as .npz)"
         )
-    header = dict(file.header())
-    channels = {name: np.asarray(c.pixels) for name, c in file.channels().items()}
     return header, channels
 
 
@@ -304,6 +507,19 @@ def _read_gbuffer_exr(path: Path, dtype: torch.dtype | None) -> GBuffer:
     if "light_dir" in header:
         light = np.asarray(header["light_dir"], dtype=np.float64).reshape(1, -1)
         values["light_dir"] = _tensor(light, out_dtype)
+    if _PROFILE_ID_CHANNEL in channels:
+        ids = channels[_PROFILE_ID_CHANNEL]
+        if ids.dtype != np.uint32:
+            raise ValueError(
+                f"{path}: channel {_PROFILE_ID_CHANNEL} has pixel type {ids.dtype}; expected "
+                "UINT (integer material indices)"
+            )
+        if ids.shape != stacked.shape[-2:]:
+            raise ValueError(
+                f"{path}: channel {_PROFILE_ID_CHANNEL} is {ids.shape[1]}x{ids.shape[0]} but "
+                f"the image is {stacked.shape[-1]}x{stacked.shape[-2]} (W x H)"
+            )
+        values["profile_id"] = torch.from_numpy(ids.astype(np.int64))[None, None]
     return _gbuffer(path, **values)
 
 
@@ -320,6 +536,22 @@ def _write_gbuffer_exr(path: Path, gbuffer: GBuffer, allow_rounding: bool) -> Pa
         if value is not None:
             array = _float32_array(path, field, value, allow_rounding)[0]
             channels.update(zip(names, array, strict=True))
+    if gbuffer.profile_id is not None:
+        ids = gbuffer.profile_id.detach().cpu()
+        if int(ids.max()) > 2**32 - 1:
+            raise ValueError(
+                f"{path}: profile_id has values up to {int(ids.max())} but the OpenEXR channel "
+                f"{_PROFILE_ID_CHANNEL} is UINT (at most 2^32 - 1); write a .npz file"
+            )
+        channels[_PROFILE_ID_CHANNEL] = ids[0, 0].numpy().astype(np.uint32)
+    unwritten = [
+        f.name
+        for f in dataclass_fields(GBuffer)
+        if f.name not in (*EXR_CHANNELS, "fov_y", "light_dir", "profile_id")
+        and getattr(gbuffer, f.name) is not None
+    ]
+    if unwritten:  # a field added to GBuffer without an EXR layout: refuse, never drop
+        raise ValueError(f"{path}: the OpenEXR layout has no place for field(s) {unwritten}")
     header: dict[str, Any] = {
         # a 1-element float64 array is written as a 'double' attribute: fov_y is exact
         "fov_y": np.array([gbuffer.fov_y], dtype=np.float64),
@@ -334,11 +566,12 @@ def _write_gbuffer_exr(path: Path, gbuffer: GBuffer, allow_rounding: bool) -> Pa
 
 # ----------------------------------------------------------------------------- G-buffers: npz
 _NPZ_FIELDS = tuple(f.name for f in dataclass_fields(GBuffer) if f.name != "fov_y")
+#: fields stored with their integer dtype (not cast to the G-buffer's float dtype)
+_INT_FIELDS = ("profile_id",)
 
 
 def _read_gbuffer_npz(path: Path, dtype: torch.dtype | None) -> GBuffer:
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such file")
+    _check_file(path)
     try:
         with np.load(path, allow_pickle=False) as data:
             arrays = {k: data[k] for k in data.files}
@@ -350,7 +583,11 @@ def _read_gbuffer_npz(path: Path, dtype: torch.dtype | None) -> GBuffer:
             raise ValueError(f"{path}: missing array {required!r}; arrays present: {present}")
     _check_units(path, arrays.get("units"))
     fov = _fov_y(path, arrays.get("fov_y"))
-    stored = {k: arrays[k] for k in _NPZ_FIELDS if k in arrays}
+    stored = {k: arrays[k] for k in _NPZ_FIELDS if k in arrays and k not in _INT_FIELDS}
+    ints = {k: arrays[k] for k in _INT_FIELDS if k in arrays}
+    for k, a in ints.items():
+        if a.dtype.kind not in "iu":
+            raise ValueError(f"{path}: array {k} must have an integer dtype, got {a.dtype}")
     kinds = {k: a.dtype for k, a in stored.items() if a.dtype not in (np.float32, np.float64)}
     if kinds:
         raise ValueError(
@@ -361,6 +598,9 @@ def _read_gbuffer_npz(path: Path, dtype: torch.dtype | None) -> GBuffer:
     default = torch.float64 if stored["diffuse"].dtype == np.float64 else torch.float32
     out_dtype = _dtype(dtype, default)
     values = {k: _tensor(a, out_dtype) for k, a in stored.items()}
+    for k, a in ints.items():  # the stored integer dtype (uint32 and wider as int64)
+        keep = a.dtype in (np.int8, np.uint8, np.int16, np.int32, np.int64)
+        values[k] = torch.from_numpy(np.ascontiguousarray(a if keep else a.astype(np.int64)))
     return _gbuffer(path, fov_y=fov, **values)
 
 
@@ -399,6 +639,7 @@ def read_gbuffer(path: str | os.PathLike[str], *, dtype: torch.dtype | None = No
 
     Raises:
         FileNotFoundError: no such file.
+        IsADirectoryError: the path is a directory.
         ValueError: one line naming the file and the problem.
     """
     path = Path(path)
@@ -427,7 +668,9 @@ def write_gbuffer(
     path = Path(path)
     if not isinstance(gbuffer, GBuffer):
         raise TypeError(f"gbuffer must be a GBuffer, got {type(gbuffer).__name__}")
-    if _suffix(path) == ".exr":
+    suffix = _suffix(path)
+    _check_write_target(path)
+    if suffix == ".exr":
         return _write_gbuffer_exr(path, gbuffer, allow_rounding)
     return _write_gbuffer_npz(path, gbuffer)
 
@@ -445,6 +688,7 @@ def write_image_exr(
         The path written (atomically; parent directories are created).
     """
     path = Path(path)
+    _check_write_target(path)
     check_tensor("image", image, ndim=4, channels=3, finite=False)
     if image.shape[0] != 1:
         raise ValueError(f"image must have shape (1, 3, H, W), got {tuple(image.shape)}")
@@ -524,6 +768,7 @@ def scene_file_digest(path: str | os.PathLike[str]) -> str:
     the reference cache key then change when the file's content changes, so no result or
     cached reference of an older file is reused.
     """
+    _check_file(Path(path))
     digest = hashlib.sha256()
     with open(path, "rb") as f:
         for block in iter(lambda: f.read(1 << 20), b""):

@@ -283,7 +283,7 @@ def test_not_an_exr(tmp_path):
     assert str(path) in one_line_error("not an OpenEXR file", read_gbuffer, path)
     truncated = write_gbuffer(tmp_path / "t.exr", full_gbuffer())
     truncated.write_bytes(truncated.read_bytes()[:200])  # right magic, broken file
-    one_line_error("unreadable OpenEXR file", read_gbuffer, truncated)
+    one_line_error("damaged OpenEXR file", read_gbuffer, truncated)
     (tmp_path / "g.npz").write_text("not a zip")
     one_line_error("not a readable .npz", read_gbuffer, tmp_path / "g.npz")
     one_line_error("unknown G-buffer file type '.png'", read_gbuffer, tmp_path / "g.png")

@@ -53,7 +53,7 @@ from dataclasses import dataclass
 
 import torch
 
-from sssbench._checks import check_int
+from sssbench._checks import check_int, check_seed, derive_seed
 from sssbench.mc.boundary import normal_specular
 from sssbench.mc.cache import cached_entry
 from sssbench.mc.parallel import cpu_seconds, run_jobs
@@ -318,7 +318,7 @@ def _flat(model, medium, photons, batches, seed, workers, progress):  # noqa: AN
                 score,
                 side * side + 1,
                 per,
-                seed * 7919 + 101 * f + b,
+                derive_seed(seed, "scene face batch", f, b),
                 progress,
             )  # fmt: skip
             for b in range(batches)
@@ -378,7 +378,7 @@ def _sphere_jobs(model, medium, per, batches, seed, progress):  # noqa: ANN001, 
     score = _CameraScore(model.center, h, w, model.fov_y)
     geometry = Ball((0.0, 0.0, 0.0), r)
     return [
-        (medium, geometry, source, score, h * w, per, seed * 7919 + b, progress)
+        (medium, geometry, source, score, h * w, per, derive_seed(seed, "scene batch", b), progress)
         for b in range(batches)
     ]
 
@@ -454,7 +454,8 @@ def scene_mc(
             :data:`FLAT_PHOTONS` for a flat scene, :data:`SPHERE_PHOTONS_PER_PIXEL` per pixel
             showing the sphere.
         batches: independent walks (>= 2: the standard errors come from them).
-        seed: base seed.
+        seed: base seed, an integer in [0, 2³² − 1] (checked here, on entry: the batches'
+            seeds are hashes of it, :func:`~sssbench._checks.derive_seed`).
         workers: processes running the batches (1 = in this process); None: 2 for runs of
             at least :data:`PARALLEL_PHOTONS` photons, else 1.
         cache: read and write the disk cache.
@@ -466,8 +467,10 @@ def scene_mc(
     from data_synth.mc_scenes import SphereMC, mc_model
     from sssbench._digest import code_digest
 
+    seed = check_seed("seed", seed)
     model = mc_model(scene, gbuffer, params)
     medium = medium_for(material)
+    _check_scatters(material, medium)
     if photons is None:
         sphere = isinstance(model, SphereMC)
         covered = int((sphere_pixel_area(model) > 0).sum()) if sphere else 0
@@ -494,7 +497,9 @@ def scene_mc(
         raw, mask, far, total, inter, secs = run(
             model, medium, photons, batches, seed, workers, progress
         )
-        rho, rho_se = _albedo(medium, ALBEDO_PHOTONS, seed * 3 + 1_000_003)
+        rho, rho_se = _albedo(medium, ALBEDO_PHOTONS, derive_seed(seed, "scene albedo"))
+        if not bool((rho > 0).all()):  # no albedo photon came back: M/ρ would be 0/0
+            _no_albedo(material, rho)
         return {
             "batches": raw / rho.view(1, 3, 1, 1),
             "mask": mask,
@@ -507,6 +512,32 @@ def scene_mc(
         }
 
     return SceneMC(**cached_entry("scene", key, compute, cache))
+
+
+_CHANNELS = ("R", "G", "B")
+
+
+def _check_scatters(material: object, medium: Medium) -> None:
+    """Refuse a medium that scatters nothing back in some channel (σs′ = 0): its diffuse
+    albedo ρ is exactly 0, and the normalised exitance ``M/ρ`` of :class:`SceneMC` (what every
+    score divides by) is 0/0 — all-NaN images otherwise (docs/reliability.md, class 10)."""
+    dead = [c for c, s in zip(_CHANNELS, medium.sigma_s_prime, strict=True) if s == 0]
+    if dead:
+        raise ValueError(
+            f"material {material!r} has sigma_s_prime = 0 in channel(s) {', '.join(dead)}: no "
+            "light scatters back (albedo rho = 0), so the normalised exitance M/rho is "
+            "undefined; give sigma_s_prime > 0"
+        )
+
+
+def _no_albedo(material: object, rho: torch.Tensor) -> None:
+    """Raise: the albedo walk returned no photon in some channel (ρ estimated as 0)."""
+    dead = [c for c, r in zip(_CHANNELS, rho.tolist(), strict=True) if not r > 0]
+    raise ValueError(
+        f"material {material!r} scatters too little back in channel(s) {', '.join(dead)}: "
+        f"none of {ALBEDO_PHOTONS} albedo photons returned (rho = 0), so the normalised "
+        "exitance M/rho is undefined; use a material with more scattering"
+    )
 
 
 def _model_key(model: object) -> dict:

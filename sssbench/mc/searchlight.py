@@ -32,7 +32,7 @@ from pathlib import Path
 
 import torch
 
-from sssbench._checks import check_int, check_scalar
+from sssbench._checks import check_int, check_scalar, check_seed, derive_seed
 from sssbench.mc.cache import cached_entry, mc_cache_dir
 from sssbench.mc.walk import mean_stderr, walk
 from sssbench.profiles.dipole import MATERIALS
@@ -208,7 +208,7 @@ def searchlight_result(
             ``(σs′, σa[, η])`` of scalars or RGB triples in mm⁻¹.
         radii_mm: annulus edges in mm, ``(K+1,)``, finite, >= 0, increasing.
         photons: photons per channel.
-        seed: base seed (channel c uses ``seed·3 + c``).
+        seed: base seed in [0, 2³² − 1] (channel c uses ``derive_seed(seed, …, c)``).
         batch: photons advanced together (part of the cache key: it orders the draws).
         cache: read and write the disk cache.
         progress: tqdm bars (None = only for runs longer than ~3 s).
@@ -219,7 +219,7 @@ def searchlight_result(
     ss, sa, eta = _coefficients(material)
     radii = _radii(radii_mm)
     photons = check_int("photons", photons, 2)
-    seed = check_int("seed", seed, 0)
+    seed = check_seed("seed", seed)
     key = {
         "sigma_s_prime": ss.tolist(),
         "sigma_a": sa.tolist(),
@@ -261,7 +261,7 @@ def _walk_channels(
             float(ss[c] / st[c]),
             photons=photons,
             eta=eta,
-            seed=seed * 3 + c,
+            seed=derive_seed(seed, "searchlight channel", c),
             radial_edges=radii * st[c],
             roulette_radius=float(radii[-1] * st[c]),
             kill_radius=_kill_radius(float(radii[-1] * st[c]), float(sa[c])),

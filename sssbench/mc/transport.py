@@ -48,7 +48,7 @@ from dataclasses import dataclass
 
 import torch
 
-from sssbench._checks import check_int
+from sssbench._checks import check_int, check_seed
 from sssbench.mc.boundary import fresnel_dielectric
 from sssbench.mc.fused import MIN_COMPILED, Fused, torch_threads
 
@@ -335,7 +335,7 @@ def transport(
     photons = check_int("photons", photons, 3)
     nbins = check_int("nbins", nbins, 1)
     batch = check_int("batch", batch, 3)
-    gen = torch.Generator().manual_seed(check_int("seed", seed, 0))
+    gen = torch.Generator().manual_seed(check_seed("seed", seed))
     inv_st_c = (1.0 / medium.sigma_t).to(_F32)
     alb_c = medium.albedo.to(_F32)
     eta = float(medium.eta)

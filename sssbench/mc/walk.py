@@ -56,7 +56,7 @@ from dataclasses import dataclass
 
 import torch
 
-from sssbench._checks import check_int, check_scalar
+from sssbench._checks import check_int, check_scalar, check_seed
 from sssbench.mc.boundary import fresnel_dielectric, normal_specular
 from sssbench.mc.parallel import run_jobs
 
@@ -142,6 +142,23 @@ class WalkTally:
             by_group=by_group,
             group_photons=gphot,
             **{f: sum(getattr(p, f) for p in parts) for f in _FATES},
+        )
+
+
+#: largest finite distance in mean free paths (thickness, roulette and kill radii): the walk
+#: runs in float32 and squares radii (1e30 stays finite); farther than this is "never" for every
+#: photon — pass inf
+MAX_MFP = 1e15
+
+
+def _check_distance(name: str, value: object) -> None:
+    """A distance in mean free paths: > 0, and ``inf`` or at most :data:`MAX_MFP` (1e300 mfp
+    overflowed float32 inside the walk: a torch message without the argument's name)."""
+    if not isinstance(value, (int, float)) or isinstance(value, bool):
+        raise TypeError(f"{name} must be a number of mean free paths, got {value!r}")
+    if not (value > 0 and (math.isinf(value) or value <= MAX_MFP)):
+        raise ValueError(
+            f"{name} must be > 0 and at most {MAX_MFP:g} mean free paths, or inf, got {value}"
         )
 
 
@@ -254,22 +271,15 @@ def walk(
     photons = check_int("photons", photons, 2)
     g = check_scalar("g", g, -1.0, 1.0, low_inclusive=False, high_inclusive=False)
     eta = check_scalar("eta", eta, 1.0, 3.0)
-    if not isinstance(thickness, (int, float)) or isinstance(thickness, bool):
-        raise TypeError(f"thickness must be a number of mean free paths, got {thickness!r}")
-    if not thickness > 0:
-        raise ValueError(
-            f"thickness must be > 0 mean free paths (inf = half-space), got {thickness}"
-        )
-    if not roulette_radius > 0:
-        raise ValueError(f"roulette_radius must be > 0 mean free paths, got {roulette_radius}")
-    if not kill_radius > 0:
-        raise ValueError(f"kill_radius must be > 0 mean free paths, got {kill_radius}")
+    for name, value in (("thickness", thickness), ("roulette_radius", roulette_radius),
+                        ("kill_radius", kill_radius)):  # fmt: skip
+        _check_distance(name, value)
     if math.isinf(thickness) and a == 1.0 and math.isinf(kill_radius):
         raise ValueError(
             "albedo=1 in a half-space needs a finite kill_radius: the expected walk "
             "length is unbounded (and the reflectance is exactly 1)"
         )
-    seed = check_int("seed", seed, 0)
+    seed = check_seed("seed", seed)
     batch = check_int("batch", batch, 1)
     workers = check_int("workers", workers, 1)
     groups = check_int("groups", groups, 1)

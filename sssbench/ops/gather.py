@@ -70,6 +70,7 @@ from sssbench.kernels.kernel1d import Kernel1D
 from sssbench.ops import native
 from sssbench.ops._gather_native import run_pass, weights_overflow  # registers torch.ops.sssbench.*
 from sssbench.ops._gather_torch import SampleWeight, compiled_accumulate, gather_torch
+from sssbench.ops._overlap import has_internal_overlap, shares_memory
 from sssbench.ops._stencil import image_spans, image_stencils
 from sssbench.ops.timing import PassRecord, add_record
 
@@ -137,13 +138,19 @@ class Stretch:
     physically sized kernel); ``correction`` keeps its unit, pixels (003: 800), and ``maxdd`` is
     in mm of depth per pixel: 003's 0.001 head units per pixel × a 230 mm head = 0.23 mm/px.
     The resulting factor multiplies the pinhole pixels-per-mm:
-    ``ssslevel · d / (d + correction · min(|∂d/∂axis|, maxdd))``. Checked by
+    ``ssslevel · d / (d + correction · min(|∂d/∂axis|, maxdd))``. Checked on construction
+    (a method whose passes are all culled by LOD still refuses a bad stretch) and again by
     :func:`separable_pass`: all finite, ``ssslevel > 0``, ``correction >= 0``, ``maxdd >= 0``.
     """
 
     ssslevel: float = 1.0
     correction: float = 800.0
     maxdd: float = 0.23
+
+    def __post_init__(self) -> None:
+        check_scalar("ssslevel", self.ssslevel, 0.0, low_inclusive=False)
+        check_scalar("correction", self.correction, 0.0)
+        check_scalar("maxdd", self.maxdd, 0.0)
 
 
 @dataclass(frozen=True)
@@ -160,6 +167,11 @@ class Rotation:
     angles: torch.Tensor
     radius: float = 0.1
 
+    def __post_init__(self) -> None:
+        # checked on construction, not only by a pass that LOD may skip
+        check_tensor("angles", self.angles, ndim=4, channels=1)
+        check_scalar("radius", self.radius, 0.0, 1.0)
+
 
 def _axis_derivative(depth: torch.Tensor, axis: int) -> torch.Tensor:
     """|∂depth/∂axis| in mm per pixel by central differences (one-sided at the border).
@@ -171,29 +183,15 @@ def _axis_derivative(depth: torch.Tensor, axis: int) -> torch.Tensor:
     return d.abs()
 
 
-def _byte_range(t: torch.Tensor) -> tuple[int, int] | None:
-    """``[first, end)`` addresses of the bytes ``t`` can touch (``None``: no element)."""
-    if t.numel() == 0:
-        return None
-    base, item = t.data_ptr(), t.element_size()
-    if t.is_contiguous():  # the rule: no walk over the strides
-        return base, base + t.numel() * item
-    lo = hi = 0  # elements from the first one's address (data_ptr: storage offset included)
-    for size, stride in zip(t.shape, t.stride(), strict=True):
-        if stride >= 0:
-            hi += (size - 1) * stride
-        else:
-            lo += (size - 1) * stride
-    return base + lo * item, base + (hi + 1) * item
-
-
 def check_writable(name: str, target: torch.Tensor, others: dict[str, torch.Tensor | None]) -> None:
     """Raise ``ValueError`` unless ``target`` can be overwritten in place while ``others`` are
     read: it must be writable here (not an inference tensor outside ``torch.inference_mode``,
     which torch refuses to write), have no two elements at one address (an ``expand``ed,
     stride-0 view), and share no byte with any of ``others`` (a field that is a view of it, or
-    of the memory under it, would change during the pass: a silent wrong answer). Overlap is
-    judged on address ranges, so interleaved but disjoint views count as overlapping.
+    of the memory under it, would change during the pass: a silent wrong answer). Both are
+    decided exactly from sizes and strides (:func:`has_internal_overlap`,
+    :func:`shares_memory`): a window view writes in place, and interleaved but disjoint views
+    do not count as overlapping.
 
     Args:
         name: how the caller calls ``target`` (``"image"``, ``"gbuffer.diffuse"``).
@@ -206,18 +204,15 @@ def check_writable(name: str, target: torch.Tensor, others: dict[str, torch.Tens
             "written in place outside inference mode: call inside torch.inference_mode(), or "
             "with inplace=False"
         )
-    # 1: yes, 2: cannot tell (a contiguous tensor has none: not asked, a torch call less)
-    if not target.is_contiguous() and torch._debug_has_internal_overlap(target) != 0:
+    # a contiguous tensor has none: not asked, a call less
+    if not target.is_contiguous() and has_internal_overlap(target):
         raise ValueError(
             f"{name} has elements sharing memory (an expanded or stride-0 view, strides "
             f"{target.stride()}) and cannot be written in place: pass a tensor that owns its "
             "memory (e.g. .contiguous()), or inplace=False"
         )
-    span = _byte_range(target)
     for other_name, other in others.items():
-        if other is None or span is None or (rng := _byte_range(other)) is None:
-            continue
-        if rng[0] < span[1] and span[0] < rng[1]:
+        if other is not None and shares_memory(target, other):
             raise ValueError(
                 f"{name} shares memory with {other_name}: writing {name} in place would change "
                 f"{other_name} while the pass reads it; give them separate memory (e.g. "

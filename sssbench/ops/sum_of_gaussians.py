@@ -159,7 +159,7 @@ def jg10_stretch(
         (1.183, 800.0, 0.23)
     """
     height = check_int("height", height, 1, MAX_HEIGHT)
-    check_magnitude("ssslevel", ssslevel, "factor", zero=True)
+    check_magnitude("ssslevel", ssslevel, "factor")  # 0 would blur nothing: refused by Stretch
     check_magnitude("correction", correction, "factor", zero=True)
     check_magnitude("maxdd", maxdd, "factor")  # head units per pixel
     check_magnitude("head_mm", head_mm, "length")
@@ -307,6 +307,13 @@ class SumOfGaussiansSSS(SeparableMethod):
             surface_scale=surface_scale, rotation=rotation, seed=seed,
             extent_sigmas=extent_sigmas,
         )  # fmt: skip
+        if not isinstance(lod, bool):  # a flag: nan or "no" must not read as True
+            raise TypeError(f"lod must be True or False, got {type(lod).__name__} {lod!r}")
+        if unblurred_first is not None and not isinstance(unblurred_first, bool):
+            raise TypeError(
+                "unblurred_first must be True, False or None, got "
+                f"{type(unblurred_first).__name__} {unblurred_first!r}"
+            )
         if stretch is not None and not isinstance(stretch, Stretch):
             raise TypeError(f"stretch must be a Stretch or None, got {type(stretch).__name__}")
         self.lod_threshold = check_magnitude("lod_threshold", lod_threshold, "factor", zero=True)

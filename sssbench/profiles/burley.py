@@ -19,7 +19,13 @@ import scipy.optimize
 import scipy.special
 import torch
 
-from sssbench._checks import check_choice, check_magnitude, check_range, check_scalar
+from sssbench._checks import (
+    MAGNITUDES,
+    check_choice,
+    check_magnitude,
+    check_range,
+    check_scalar,
+)
 from sssbench.profiles.base import Profile, as_r
 from sssbench.profiles.dipole import _rgb
 
@@ -124,8 +130,18 @@ class BurleyNormalized(Profile):
         at = _rgb("albedo", albedo)
         lt = _rgb("mfp_mm", mfp_mm)
         check_range("albedo", at, 0.0, 1.0)
-        check_range("mfp_mm", lt, 0.0, None, low_inclusive=False)
-        return cls(lt / burley_scaling(at, kind), at)
+        check_magnitude("mfp_mm", lt, "length")
+        d = lt / burley_scaling(at, kind)
+        lo, hi, unit = MAGNITUDES["length"]
+        bad = (d < lo) | (d > hi)
+        if bool(bad.any()):  # name what the user gave, not the derived d (class 5)
+            i = int(bad.nonzero()[0, 0])
+            raise ValueError(
+                f"mfp_mm must give d = mfp_mm / s(albedo) in [{lo:g}, {hi:g}] {unit} (fit "
+                f"{kind!r}), got mfp_mm={float(lt[i]):g} with albedo={float(at[i]):g}: "
+                f"d={float(d[i]):g}"
+            )
+        return cls(d, at)
 
     def __repr__(self) -> str:
         return f"BurleyNormalized(d={self.d.tolist()}, albedo={self.albedo.tolist()})"
@@ -209,6 +225,7 @@ def burley_albedo_mfp(
     """The profile kind ``burley_albedo_mfp`` of the app (``conf/profile/*.yaml``: ``kind:
     burley_albedo_mfp``, ``params: {albedo, mfp_mm, fit}``, ``fit`` one of
     :data:`BURLEY_FITS`): :meth:`BurleyNormalized.from_albedo_mfp`, named ``name``."""
+    check_choice("fit", fit, BURLEY_FITS)  # the app's key, not the method's "kind"
     profile = BurleyNormalized.from_albedo_mfp(albedo, mfp_mm, fit)
     profile.name = name
     return profile

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from sssbench.report.files import print_report, write_report
+from sssbench.store.tracking import read_only_uri
 
 __all__ = ["ReportCallback", "main"]
 
@@ -54,7 +55,7 @@ def _check_store_file(path: Path) -> None:
     if header != _SQLITE_HEADER:
         raise ValueError(f"{path}: not an SQLite database; {_EXPECTED}")
     try:
-        conn = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True)
+        conn = sqlite3.connect(read_only_uri(path), uri=True)
         try:
             names = {r[0] for r in conn.execute("SELECT name FROM sqlite_master")}
         finally:

@@ -132,7 +132,7 @@ def load_runs(
         path = Path(store)
         if not path.is_file():
             raise FileNotFoundError(f"store must be an existing SQLite run store, got {path}")
-        store = RunStore(path)
+        store = RunStore(path, readonly=True)  # reading never writes (no migration)
     rows = store.runs(latest=True)
     if hashes is not None:
         keep = set(hashes)

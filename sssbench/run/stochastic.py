@@ -7,6 +7,7 @@ from typing import Any
 
 import torch
 
+from sssbench._checks import MAX_SEED
 from sssbench.run import registry
 from sssbench.run.spec import RunSpec
 from sssbench.score.bias_noise import bias_noise
@@ -32,8 +33,8 @@ def seed_split(
 ) -> dict[str, float]:
     """:func:`bias_noise` of a stochastic method over ``spec.seeds`` seeds: ``first`` (the
     timed result, the run's seed ``s``) and ``s + 1 … s + K − 1`` (``s`` = the method's own
-    ``seed`` option if given, else the run's seed; the scene keeps the run's seed). Empty for
-    deterministic methods and ``seeds == 1``."""
+    ``seed`` option if given, else the run's seed; the scene keeps the run's seed; modulo 2³²
+    for a seed in the generators' range). Empty for deterministic methods and ``seeds == 1``."""
     seeds = spec.seeds
     if isinstance(seeds, bool) or not isinstance(seeds, int) or seeds < 1:
         raise ValueError(f"seeds must be an integer >= 1, got {seeds!r}")
@@ -43,8 +44,11 @@ def seed_split(
     images = [first]
     for k in range(1, seeds):
         params = dict(spec.method_params)
+        # s + k wraps within the 32-bit seed range (docs/reliability.md, class 1): a run seed
+        # of 2³² − 1 stays valid for its K − 1 further seeds
+        s_k = (base + k) % (MAX_SEED + 1) if 0 <= base <= MAX_SEED else base + k
         if "seed" in params:
-            params["seed"] = base + k
-        other = registry.method_from_spec(spec, profile, seed=base + k, params=params)
+            params["seed"] = s_k
+        other = registry.method_from_spec(spec, profile, seed=s_k, params=params)
         images.append(registry.build_pipeline(other, profile, spec.stages).run(gbuffer).image)
     return bias_noise(images, reference, mask)

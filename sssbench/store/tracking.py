@@ -19,7 +19,15 @@ Safety with parallel writers (joblib workers, SLURM array tasks on one file syst
   transaction as its insert, so a forced re-run supersedes, and two sweeps that run the same
   point at once both finish: the later write is the point's result, nothing is half-written.
   ``failed`` / ``timeout`` rows are history and are all kept. A store written before the index
-  existed is migrated when opened: of duplicate ``ok`` rows the latest (largest id) is kept.
+  existed is migrated when opened **for writing** only: the file is first copied to
+  ``<name>.pre-migration-<UTC time>.bak`` (SQLite's backup API), a warning says so, and of
+  duplicate ``ok`` rows the latest (largest id) is kept;
+* **reading never writes**: ``RunStore(path, readonly=True)`` (what ``sssbench-report`` uses)
+  opens the file with SQLite's ``mode=ro`` (:func:`read_only_uri`: ``immutable`` for an idle
+  WAL store, whose ``-wal`` / ``-shm`` files a read would otherwise create): no schema, no
+  migration, no journal-mode switch — the file and its folder stay byte for byte what they
+  were; the readers select the latest row per point anyway, so an unmigrated store reads the
+  same.
 
 WAL needs all writers on one host (shared memory); on a network file system shared by several
 nodes use ``journal_mode="delete"`` (the app's ``store_journal=delete``), see ``docs/sweeps.md``.
@@ -37,6 +45,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import math
 import random
 import sqlite3
@@ -56,7 +65,10 @@ __all__ = [
     "utc_now",
     "STATUSES",
     "METRIC_COLUMNS",
+    "read_only_uri",
 ]
+
+log = logging.getLogger(__name__)
 
 STATUSES = ("ok", "failed", "timeout")
 #: metrics that get their own column (all metrics are also kept in ``metrics_json``)
@@ -110,6 +122,25 @@ DELETE FROM runs WHERE status = 'ok' AND id NOT IN (
     SELECT MAX(id) FROM runs WHERE status = 'ok' GROUP BY config_hash
 )
 """
+
+
+def read_only_uri(path: str | Path) -> str:
+    """The SQLite URI that reads ``path`` without writing anything: ``mode=ro``, plus
+    ``immutable=1`` for a WAL database no writer has open (no ``-wal`` file): a read-only
+    connection to a WAL database would otherwise create ``-wal`` and ``-shm`` files beside it
+    and leave them there. A store in rollback-journal mode, or with a writer at work (its
+    ``-wal`` exists), is read with ``mode=ro`` and SQLite's own locking."""
+    path = Path(path).expanduser().resolve()
+    uri = f"{path.as_uri()}?mode=ro"
+    try:
+        with open(path, "rb") as f:
+            header = f.read(20)
+    except OSError:
+        return uri
+    wal = len(header) == 20 and header[18] == 2  # file format read version 2: WAL
+    if wal and not path.with_name(path.name + "-wal").exists():
+        uri += "&immutable=1"
+    return uri
 
 
 def utc_now() -> str:
@@ -197,6 +228,8 @@ class RunStore:
         retries: further attempts, with jittered exponential back-off, when a write still finds
             the database locked.
         journal_mode: ``"wal"`` (default, one host) or ``"delete"`` (network file systems).
+        readonly: open an existing store for reading only (SQLite ``mode=ro``): nothing is
+            created, migrated or switched, and :meth:`record` is refused.
     """
 
     def __init__(
@@ -206,6 +239,7 @@ class RunStore:
         timeout_s: float = 30.0,
         retries: int = 8,
         journal_mode: str = "wal",
+        readonly: bool = False,
     ) -> None:
         if journal_mode.lower() not in ("wal", "delete", "truncate"):
             raise ValueError(
@@ -215,17 +249,27 @@ class RunStore:
         self.timeout_s = float(timeout_s)
         self.retries = int(retries)
         self.journal_mode = journal_mode.lower()
+        self.readonly = bool(readonly)
+        if self.readonly:
+            if not self.path.is_file():
+                raise FileNotFoundError(f"store {self.path}: no such file (opened read-only)")
+            return
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._retry(self._init_schema)
 
     # ------------------------------------------------------------------ connections
     @contextmanager
     def _connect(self) -> Iterator[sqlite3.Connection]:
-        conn = sqlite3.connect(self.path, timeout=self.timeout_s, isolation_level=None)
+        if self.readonly:
+            uri = read_only_uri(self.path)
+            conn = sqlite3.connect(uri, uri=True, timeout=self.timeout_s, isolation_level=None)
+        else:
+            conn = sqlite3.connect(self.path, timeout=self.timeout_s, isolation_level=None)
         try:
             conn.row_factory = sqlite3.Row
             conn.execute(f"PRAGMA busy_timeout = {int(self.timeout_s * 1000)}")
-            conn.execute("PRAGMA foreign_keys = ON")
+            if not self.readonly:
+                conn.execute("PRAGMA foreign_keys = ON")
             yield conn
         finally:
             conn.close()
@@ -243,7 +287,35 @@ class RunStore:
                 delay = min(delay * 2, 2.0)
         raise AssertionError("unreachable")
 
+    def _needs_migration(self) -> bool:
+        """An older store: a ``runs`` table without the ``runs_one_ok`` index."""
+        with self._connect() as conn:
+            names = {r[0] for r in conn.execute("SELECT name FROM sqlite_master")}
+        return "runs" in names and "runs_one_ok" not in names
+
+    def _backup(self) -> Path:
+        """Copy the store (consistently: SQLite's backup API) before migrating it."""
+        stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%S%fZ")
+        target = self.path.with_name(f"{self.path.name}.pre-migration-{stamp}.bak")
+        src = sqlite3.connect(read_only_uri(self.path), uri=True)
+        try:
+            dst = sqlite3.connect(target)
+            try:
+                src.backup(dst)
+            finally:
+                dst.close()
+        finally:
+            src.close()
+        return target
+
     def _init_schema(self) -> None:
+        if self._needs_migration():
+            backup = self._backup()
+            log.warning(
+                "migrating run store %s to the one-ok-row-per-point schema (duplicate ok rows: "
+                "the latest is kept); a copy of the store before migration is at %s",
+                self.path, backup,
+            )  # fmt: skip
         with self._connect() as conn:
             mode = conn.execute(f"PRAGMA journal_mode = {self.journal_mode}").fetchone()[0]
             if mode.lower() != self.journal_mode and self.journal_mode == "wal":
@@ -263,6 +335,8 @@ class RunStore:
 
     # ------------------------------------------------------------------ writes
     def record(self, run: RunRecord) -> int:
+        if self.readonly:
+            raise ValueError(f"store {self.path} is open read-only; open it with readonly=False")
         """Store one run and its passes in a single transaction; return the run id.
 
         An ``ok`` run replaces the point's previous ``ok`` row and its passes (one ``ok`` row

@@ -75,7 +75,7 @@ from typing import Any
 import torch
 from torch import nn
 
-from sssbench._checks import check_choice, check_int, check_scalar
+from sssbench._checks import check_choice, check_int, check_scalar, check_seed
 from sssbench.kernels.kernel1d import Kernel1D
 from sssbench.kernels.parametrise import (
     Fitted,
@@ -151,6 +151,9 @@ class TrainingScene:
     seed: int = 0
     params: tuple[tuple[str, Any], ...] = ()
 
+    def __post_init__(self) -> None:
+        check_seed("seed", self.seed)  # at construction, not when the fit builds the scene
+
     def build(self, pixel_mm: float) -> Any:
         """The G-buffer at ``pixel_mm`` (float32, every field the scene has)."""
         from data_synth import make_scene
@@ -186,7 +189,33 @@ def rel_rms_loss(
     ``√(Σ m (M − R)² / Σ m R²)`` with ``m = [mask > 0]`` (every pixel without a mask), B = 1."""
     ref = reference.to(result.dtype)
     m = torch.ones_like(result[:, :1]) if mask is None else (mask > 0).to(result.dtype)
-    return ((m * (result - ref) ** 2).sum() / (m * ref * ref).sum()).sqrt()
+    return _safe_sqrt((m * (result - ref) ** 2).sum() / (m * ref * ref).sum())
+
+
+def _safe_sqrt(x: torch.Tensor) -> torch.Tensor:
+    """``√x`` whose gradient at ``x = 0`` is 0 (a subgradient) instead of ``inf · 0 = NaN``: a
+    training term that reaches exactly 0 (a scene the kernel already matches, e.g. at a coarse
+    footprint) must not turn every parameter into NaN (docs/reliability.md, class 11)."""
+    pos = x > 0
+    return torch.where(pos, torch.where(pos, x, torch.ones_like(x)).sqrt(), torch.zeros_like(x))
+
+
+def _check_finite_step(step: int, value: float, params: Sequence[torch.Tensor]) -> None:
+    """Fail clearly when the loss, a gradient or a parameter of the fit is not finite (never
+    keep or cache a NaN kernel)."""
+    if not math.isfinite(value):
+        raise ValueError(
+            f"optimised-kernel fit: the training loss is {value} at step {step} (a reference "
+            "or a result with no energy on its mask?); nothing is cached"
+        )
+    for p in params:
+        if not bool(torch.isfinite(p).all()) or (
+            p.grad is not None and not bool(torch.isfinite(p.grad).all())
+        ):
+            raise ValueError(
+                f"optimised-kernel fit: a parameter or its gradient is not finite at step "
+                f"{step}; nothing is cached"
+            )
 
 
 def training_loss(
@@ -279,6 +308,7 @@ def fit_taps(
                     setattr(method, name, value)
                 loss = training_loss(method, problems, scales)
                 value = float(loss.detach())
+                _check_finite_step(step, value, params)
                 losses.append(value)
                 if value < best[0]:
                     state = {k: v.detach().clone() for k, v in param.state_dict().items()}
@@ -289,6 +319,7 @@ def fit_taps(
                     group["lr"] = lr * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * step / steps)))
                 opt.zero_grad()
                 loss.backward()
+                _check_finite_step(step, value, params)
                 opt.step()
     finally:
         for name, value in saved.items():
@@ -492,6 +523,8 @@ def _load(path: Path, key: Mapping[str, Any], pixel_mm: float) -> OptimisedKerne
         if entry["key"] != json.loads(json.dumps(dict(key))):
             return None  # a hash collision: never serve another key's kernel
         stored = {name: entry[name] for name in _STORED}
+        if not all(math.isfinite(v) for v in (entry["loss"], entry["init_loss"])):
+            raise ValueError(f"non-finite loss {entry['loss']}")  # written before the checks
         fitted = Fitted.from_dict(entry["fitted"])
         return OptimisedKernel(fitted, key["method"], pixel_mm, **stored, cached=True,
                                key=dict(key))  # fmt: skip
@@ -620,7 +653,12 @@ def optimise(
     pixel_mm = check_scalar("pixel_mm", pixel_mm, 0.0, low_inclusive=False)
     steps = check_int("steps", DEFAULT_STEPS if steps is None else steps, 0)
     lr = check_scalar("lr", DEFAULT_LR if lr is None else lr, 0.0, low_inclusive=False)
-    training = tuple(DEFAULT_TRAINING if training is None else training)
+    training = DEFAULT_TRAINING if training is None else training
+    if isinstance(training, (str, bytes)) or not isinstance(training, (list, tuple)):
+        raise TypeError(
+            f"training must be a non-empty sequence of TrainingScene, got {type(training).__name__}"
+        )
+    training = tuple(training)
     if not training or not all(isinstance(s, TrainingScene) for s in training):
         raise TypeError("training must be a non-empty sequence of TrainingScene")
     spec = METHOD_FITS[method]

@@ -54,3 +54,24 @@ def test_lab_guide_does_not_depend_on_memory_layout(source):
     g = GBuffer(a * 0.5, torch.full((2, 1, 13, 8), 300.0), 0.5, albedo=a)
     g_cl = GBuffer(cl(a * 0.5), cl(g.depth), 0.5, albedo=cl(a))
     assert torch.equal(lab_guide(g, source=source), lab_guide(g_cl, source=source))
+
+
+@pytest.mark.parametrize("name", ["thickness", "roulette_radius", "kill_radius"])
+@pytest.mark.parametrize("value", [1e300, 1e20])
+def test_walk_names_a_distance_beyond_float32(name, value):
+    """Issue 29's ``long`` run: ``walk(thickness=1e300)`` passed the check (> 0) and died
+    inside the float32 walk with torch's "cannot be converted to type float without
+    overflow", naming nothing (a roulette radius of 1e300 overflowed when squared)."""
+    from sssbench.mc.walk import walk
+
+    with pytest.raises(ValueError, match=f"^{name} must be > 0 and at most"):
+        walk(0.5, photons=4, progress=False, **{name: value})
+
+
+@pytest.mark.parametrize("training", [float("nan"), 3, "face"])
+def test_optimise_names_a_training_set_that_is_not_a_sequence(training):
+    """Issue 29's fuzzer: ``optimise(training=nan)`` raised "'float' object is not iterable"."""
+    from sssbench.tune.optimise import optimise
+
+    with pytest.raises(TypeError, match="^training must be"):
+        optimise(SumOfGaussians.from_table("skin_jg10"), training=training, cache=False)
