@@ -92,6 +92,8 @@ def run(ctx: Context) -> Section:
     visible = screen[screen["visible"].map(lambda v: v is not False)]
     hidden_groups = recs[recs["best"] == report.MISSING] if len(recs) else recs
     worse = visible[visible["worse_than_nothing"]]
+    wrong = screen[screen["visibly_wrong"].astype(bool)]
+    wrong_hidden = wrong[wrong["visible"].map(lambda v: v is False)]
     n_groups = len(recs)
     wins = (
         recs[recs["recommended"] != report.MISSING]["recommended"].str.split(" ").str[0]
@@ -112,7 +114,11 @@ def run(ctx: Context) -> Section:
         f"{len(hidden_groups)} of {n_groups} scene/scale "
         "groups show no visible SSS and are not ranked. Of the "
         f"{len(visible)} ranked screen-space configurations, {len(worse)} are worse than "
-        f"doing nothing. Recommended (cheapest within 10 % of the best skill) per group: "
+        f"doing nothing. {len(wrong)} of {len(screen)} screen-space configurations are visibly "
+        f"wrong (their own error passes the visibility bar: FLIP against the reference), "
+        f"{len(wrong_hidden)} of them in groups where SSS is not visible"
+        + (f" ({', '.join(sorted(set(wrong_hidden['method'])))})" if len(wrong_hidden) else "")
+        + ". Recommended (cheapest within 10 % of the best skill) per group: "
         + (", ".join(f"{m} ×{n}" for m, n in sorted(counts.items())) or "none")
         + "."
     )

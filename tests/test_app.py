@@ -342,7 +342,7 @@ def test_users_gbuffer_file_runs_and_writes_exr(tmp_path):
     import data_synth
     from sssbench.io import read_image_exr, write_gbuffer
 
-    g = data_synth.make_scene("head_close", (20, 24))
+    g = data_synth.make_scene("head_cheek", (20, 24))
     write_gbuffer(tmp_path / "frame.exr", g)
     proc = _sssbench(tmp_path, "scene=file", f"scene.path={tmp_path / 'frame.exr'}", "repeats=1")
     assert proc.returncode == 0, proc.stderr
