@@ -93,3 +93,11 @@ def test_a_retired_name_is_refused_with_its_successors():
     assert data_synth.SCENES["head_closeup"].defaults["pixel_mm"] == 0.6
     assert data_synth.SCENES["head_cheek"].defaults["pixel_mm"] == 0.3
     assert re.search(r"0d65624", data_synth.RETIRED_SCENES["head_close"])
+
+
+def test_the_app_refuses_a_retired_scene_before_any_run(tmp_path):
+    from sssbench.app import compose_spec
+
+    with pytest.raises(ValueError, match=r"retired.*head_closeup.*head_cheek"):
+        compose_spec("scene=head_close", store=tmp_path / "s.sqlite")
+    assert compose_spec("scene=head_closeup", store=tmp_path / "s.sqlite").scene == "head_closeup"
