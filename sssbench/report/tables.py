@@ -1,6 +1,11 @@
 """The report's tables: the run store's points as one table, flags per ranking group
 (best, Pareto front, worse than doing nothing, visibly wrong, SSS not visible), the computed
 recommendation per group, and their text forms (Markdown, console). Tables use pandas.
+
+One module because the flags, the verdict sentences and the three text forms read the same
+columns under the same group rule: a sentence printed above a table must be computed from that
+table's rows (tests/test_visibly_wrong.py checks every sentence against them), which is easiest
+to keep true where both are written.
 """
 
 from __future__ import annotations
