@@ -68,26 +68,11 @@ WARM_WORKERS = 2
 OVERRIDES_ENV = "SSSBENCH_BENCHMARK"
 
 
-def run(ctx: Context) -> Section:
-    import os
-
-    preset = "paper_benchmark_quick" if ctx.quick else "paper_benchmark"
-    extra = tuple(o for o in os.environ.get(OVERRIDES_ENV, "").split() if o)
-    with tempfile.TemporaryDirectory(prefix="sssbench-benchmark-") as tmp:
-        table = run_preset(preset, Path(tmp) / "runs.sqlite", Path(tmp), *extra)
+def measured_text(table: pd.DataFrame, recs: pd.DataFrame) -> str:
+    """The section's **Measured** paragraph, every count computed from ``table`` (the report's
+    summary table, flags included) and ``recs`` (its recommendations); the run's timings come
+    from ``table.attrs`` (NaN when absent)."""
     ok = table[table["status"] == "ok"]
-    recs = report.recommendations(table)
-    fig_path = ctx.figures / "benchmark.png"
-    ctx.figures.mkdir(parents=True, exist_ok=True)
-    figures = []
-    if plots.plot_error_vs_time(table, fig_path) is not None:
-        shrink_png(fig_path)
-        figures.append(f"figures/{fig_path.name}")
-    budget_path = ctx.figures / "benchmark_budget.png"
-    if plots.plot_budget(table, budget_path) is not None:
-        shrink_png(budget_path)
-        figures.append(f"figures/{budget_path.name}")
-
     screen = ok[~ok["method"].isin((report.BASELINE, report.REFERENCE))]
     visible = screen[screen["visible"].map(lambda v: v is not False)]
     hidden_groups = recs[recs["best"] == report.MISSING] if len(recs) else recs
@@ -142,6 +127,32 @@ def run(ctx: Context) -> Section:
             )
     if why:
         measured += " Below the skill bar of 0.3: " + "; ".join(why) + "."
+    return measured
+
+
+def run(ctx: Context) -> Section:
+    import os
+
+    preset = "paper_benchmark_quick" if ctx.quick else "paper_benchmark"
+    extra = tuple(o for o in os.environ.get(OVERRIDES_ENV, "").split() if o)
+    with tempfile.TemporaryDirectory(prefix="sssbench-benchmark-") as tmp:
+        table = run_preset(preset, Path(tmp) / "runs.sqlite", Path(tmp), *extra)
+    ok = table[table["status"] == "ok"]
+    recs = report.recommendations(table)
+    fig_path = ctx.figures / "benchmark.png"
+    ctx.figures.mkdir(parents=True, exist_ok=True)
+    figures = []
+    if plots.plot_error_vs_time(table, fig_path) is not None:
+        shrink_png(fig_path)
+        figures.append(f"figures/{fig_path.name}")
+    budget_path = ctx.figures / "benchmark_budget.png"
+    if plots.plot_budget(table, budget_path) is not None:
+        shrink_png(budget_path)
+        figures.append(f"figures/{budget_path.name}")
+
+    measured = measured_text(table, recs)
+    screen = ok[~ok["method"].isin((report.BASELINE, report.REFERENCE))]
+    visible = screen[screen["visible"].map(lambda v: v is not False)]
     rec_rows = [
         [r["scene"], r["scale"], r["resolution"], r["recommended"], r["best"], r["verdict"]]
         for _, r in recs.iterrows()

@@ -204,3 +204,28 @@ def test_no_verdict_contradicts_its_rows(seed):
         # the baseline too: where SSS is visible, doing nothing is visibly wrong
         assert ("visibly wrong" in flags) == bool(r["status"] == "ok" and r["error_visible"])
         assert ("SSS not visible" in flags) == (r["visible"] is False)
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_the_benchmark_sections_counts_equal_its_rows(seed):
+    """experiments/benchmark.py's **Measured** paragraph (REPORT.md §9): every count it
+    states is the count of the rows it describes."""
+    from experiments.benchmark import measured_text
+
+    table = _table(seed)
+    recs = report.recommendations(table)
+    text = measured_text(table, recs)
+    ok = table[table["status"] == "ok"]
+    screen = ok[ok["method"] != "identity"]
+    hidden = table.groupby("scene")["visible"].apply(lambda v: bool((v == False).all()))  # noqa: E712
+    m = re.search(r"(\d+) of (\d+) scene/scale groups show no visible SSS", text)
+    assert m and int(m.group(1)) == int(hidden.sum()) and int(m.group(2)) == len(recs)
+    ranked = screen[screen["visible"] != False]  # noqa: E712
+    m = re.search(r"Of the (\d+) ranked screen-space configurations, (\d+) are worse", text)
+    assert m and int(m.group(1)) == len(ranked)
+    assert int(m.group(2)) == int(ranked["worse_than_nothing"].sum())
+    wrong = screen[screen["error_visible"].astype(bool)]
+    m = re.search(r"(\d+) of (\d+) screen-space configurations are visibly wrong", text)
+    assert m and int(m.group(1)) == len(wrong) and int(m.group(2)) == len(screen)
+    m = re.search(r"(\d+) of them in groups where SSS is not visible", text)
+    assert m and int(m.group(1)) == int((wrong["visible"] == False).sum())  # noqa: E712
