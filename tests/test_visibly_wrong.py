@@ -65,7 +65,7 @@ def test_a_visibly_wrong_method_is_flagged_where_sss_is_not_visible(tmp_path, bl
     assert base["visible"] is False and bad["visible"] is False  # SSS invisible here
     assert base["error_visible"] is False and good["error_visible"] is False
     assert bad["error_visible"] is True  # the blotch is plainly visible
-    assert bad["flip"] >= VISIBLE_FLIP or bad["error_flip_local"] >= VISIBLE_LOCAL_FLIP
+    assert bad["flip"] >= VISIBLE_FLIP or bad["error_flip_window"] >= VISIBLE_LOCAL_FLIP
     assert bad["skill"] < 0
     runs, _ = report.load_runs(tmp_path / "s.sqlite")
     table = report.summary_table(runs)
@@ -118,13 +118,13 @@ def _random_group(rng: np.random.Generator, scene: str) -> list[dict]:
                 "passes": 1,
                 "rel_rms": err,
                 "flip": flip,
-                "error_flip_local": local,
+                "error_flip_window": local,
                 "error_visible": bool(flip >= VISIBLE_FLIP or local >= VISIBLE_LOCAL_FLIP),
                 "skill": 1 - err / err_id,
                 "rel_rms_identity": err_id,
                 "visible": visible,
                 "visibility": vis_mean,
-                "visibility_local": vis_local,
+                "visibility_window": vis_local,
                 "run_dir": None,
             }
         )
@@ -164,7 +164,7 @@ def _check_sentence(sentence: str, group: pd.DataFrame) -> None:
     if "no configuration's error is visible" in sentence:
         assert wrong.empty
     if hidden:
-        mean, local = group["visibility"].iloc[0], group["visibility_local"].iloc[0]
+        mean, local = group["visibility"].iloc[0], group["visibility_window"].iloc[0]
         assert mean < VISIBLE_FLIP and local < VISIBLE_LOCAL_FLIP
         assert f"mean FLIP {mean:.3g}" in sentence and f"local FLIP {local:.3g}" in sentence
         m = re.search(r"skill from ([+\-]\d\.\d\d) to ([+\-]\d\.\d\d)", sentence)

@@ -42,8 +42,8 @@ DECISION_COLUMNS = [
     "skill_flip",
     "visible",
     "visibility",
-    "visibility_local",
-    "error_flip_local",
+    "visibility_window",
+    "error_flip_window",
     "error_visible",
     "err_model",
     "err_taps",
@@ -279,7 +279,7 @@ def _wrong_list(rows: pd.DataFrame) -> str:
     """``label (FLIP mean m, local l, skill s)`` of visibly wrong rows, the four worst first."""
     rows = rows.sort_values("flip", ascending=False)
     text = ", ".join(
-        f"{label(r)} (FLIP {_num(r['flip'])}, local {_num(r.get('error_flip_local'))}, "
+        f"{label(r)} (FLIP {_num(r['flip'])}, local {_num(r.get('error_flip_window'))}, "
         f"skill {_num(r['skill'], '+.2f')})"
         for _, r in rows.head(4).iterrows()
     )
@@ -296,7 +296,7 @@ def _hidden_verdict(group: pd.DataFrame) -> str:
     screen = ok[ok["method"] != BASELINE]
     mean = group["visibility"].dropna() if "visibility" in group.columns else pd.Series()
     local = (
-        group["visibility_local"].dropna() if "visibility_local" in group.columns else pd.Series()
+        group["visibility_window"].dropna() if "visibility_window" in group.columns else pd.Series()
     )
     sentence = "SSS not visible at this scale"
     if len(mean) and len(local):
@@ -532,7 +532,7 @@ def _flags(row: Any, markdown: bool = True) -> str:
         out.append("**worse than doing nothing**" if markdown else "worse than doing nothing")
     if row.get("visibly_wrong"):
         text = (
-            f"visibly wrong (FLIP {_num(row['flip'])}, local {_num(row.get('error_flip_local'))},"
+            f"visibly wrong (FLIP {_num(row['flip'])}, local {_num(row.get('error_flip_window'))},"
             f" skill {_num(row['skill'], '+.2f')})"
         )
         out.append(f"**{text}**" if markdown else text)
