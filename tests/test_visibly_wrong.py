@@ -7,6 +7,7 @@ item 8)."""
 from __future__ import annotations
 
 import json
+import logging
 import re
 
 import numpy as np
@@ -58,9 +59,13 @@ def _run(tmp_path, method, **kw):
     return json.loads((tmp_path / method / "metrics.json").read_text())
 
 
-def test_a_visibly_wrong_method_is_flagged_where_sss_is_not_visible(tmp_path, blotch, capsys):
+def test_a_visibly_wrong_method_is_flagged_where_sss_is_not_visible(tmp_path, blotch, caplog):
     base = _run(tmp_path, "identity")
-    bad = _run(tmp_path, blotch)
+    with caplog.at_level(logging.INFO, logger="sssbench"):
+        bad = _run(tmp_path, blotch)
+    # the run's own log line says both, from its numbers
+    (line,) = [r.getMessage() for r in caplog.records if r.getMessage().startswith("ok ")]
+    assert line.endswith("[SSS not visible at this scale] [visibly wrong]"), line
     good = _run(tmp_path, "sum_of_gaussians", sampling="importance", samples=13)
     assert base["visible"] is False and bad["visible"] is False  # SSS invisible here
     assert base["error_visible"] is False and good["error_visible"] is False
