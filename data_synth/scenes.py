@@ -14,7 +14,8 @@ conventions:
   shows more, at the same mm per pixel). A name of :data:`~data_synth.scale.SCALES` is accepted
   too. Scale of each scene (default ``pixel_mm``): ``step_edge`` 0.2, ``light_dot`` 0.1,
   ``pores`` 0.05, ``face`` 0.3 (portrait), ``head`` / ``head_mid`` 1.0 (medium),
-  ``head_close`` 0.3 (portrait), ``head_far`` 6.0, ``crowd`` 3.0 (far). The analytic oracles
+  ``head_closeup`` 0.6 (the head close-up: cheek, nose and eye), ``head_cheek`` 0.3 (a smooth
+  cheek at small resolutions), ``head_far`` 6.0, ``crowd`` 3.0 (far). The analytic oracles
   ``sphere``, ``halo`` and ``backlit_ear`` keep a fixed object at a fixed ``distance`` by default
   (the whole object in view at any resolution, which their tests need; scale follows the
   resolution) and take ``pixel_mm`` to be built at a physical scale instead.
@@ -73,6 +74,7 @@ __all__ = [
     "DEFAULT_RESOLUTION",
     "FaceBuild",
     "HEAD_PIXEL_MM",
+    "RETIRED_SCENES",
     "SCENES",
     "SceneSpec",
     "face_parts",
@@ -86,6 +88,31 @@ DEFAULT_FOV_Y = math.radians(25.0)
 #: every skin Gaussian (σ ≤ 2.7 mm) is below half a pixel. At H = 256 these are the framings the
 #: presets had when they were fractions of the screen (head 3×, 0.8×, 0.15× the screen height).
 HEAD_PIXEL_MM = {"close": 0.3, "mid": 1.0, "far": 6.0}
+#: the head scenes at a fixed scale, ``name: (pixel_mm, aim)``. ``head_closeup`` is the head
+#: close-up the name ``head_close`` meant until 0d65624 (a head framed 268 mm from the camera,
+#: about 0.6 mm/px at 128², the cheek on the axis with nose and eye in frame: SSS plainly
+#: visible at 128² and 256²; at 64² the frame holds only the cheek); ``head_cheek`` is what
+#: ``head_close`` meant after it (0.3 mm/px on the cheek: a smooth cheek where SSS is not
+#: visible at 64² and 128², visible from 256²). Measured in docs/error_budget.md, tested.
+HEAD_SCENES = {
+    "head_closeup": (0.6, "cheek"),
+    "head_cheek": (HEAD_PIXEL_MM["close"], "cheek"),
+    "head_mid": (HEAD_PIXEL_MM["mid"], None),
+    "head_far": (HEAD_PIXEL_MM["far"], None),
+}
+#: scene names whose content changed, refused (by :func:`make_scene` and the app) with the
+#: names that now hold each of their meanings: a name never silently means something else
+RETIRED_SCENES = MappingProxyType(
+    {
+        "head_close": (
+            "scene 'head_close' is retired because its content changed: until 0d65624 "
+            "(2026-11-30) it was a head close-up framed 268 mm from the camera (about 0.6 mm/px "
+            "at 128², SSS plainly visible), then a smooth cheek at 0.3 mm/px (SSS not visible at "
+            "128²). Use 'head_closeup' for the close-up (0.6 mm/px) or 'head_cheek' for the "
+            "smooth cheek (0.3 mm/px)"
+        ),
+    }
+)
 _MAX_SIDE = 8192
 
 
@@ -166,6 +193,8 @@ def make_scene(
 
 def _context(name, resolution, seed, fields, dtype, params) -> tuple[SceneSpec, Ctx]:
     """Check :func:`make_scene`'s arguments; the scene's spec and the builder context."""
+    if isinstance(name, str) and name in RETIRED_SCENES:
+        raise ValueError(RETIRED_SCENES[name])
     if not isinstance(name, str) or name not in SCENES:
         raise ValueError(f"name must be one of {sorted(SCENES)}, got {name!r}")
     spec = SCENES[name]
@@ -440,8 +469,8 @@ def head(ctx: Ctx, *, fov_y, pixel_mm, distance, aim, yaw, light_dir, intensity,
 
     Scale: ``pixel_mm`` mm per pixel at the focus (the head surface on the view axis); default
     (``None``) 1.0 (a medium shot: the 230 mm head spans ~200 px at any resolution).
-    ``head_close``, ``head_mid``, ``head_far`` preset 0.3, 1.0 and 6.0 mm per pixel
-    (:data:`HEAD_PIXEL_MM`).
+    ``head_closeup``, ``head_cheek``, ``head_mid``, ``head_far`` preset 0.6, 0.3, 1.0 and 6.0
+    mm per pixel (:data:`HEAD_SCENES`; ``head_close`` is retired, :data:`RETIRED_SCENES`).
     ``distance`` replaces ``pixel_mm``: a preset name (``"close"``, ``"mid"``, ``"far"``, the
     same scales) or a number, the camera-to-head-centre distance in mm (> 150; then the scale
     follows the resolution: ``distance=268`` with ``aim="cheek"``, 743 and 3553 are the
@@ -480,14 +509,12 @@ def head(ctx: Ctx, *, fov_y, pixel_mm, distance, aim, yaw, light_dir, intensity,
 
 
 _register("head", OPTIONAL_FIELDS, HEAD_PIXEL_MM["mid"], **_HEAD_DEFAULTS)(head)
-for _preset, _px in HEAD_PIXEL_MM.items():
-    SCENES[f"head_{_preset}"] = SceneSpec(
-        f"head_{_preset}",
+for _name, (_px, _aim) in HEAD_SCENES.items():
+    SCENES[_name] = SceneSpec(
+        _name,
         head,
         frozenset(OPTIONAL_FIELDS),
-        MappingProxyType(
-            {**_HEAD_DEFAULTS, "pixel_mm": _px, "aim": "cheek" if _preset == "close" else None}
-        ),
+        MappingProxyType({**_HEAD_DEFAULTS, "pixel_mm": _px, "aim": _aim}),
         _px,
     )
 

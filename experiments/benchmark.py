@@ -68,30 +68,17 @@ WARM_WORKERS = 2
 OVERRIDES_ENV = "SSSBENCH_BENCHMARK"
 
 
-def run(ctx: Context) -> Section:
-    import os
-
-    preset = "paper_benchmark_quick" if ctx.quick else "paper_benchmark"
-    extra = tuple(o for o in os.environ.get(OVERRIDES_ENV, "").split() if o)
-    with tempfile.TemporaryDirectory(prefix="sssbench-benchmark-") as tmp:
-        table = run_preset(preset, Path(tmp) / "runs.sqlite", Path(tmp), *extra)
+def measured_text(table: pd.DataFrame, recs: pd.DataFrame) -> str:
+    """The section's **Measured** paragraph, every count computed from ``table`` (the report's
+    summary table, flags included) and ``recs`` (its recommendations); the run's timings come
+    from ``table.attrs`` (NaN when absent)."""
     ok = table[table["status"] == "ok"]
-    recs = report.recommendations(table)
-    fig_path = ctx.figures / "benchmark.png"
-    ctx.figures.mkdir(parents=True, exist_ok=True)
-    figures = []
-    if plots.plot_error_vs_time(table, fig_path) is not None:
-        shrink_png(fig_path)
-        figures.append(f"figures/{fig_path.name}")
-    budget_path = ctx.figures / "benchmark_budget.png"
-    if plots.plot_budget(table, budget_path) is not None:
-        shrink_png(budget_path)
-        figures.append(f"figures/{budget_path.name}")
-
     screen = ok[~ok["method"].isin((report.BASELINE, report.REFERENCE))]
     visible = screen[screen["visible"].map(lambda v: v is not False)]
     hidden_groups = recs[recs["best"] == report.MISSING] if len(recs) else recs
     worse = visible[visible["worse_than_nothing"]]
+    wrong = screen[screen["visibly_wrong"].astype(bool)]
+    wrong_hidden = wrong[wrong["visible"].map(lambda v: v is False)]
     n_groups = len(recs)
     wins = (
         recs[recs["recommended"] != report.MISSING]["recommended"].str.split(" ").str[0]
@@ -112,7 +99,11 @@ def run(ctx: Context) -> Section:
         f"{len(hidden_groups)} of {n_groups} scene/scale "
         "groups show no visible SSS and are not ranked. Of the "
         f"{len(visible)} ranked screen-space configurations, {len(worse)} are worse than "
-        f"doing nothing. Recommended (cheapest within 10 % of the best skill) per group: "
+        f"doing nothing. {len(wrong)} of {len(screen)} screen-space configurations are visibly "
+        f"wrong (their own error passes the visibility bar: FLIP against the reference), "
+        f"{len(wrong_hidden)} of them in groups where SSS is not visible"
+        + (f" ({', '.join(sorted(set(wrong_hidden['method'])))})" if len(wrong_hidden) else "")
+        + ". Recommended (cheapest within 10 % of the best skill) per group: "
         + (", ".join(f"{m} ×{n}" for m, n in sorted(counts.items())) or "none")
         + "."
     )
@@ -136,6 +127,32 @@ def run(ctx: Context) -> Section:
             )
     if why:
         measured += " Below the skill bar of 0.3: " + "; ".join(why) + "."
+    return measured
+
+
+def run(ctx: Context) -> Section:
+    import os
+
+    preset = "paper_benchmark_quick" if ctx.quick else "paper_benchmark"
+    extra = tuple(o for o in os.environ.get(OVERRIDES_ENV, "").split() if o)
+    with tempfile.TemporaryDirectory(prefix="sssbench-benchmark-") as tmp:
+        table = run_preset(preset, Path(tmp) / "runs.sqlite", Path(tmp), *extra)
+    ok = table[table["status"] == "ok"]
+    recs = report.recommendations(table)
+    fig_path = ctx.figures / "benchmark.png"
+    ctx.figures.mkdir(parents=True, exist_ok=True)
+    figures = []
+    if plots.plot_error_vs_time(table, fig_path) is not None:
+        shrink_png(fig_path)
+        figures.append(f"figures/{fig_path.name}")
+    budget_path = ctx.figures / "benchmark_budget.png"
+    if plots.plot_budget(table, budget_path) is not None:
+        shrink_png(budget_path)
+        figures.append(f"figures/{budget_path.name}")
+
+    measured = measured_text(table, recs)
+    screen = ok[~ok["method"].isin((report.BASELINE, report.REFERENCE))]
+    visible = screen[screen["visible"].map(lambda v: v is not False)]
     rec_rows = [
         [r["scene"], r["scale"], r["resolution"], r["recommended"], r["best"], r["verdict"]]
         for _, r in recs.iterrows()

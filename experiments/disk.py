@@ -7,7 +7,7 @@ This experiment runs the disk at 8, 16, 32 and 64 samples per pixel, one frame a
 accumulated (an ideal temporal resolve, no motion), and every separable method
 (:func:`experiments.methods.build`) with the largest taps per pass whose fetches per pixel
 (Σ over passes of taps × pixels covered / pixels in the stencil; 2 passes of k taps fetch 2k)
-do not exceed the disk's, on ``step_edge``, ``light_dot`` and ``head_close`` (skin_deon6).
+do not exceed the disk's, on ``step_edge``, ``light_dot`` and ``head_cheek`` (skin_deon6).
 Errors are relative RMS against the exact reference over the stencil, with the do-nothing
 baseline's error and skill = 1 − err / err_baseline; for the disk (stochastic) the error is
 split into bias (error of the mean over seeds, its remaining noise² / seeds removed) and
@@ -41,7 +41,7 @@ from sssbench.run.runner import bias_noise
 from sssbench.score import budget as error_budget
 
 TITLE = "Engines' disk (HDRP / UE5 / EEVEE) vs separable kernels at equal fetches"
-SCENES = ("step_edge", "light_dot", "head_close")
+SCENES = ("step_edge", "light_dot", "head_cheek")
 BUDGETS = (8, 16, 32, 64)
 FRAMES = 16
 
@@ -196,9 +196,9 @@ def run(ctx: Context) -> Section:
         )
     k_lo = data[SCENES[0]]
     one = k_lo["disk1"][budgets[0]]
-    curved, top = data["head_close"], budgets[-1]
+    curved, top = data["head_cheek"], budgets[-1]
     area_note = (
-        f" On the curved head_close the accumulated disk at {top} samples keeps a bias of "
+        f" On the curved head_cheek the accumulated disk at {top} samples keeps a bias of "
         f"{curved['diskK'][top]['bias']:.3g} (baseline error {curved['identity']:.3g}); "
         f"weighting each sample by its pixel's surface area, as the reference weighs its "
         f"cells, leaves {curved['diskA'][top]['bias']:.3g}: the engines' disk integrates over "

@@ -10,8 +10,8 @@ run uses):
   irradiance before the blur; the reference gets the same light added to the irradiance it
   integrates, so the error is comparable;
 * halo reduction, cross bilateral on normals (004 §3.3.1) on ``halo``;
-* skin / non-skin Lab bilateral (004 §3.3.2) on ``head_close`` (skin next to hair/eyes);
-* curvature modulation, the three strategies of 004 §3.3.3, on ``head_close``.
+* skin / non-skin Lab bilateral (004 §3.3.2) on ``head_cheek`` (skin next to hair/eyes);
+* curvature modulation, the three strategies of 004 §3.3.3, on ``head_cheek``.
 
     python -m experiments.run extensions [--quick]
 """
@@ -45,7 +45,7 @@ def run(ctx: Context) -> Section:
     cases = {
         "backlit_ear": {"translucency": {"translucency": TRANSLUCENCY}},
         "halo": {"halo: normal bilateral": {"halo": {"kind": "bilateral"}}},
-        "head_close": {
+        "head_cheek": {
             "Lab bilateral (skin / non-skin)": {"halo": {"kind": "lab"}},
             **{f"curvature: {s}": {"curvature": {"strategy": s}} for s in CURVATURE_STRATEGIES},
         },

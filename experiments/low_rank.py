@@ -2,7 +2,7 @@
 
 Singular-value energy of the discretised skin kernel per channel (:func:`~sssbench.kernels.
 low_rank`), and the error of the rank-1/3/6 SVD methods (:class:`~sssbench.ops.LowRankSSS`)
-against the exact reference on ``step_edge`` and the close-up head (``head_close``: the
+against the exact reference on ``step_edge`` and the close-up head (``head_cheek``: the
 ``head`` scene at the distance where the kernel spans several pixels).
 
     python -m experiments.run low_rank [--quick]
@@ -57,9 +57,9 @@ def energy_part(ctx: Context) -> tuple[dict, plt.Figure]:
 def error_part(ctx: Context) -> tuple[list, dict]:
     prof = SumOfGaussians.from_table("skin_deon6")
     cases = (
-        [("step_edge", (4, 48)), ("head_close", (16, 16))]
+        [("step_edge", (4, 48)), ("head_cheek", (16, 16))]
         if ctx.quick
-        else [("step_edge", (32, 256)), ("head_close", (96, 96))]
+        else [("step_edge", (32, 256)), ("head_cheek", (96, 96))]
     )
     rows, data = [], {}
     for name, res in cases:

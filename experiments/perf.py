@@ -30,11 +30,11 @@ RESOLUTIONS = {"512²": (512, 512), "1080p": (1080, 1920)}
 #: the scenes the targets mean, at a physical scale (``pixel_mm``: mm of skin per pixel at the
 #: focus, from ``data_synth.scale.SCALES``; a fixed scale shows more of the scene at a larger
 #: resolution): a close-up that covers most of the frame (the cheek close-up, 0.07 mm/px: 62%
-#: of a 1080p frame; ``head_close``'s default portrait scale, 0.3 mm/px, covers only 10% of
+#: of a 1080p frame; ``head_cheek``'s default portrait scale, 0.3 mm/px, covers only 10% of
 #: it) and a far shot covering about 1% of a 1080p frame (the ``head_far`` framing at
 #: 1.0 mm/px; its default 6 mm/px covers 0.03%, where the fixed cost of a call, not its
 #: pixels, would be timed)
-CLOSE = ("head_close", "close")
+CLOSE = ("head_cheek", "close")
 FAR = ("head_far", "medium")
 
 

@@ -1,7 +1,7 @@
 """Claim 5 — importance sampling and stochastic rotation (000 §6–7, Fig. 12–13).
 
 (a) The pre-integrated kernel with 7 importance-sampled taps against 513 uniform taps (000's
-"ground truth") and against 7 uniform taps, on the close-up head (``head_close``), both
+"ground truth") and against 7 uniform taps, on the close-up head (``head_cheek``), both
 compared with the 513-tap image and with the exact reference.
 (b) Error (banding) against taps per pass (9 … 65), with and without per-pixel stochastic
 rotation (000 §6, radius 10 %), on ``light_dot`` and ``pores``.
@@ -29,8 +29,8 @@ COUNTS = (9, 13, 17, 33, 65)
 def run(ctx: Context) -> Section:
     prof = SumOfGaussians.from_table("skin_deon6")
     head_res = (24, 24) if ctx.quick else (96, 96)
-    g = make("head_close", head_res, fields=["mask"])
-    ref = reference("head_close", head_res, prof)
+    g = make("head_cheek", head_res, fields=["mask"])
+    ref = reference("head_cheek", head_res, prof)
     mask = (g.mask > 0).float()
     with torch.inference_mode():
         gt = PreintegratedSSS(prof, 513, "uniform")(g)
@@ -80,7 +80,7 @@ def run(ctx: Context) -> Section:
     ax.set_xticks(range(3), names)
     ax.set_yscale("log")
     ax.set_ylabel("rel. RMS error")
-    ax.set_title("head_close: 000 Fig. 12")
+    ax.set_title("head_cheek: 000 Fig. 12")
     ax.legend(fontsize=7)
     ax = axes[1]
     for key, ys in curves.items():
@@ -104,7 +104,7 @@ def run(ctx: Context) -> Section:
         for n in ("light_dot", "pores")
     }
     measured = (
-        f"On head_close, 7 importance taps are {imp['vs513']:.3g} (rel. RMS) from the 513-tap "
+        f"On head_cheek, 7 importance taps are {imp['vs513']:.3g} (rel. RMS) from the 513-tap "
         f"image against {uni['vs513']:.3g} for 7 uniform taps ({uni['vs513'] / imp['vs513']:.3g}× "
         f"lower); against the exact reference {imp['vs_ref']:.3g} vs {uni['vs_ref']:.3g} "
         f"(513 uniform: {data_a['513 uniform']['vs_ref']:.3g}). Banding: the error falls with "
@@ -141,7 +141,7 @@ def run(ctx: Context) -> Section:
             "curved head: the pre-integrated kernel's own approximation error dominates, and "
             "7 uniform taps happen to be closer to the reference than 513."
         ),
-        body="(a) head_close, skin_deon6:\n\n"
+        body="(a) head_cheek, skin_deon6:\n\n"
         + md_table(
             rows_a, ["taps", "rel_rms vs 513", "PSNR vs 513", "rel_rms vs ref", "PSNR vs ref"]
         )

@@ -167,6 +167,10 @@ def spec_from_cfg(cfg: Any, overridden: tuple[str, ...] = ()) -> RunSpec:
         if c[key] < (1 if key == "repeats" else 0):
             raise ValueError(f"{key} must be an integer >= {int(key == 'repeats')}, got {c[key]!r}")
     scene_params = dict(c["scene"].get("params") or {})
+    import data_synth
+
+    if c["scene"]["name"] in data_synth.RETIRED_SCENES:
+        raise ValueError(data_synth.RETIRED_SCENES[c["scene"]["name"]])
     if c["scene"]["name"] == registry.FILE_SCENE:
         from sssbench.io import read_gbuffer, scene_file_digest
 

@@ -59,7 +59,7 @@ def test_a_run_that_writes_into_its_gbuffer_fails_and_does_not_reach_the_next(tm
     broken = _run(tmp_path, vandal, "a", status="failed")
     assert "wrote into its G-buffer (diffuse, depth changed)" in broken["message"]
     after = _run(tmp_path, "identity", "b")  # served from the memo
-    for key in ("rel_rms", "rel_rms_identity", "visibility", "visibility_local"):
+    for key in ("rel_rms", "rel_rms_identity", "visibility", "visibility_window"):
         assert after[key] == fresh[key], key
 
 

@@ -52,9 +52,9 @@ def test_visibility_is_flip_of_reference_against_input():
 
 
 def test_a_local_change_is_visible_though_the_mean_is_diluted():
-    """A bright spot on 0.4 % of a 128² frame: the mean FLIP is below the spread-out bar, yet
-    more than 1 - VISIBLE_QUANTILE of the pixels differ strongly, so SSS counts as visible;
-    the same spot on fewer than that fraction of the pixels does not."""
+    """A bright 8×8 spot on 0.4 % of a 128² frame: the mean FLIP is below the spread-out bar,
+    yet the most-changed 7×7 window differs strongly, so it counts as visible; a single pixel
+    does not (its window mean stays under the local bar)."""
     a = torch.full((1, 3, 128, 128), 0.2)
     b = a.clone()
     b[..., 60:68, 60:68] = 1.0  # 64 pixels = 0.39 % of the frame
@@ -64,11 +64,11 @@ def test_a_local_change_is_visible_though_the_mean_is_diluted():
     assert is_visible(mean, local) and visible(b, a)
     assert not is_visible(0.0, 0.0) and is_visible(VISIBLE_FLIP, 0.0)
     c = a.clone()
-    c[..., 64, 64] = 1.0  # one pixel (FLIP spreads it over a few): far below 0.1 % of 16384
+    c[..., 64, 64] = 1.0  # one pixel (FLIP spreads it over a few): its 7x7 mean is 0.05
     mean_c, local_c = visibility_stats(c, a)
     assert mean_c < VISIBLE_FLIP and local_c < VISIBLE_LOCAL_FLIP
     assert not visible(c, a)
-    # the mask restricts the quantile to its pixels: around the spot only, it is widespread
+    # the mask weights the mean: around the spot only, the change is widespread
     mask = torch.zeros(1, 1, 128, 128)
     mask[..., 56:72, 56:72] = 1.0
     assert visibility_stats(b, a, mask)[0] > VISIBLE_FLIP
@@ -92,9 +92,9 @@ def _rows():
             ("step_edge", 128, "b", 1.0, 0.80),
             ("step_edge", 128, "c", 9.0, 0.90),
             ("step_edge", 128, "identity", 0.0, 0.0),
-            # head_close: nothing beats doing nothing
-            ("head_close", 128, "a", 2.0, -0.27),
-            ("head_close", 128, "b", 1.0, -0.01),
+            # head_cheek: nothing beats doing nothing
+            ("head_cheek", 128, "a", 2.0, -0.27),
+            ("head_cheek", 128, "b", 1.0, -0.01),
             # invisible: identity error 0
             ("head_far", 128, "a", 2.0, math.nan),
         ],
@@ -108,8 +108,8 @@ def test_recommend_cheapest_within_ten_percent():
     assert rec.loc["step_edge", "best_config"] == "c"
     assert rec.loc["step_edge", "best_skill"] == pytest.approx(0.9)
     assert rec.loc["step_edge", "candidates"] == 2  # a and c
-    assert rec.loc["head_close", "config"] == BASELINE
-    assert rec.loc["head_close", "skill"] == 0.0
+    assert rec.loc["head_cheek", "config"] == BASELINE
+    assert rec.loc["head_cheek", "skill"] == 0.0
     assert rec.loc["head_far", "config"] == BASELINE
     assert rec.loc["head_far", "reason"] == "no visible SSS"
     # a wider tolerance lets the 1 ms configuration in (0.80 >= 0.9 - 0.2 * 0.9 = 0.72)
@@ -130,5 +130,5 @@ def test_sentences_follow_the_numbers():
     assert recommendation_sentence(rec.loc["step_edge"]) == (
         "step_edge, 128: use a (skill 0.82, 2 ms); the best, c, reaches 0.90."
     )
-    assert recommendation_sentence(rec.loc["head_close"]).startswith("head_close, 128: do nothing")
+    assert recommendation_sentence(rec.loc["head_cheek"]).startswith("head_cheek, 128: do nothing")
     assert "not visible" in recommendation_sentence(rec.loc["head_far"])

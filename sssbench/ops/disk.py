@@ -42,7 +42,7 @@ frame ``f``, sample ``i`` of ``N``:
   integrates over the screen-parallel plane, not the surface. On a plane (``a`` constant up
   to perspective) the normalised estimator does not see the difference; on a curved surface
   it weighs the neighbours facing the camera more than the reference, which weighs each by
-  its surface area — the disk's bias on curved scenes (measured on ``head_close``, see
+  its surface area — the disk's bias on curved scenes (measured on ``head_cheek``, see
   experiments/disk.py).
 
 Rules (our choices, documented because the sources leave them to the engine):

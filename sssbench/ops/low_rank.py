@@ -49,7 +49,7 @@ class LowRankSSS(SeparableMethod):
             :func:`separable_pass`). 000 §3 analyses the SVD terms as kernels; for rendering,
             000 §7 uses the screen-space pass of [JSG09], whose shader follows the surface with
             the depth lerp (002 appendix ``SSSS_FOLLOW_SURFACE``, 004 §3.1.2 Fig. 3.6): the
-            default. Measured on ``head_close`` (skin_jg10, rank 3, 31 cells, 128²): ``None``
+            default. Measured on ``head_closeup`` (skin_jg10, rank 3, 31 cells, 128²): ``None``
             0.040 rel RMS, worse than the unblurred input's 0.037; the lerp 0.012.
         surface_scale: mm; default the profile's widest length scale.
         rotation: stochastic rotation radius fraction (000 §6), or ``None``.

@@ -60,7 +60,7 @@ class PreintegratedSSS(SeparableMethod):
             the screen-space pass of [JSG09], whose shader follows the surface by lerping a
             sample back to the centre colour across a depth step (002 appendix
             ``SSSS_FOLLOW_SURFACE``; 004 §3.1.2 Fig. 3.6 runs the pre-integrated kernel through
-            the same lerp). ``None`` blurs across silhouettes; measured on ``head_close``
+            the same lerp). ``None`` blurs across silhouettes; measured on ``head_closeup``
             (skin_jg10, 7 taps, 128²) it is worse than no blur at all (rel RMS 0.047 against
             the unblurred input's 0.037), the lerp 0.016. ``"gaussian"`` (000 eq. 7's factor,
             derived for the artist model) is not renormalised, so silhouettes lose energy

@@ -250,8 +250,9 @@ class SumOfGaussiansSSS(SeparableMethod):
             passes depth-aware with the stretch factors' derivative term only; 004 §3.1.1
             (Fig. 3.4), the test bed that runs this method beside the separable ones, adds the
             per-sample depth lerp ``mix(colorS, colorM, min(correction·|Δd|, 1))`` to every
-            Gaussian pass, which is this default. Measured on ``head_close`` (skin_jg10,
-            7 taps): ``None`` scores rel RMS 0.034 at 128² and 0.043 at 256², no better than
+            Gaussian pass, which is this default. Measured on the old ``head_close`` (skin_jg10,
+            7 taps; now ``head_closeup`` at 128²): ``None`` scores rel RMS 0.034 at 128² and
+            0.043 at 256², no better than
             the unblurred input (0.037, 0.043); the lerp 0.0135 and 0.0138; 003's stretch
             with physical width (``Stretch(1, correction, maxdd)`` of :func:`jg10_stretch`)
             0.026 and 0.032. The stretch needs the image height, so it cannot be a

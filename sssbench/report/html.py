@@ -136,8 +136,9 @@ def _table(df: pd.DataFrame, columns: list[str]) -> str:
     head = "".join(f"<th>{html.escape(c)}</th>" for c in columns)
     rows = []
     for _, r in df.iterrows():
-        cls = "worse" if r.get("worse_than_nothing") else "best" if r.get("best") else ""
-        cls = "hidden" if r.get("note") else cls
+        wrong = bool(r.get("worse_than_nothing")) or bool(r.get("visibly_wrong"))
+        cls = "worse" if wrong else "best" if r.get("best") else ""
+        cls = "hidden" if r.get("note") and not r.get("visibly_wrong") else cls
         cells = "".join(f"<td>{html.escape(_fmt(r.get(c)))}</td>" for c in columns)
         rows.append(f'<tr class="{cls}">{cells}</tr>')
     return f"<table><tr>{head}</tr>{''.join(rows)}</table>"
@@ -160,8 +161,9 @@ def write_html(table: pd.DataFrame, out_dir: Path, source: str, plots: list[Path
         f"<script>{_JS}</script></head><body>",
         f"<h1>sssbench report</h1><p>Source: <code>{html.escape(source)}</code> — "
         f"{len(table)} points. Skill = 1 − rel_rms / rel_rms of doing nothing (the "
-        "<code>identity</code> baseline); red rows are worse than doing nothing, green the best "
-        "skill, grey where SSS is not visible at the scale (not ranked).</p>",
+        "<code>identity</code> baseline); red rows are worse than doing nothing or visibly wrong "
+        "(their own error passes the visibility bar, in any group), green the best skill, grey "
+        "where SSS is not visible at the scale (not ranked).</p>",
         "<div class='controls'>zoom <select id='zoom' onchange='setZoom(parseInt(this.value))'>"
         + "".join(f"<option value='{z}'>{z}×</option>" for z in (1, 2, 4, 8))
         + "</select> <button onmousedown='flipAll()' onmouseup='flipAll()'>hold to flip all "

@@ -1,6 +1,11 @@
 """The report's tables: the run store's points as one table, flags per ranking group
-(best, Pareto front, worse than doing nothing, SSS not visible), the computed
+(best, Pareto front, worse than doing nothing, visibly wrong, SSS not visible), the computed
 recommendation per group, and their text forms (Markdown, console). Tables use pandas.
+
+One module because the flags, the verdict sentences and the three text forms read the same
+columns under the same group rule: a sentence printed above a table must be computed from that
+table's rows (tests/test_visibly_wrong.py checks every sentence against them), which is easiest
+to keep true where both are written.
 """
 
 from __future__ import annotations
@@ -36,6 +41,10 @@ DECISION_COLUMNS = [
     "skill",
     "skill_flip",
     "visible",
+    "visibility",
+    "visibility_window",
+    "error_flip_window",
+    "error_visible",
     "err_model",
     "err_taps",
     "err_screen",
@@ -51,7 +60,7 @@ DECISION_COLUMNS = [
     "seeds",
 ]
 #: columns the report adds per ranking group (:func:`annotate`)
-FLAG_COLUMNS = ["pareto", "best", "worse_than_nothing", "note"]
+FLAG_COLUMNS = ["pareto", "best", "worse_than_nothing", "visibly_wrong", "note"]
 SUMMARY_COLUMNS = [
     *POINT_COLUMNS,
     "status",
@@ -169,7 +178,7 @@ def summary_table(runs: pd.DataFrame) -> pd.DataFrame:
         [None if pd.isna(v) else int(v) for v in table["samples"]], dtype="Int64"
     )
     for col in DECISION_COLUMNS:
-        if col != "visible":
+        if col not in ("visible", "error_visible"):
             table[col] = pd.to_numeric(table[col], errors="coerce")
     table = table.sort_values(
         ["scene", "pixel_mm", "resolution", "method", "profile", "sampling", "samples"],
@@ -220,6 +229,10 @@ def annotate(table: pd.DataFrame) -> pd.DataFrame:
       baseline included: it costs nothing, so it is always on the front);
     - ``best``: the highest skill among the screen-space points;
     - ``worse_than_nothing``: skill <= 0 (no better than the unblurred input);
+    - ``visibly_wrong``: the run's own error is visible (``error_visible``: its result against
+      the reference passes the calibrated visibility rule of :mod:`sssbench.score.verdict`),
+      in every group, ranked or not: a method can add a visible error where SSS is not
+      visible;
     - ``note``: ``SSS not visible at this scale`` for points whose reference barely differs
       from the input (:mod:`sssbench.score.verdict`); they are stored but never ranked.
     """
@@ -227,6 +240,15 @@ def annotate(table: pd.DataFrame) -> pd.DataFrame:
     table["scale"] = [_scale(v) for v in table["pixel_mm"]]
     for col in ("pareto", "best", "worse_than_nothing"):
         table[col] = False
+    table["visibly_wrong"] = [
+        bool(status == "ok" and method != REFERENCE and wrong is True)
+        for status, method, wrong in zip(
+            table["status"],
+            table["method"],
+            table["error_visible"] if "error_visible" in table.columns else [None] * len(table),
+            strict=True,
+        )
+    ]
     table["note"] = ""
     if table.empty:
         return table
@@ -249,17 +271,74 @@ def annotate(table: pd.DataFrame) -> pd.DataFrame:
     return table
 
 
+def _num(value: Any, fmt: str = ".3g") -> str:
+    return MISSING if value is None or pd.isna(value) else format(float(value), fmt)
+
+
+def _wrong_list(rows: pd.DataFrame) -> str:
+    """``label (FLIP mean m, local l, skill s)`` of visibly wrong rows, the four worst first."""
+    rows = rows.sort_values("flip", ascending=False)
+    text = ", ".join(
+        f"{label(r)} (FLIP {_num(r['flip'])}, local {_num(r.get('error_flip_window'))}, "
+        f"skill {_num(r['skill'], '+.2f')})"
+        for _, r in rows.head(4).iterrows()
+    )
+    return text + (", …" if len(rows) > 4 else "")
+
+
+def _hidden_verdict(group: pd.DataFrame) -> str:
+    """The verdict of a group where SSS is not visible, from its numbers: the unblurred
+    input's FLIP against the bars, then the methods whose own error is visible (or that none
+    is), and the range of skills."""
+    from sssbench.score.verdict import VISIBLE_FLIP, VISIBLE_LOCAL_FLIP
+
+    ok = group[(group["status"] == "ok") & (group["method"] != REFERENCE)]
+    screen = ok[ok["method"] != BASELINE]
+    mean = group["visibility"].dropna() if "visibility" in group.columns else pd.Series()
+    local = (
+        group["visibility_window"].dropna() if "visibility_window" in group.columns else pd.Series()
+    )
+    sentence = "SSS not visible at this scale"
+    if len(mean) and len(local):
+        sentence += (
+            f" (the unblurred input against the reference: mean FLIP {_num(mean.iloc[0])} < "
+            f"{VISIBLE_FLIP}, local FLIP {_num(local.iloc[0])} < {VISIBLE_LOCAL_FLIP})"
+        )
+    sentence += ": not ranked; doing nothing looks like the reference"
+    wrong = screen[screen["visibly_wrong"].astype(bool)]
+    known = screen["error_visible"].map(lambda v: isinstance(v, bool)) if len(screen) else []
+    if len(wrong):
+        sentence += (
+            f"; but {len(wrong)} of {len(screen)} configurations are visibly wrong (their "
+            f"own error passes the visibility bar): {_wrong_list(wrong)}"
+        )
+    elif len(screen) and bool(pd.Series(known).all()):
+        sentence += f"; no configuration's error is visible either ({len(screen)} tested)"
+    skills = screen["skill"].astype(float).dropna()
+    if len(skills):
+        sentence += f"; skill from {skills.min():+.2f} to {skills.max():+.2f}" + (
+            " (differences below the visibility bar)" if not len(wrong) else ""
+        )
+    return sentence + "."
+
+
 def recommendations(table: pd.DataFrame) -> pd.DataFrame:
     """Per ranking group: the best configuration, the cheapest within :data:`WITHIN` of its
-    skill, the Pareto set and a verdict sentence computed from the numbers."""
+    skill, the Pareto set and a verdict sentence computed from the numbers (in a group where
+    SSS is not visible, the visibility numbers and the configurations whose own error is
+    visible; in a ranked group, also those that are visibly wrong)."""
     rows = []
     if table.empty:
         return pd.DataFrame(columns=[*group_keys(table), "best", "recommended", "verdict"])
+    if "visibly_wrong" not in table.columns:
+        table = annotate(table)
     for key, group in table.groupby(group_keys(table), dropna=False, sort=True):
         base = group[(group["method"] == BASELINE) & (group["status"] == "ok")]
         ranked = _candidates(group)
         screen = ranked[(ranked["method"] != BASELINE) & ranked["skill"].notna()]
         info = dict(zip(group_keys(table), key, strict=True))
+        wrong_rows = group[group["visibly_wrong"].astype(bool) & (group["method"] != BASELINE)]
+        wrong = ", ".join(label(r) for _, r in wrong_rows.iterrows()) or MISSING
         if group["visible"].eq(False).all():
             rows.append(
                 {
@@ -267,8 +346,8 @@ def recommendations(table: pd.DataFrame) -> pd.DataFrame:
                     "best": MISSING,
                     "recommended": MISSING,
                     "pareto": MISSING,
-                    "verdict": "SSS not visible at this scale: "
-                    "every method scores like the unblurred input; not ranked.",
+                    "visibly_wrong": wrong,
+                    "verdict": _hidden_verdict(group),
                 }
             )
             continue
@@ -294,6 +373,8 @@ def recommendations(table: pd.DataFrame) -> pd.DataFrame:
                 f"{label(best)}, {float(cheap['time_ms']):.3g} ms vs "
                 f"{float(best['time_ms']):.3g} ms)"
             )
+        if bool(group.loc[cheap.name, "visibly_wrong"]):
+            sentence += f", though its own error is still visible (FLIP {_num(cheap['flip'])})"
         if not math.isnan(base_err):
             sentence += f"; doing nothing scores rel RMS {base_err:.3g}"
         if len(worse):
@@ -302,12 +383,18 @@ def recommendations(table: pd.DataFrame) -> pd.DataFrame:
                 f" ({', '.join(label(r) for _, r in worse.head(4).iterrows())}"
                 f"{', …' if len(worse) > 4 else ''})"
             )
+        if len(wrong_rows):
+            sentence += (
+                f"; {len(wrong_rows)} of {len(screen)} configurations are visibly wrong: "
+                f"{_wrong_list(wrong_rows)}"
+            )
         rows.append(
             {
                 **info,
                 "best": label(best),
                 "recommended": label(cheap),
                 "pareto": " → ".join(label(r) for _, r in front.sort_values("time_ms").iterrows()),
+                "visibly_wrong": wrong,
                 "verdict": sentence + ".",
             }
         )
@@ -443,6 +530,12 @@ def _flags(row: Any, markdown: bool = True) -> str:
         out.append("Pareto")
     if row["worse_than_nothing"]:
         out.append("**worse than doing nothing**" if markdown else "worse than doing nothing")
+    if row.get("visibly_wrong"):
+        text = (
+            f"visibly wrong (FLIP {_num(row['flip'])}, local {_num(row.get('error_flip_window'))},"
+            f" skill {_num(row['skill'], '+.2f')})"
+        )
+        out.append(f"**{text}**" if markdown else text)
     if row["method"] == BASELINE:
         out.append("baseline")
     if row["note"]:
@@ -490,8 +583,8 @@ def summary_markdown(table: pd.DataFrame, source: str) -> str:
 
 def format_console(table: pd.DataFrame) -> str:
     """A compact text table for the terminal: sampling and scale shown, skill against doing
-    nothing, flags (``*`` best, ``P`` Pareto, ``!`` worse than doing nothing, ``~`` SSS not
-    visible), then one recommendation line per scene and scale."""
+    nothing, flags (``*`` best, ``P`` Pareto, ``!`` visibly wrong, ``-`` worse than doing
+    nothing, ``~`` SSS not visible), then one recommendation line per scene and scale."""
     if table.empty:
         return "(no runs)"
     cols = [
@@ -519,7 +612,8 @@ def format_console(table: pd.DataFrame) -> str:
             for f, on in (
                 ("*", r["best"]),
                 ("P", r["pareto"]),
-                ("!", r["worse_than_nothing"]),
+                ("!", r.get("visibly_wrong", False)),
+                ("-", r["worse_than_nothing"]),
                 ("~", bool(r["note"])),
             )
             if on
@@ -529,8 +623,9 @@ def format_console(table: pd.DataFrame) -> str:
     lines = [
         shown.to_string(index=False),
         "",
-        "flags: * best skill, P Pareto front, ! worse than doing nothing, "
-        "~ SSS not visible at this scale (not ranked)",
+        "flags: * best skill, P Pareto front, ! visibly wrong (its own error passes the "
+        "visibility bar), - worse than doing nothing, ~ SSS not visible at this scale (not "
+        "ranked)",
     ]
     for _, r in recommendations(table).iterrows():
         where = f"{r['scene']} · {r['scale']} · {r['resolution']}"

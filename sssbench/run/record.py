@@ -35,6 +35,7 @@ INFO_KEYS = (
     "reference_cache_hit",
     "metric_region",
     "visible",
+    "error_visible",
     "error_scale",
 )
 
@@ -114,7 +115,8 @@ def log_outcome(
             payload["skill"],
             payload["flip"],
             wall,
-            "" if payload["visible"] else " [SSS not visible at this scale]",
+            ("" if payload["visible"] else " [SSS not visible at this scale]")
+            + (" [visibly wrong]" if payload.get("error_visible") else ""),
         )
     else:
         log.error("%s %s: %s (%.1f s)", status, label, message, wall)

@@ -261,6 +261,8 @@ def build_scene(
         if digest is not None and scene_file_digest(path) != digest:
             raise ValueError(f"scene file {path} changed since the run was configured (sha256)")
         return load_scene_file(path, fields=fields, dtype=_dtype(dtype))
+    if name in data_synth.RETIRED_SCENES:
+        raise ValueError(data_synth.RETIRED_SCENES[name])
     if name not in data_synth.SCENES:
         raise ValueError(f"scene must be one of {scene_names()}, got {name!r}")
     return data_synth.make_scene(

@@ -103,7 +103,8 @@ METRIC_KEYS = (
     "skill",
     "skill_flip",
     "visibility",
-    "visibility_local",
+    "visibility_window",
+    "error_flip_window",
     "err_model",
     "err_taps",
     "err_screen",
@@ -215,6 +216,7 @@ def measure(spec: RunSpec, run_dir: Path) -> tuple[dict[str, Any], list[PassStat
         mask = metric_mask(built.gbuffer, result.dtype)  # 5. score
         identity, *base = baseline(spec, built.gbuffer, built.profile, reference, mask)
         values = compute_all(result, reference, mask)
+        _, values["error_flip_window"], _ = verdict.error_visibility(result, reference, mask)
         extra = _budget_or_noise(spec, built, result, reference, identity, mask)  # 6.
     if "rel_rms" in extra:  # a stochastic method: its rel RMS is the mean over the seeds
         values["rel_rms"] = extra.pop("rel_rms")
@@ -230,7 +232,9 @@ def _verdicts(
     values: dict[str, float], base_rel: float, base_flip: float, base_flip_local: float
 ) -> dict[str, Any]:
     """The image metrics with the baseline's errors on the same scene (``base_*``: its rel
-    RMS, mean and local FLIP), the skill against it and whether SSS is visible at all."""
+    RMS, mean and local FLIP), the skill against it, whether SSS is visible at all and
+    whether the run's own error is visible (its mean FLIP ``flip`` and local FLIP
+    ``error_flip_window`` against the reference, by the same rule: ``error_visible``)."""
     return {
         **values,
         "rel_rms_identity": base_rel,
@@ -238,8 +242,9 @@ def _verdicts(
         "skill": verdict.skill(values["rel_rms"], base_rel),
         "skill_flip": verdict.skill(values["flip"], base_flip),
         "visibility": base_flip,
-        "visibility_local": base_flip_local,
+        "visibility_window": base_flip_local,
         "visible": verdict.is_visible(base_flip, base_flip_local),
+        "error_visible": verdict.is_visible(values["flip"], values["error_flip_window"]),
     }
 
 

@@ -280,7 +280,7 @@ def test_head_presets_keep_the_physical_scale_at_any_resolution():
     screen = 2 * dist * math.tan(g.fov_y / 2)
     assert _rows_covered(g) * screen == pytest.approx(HEAD_HEIGHT_MM, rel=0.1)
     with pytest.raises(ValueError, match="either distance or pixel_mm"):
-        make_scene("head_close", (8, 8), distance=500.0)
+        make_scene("head_cheek", (8, 8), distance=500.0)
 
 
 def test_head_mask_excludes_eyes_brows_hair_and_background():

@@ -1,7 +1,8 @@
 """Every method's default configuration beats doing nothing where SSS is visible.
 
 The benchmark scenes (step_edge, light_dot and the procedural face at its portrait scale;
-head_close at 256², where its cheek shows visible SSS; skin_jg10) are scored like the app:
+the head close-up ``head_closeup`` at 128²; the smooth cheek ``head_cheek`` at 256², where its
+frame reaches features that show visible SSS; skin_jg10) are scored like the app:
 rel RMS against the exact reference over the mask; skill = 1 − err / err(identity)
 (:mod:`sssbench.score.verdict`). The bar is skill > 0.3. The artist model's default (000 Table 2,
 multi-layer close fit) misses it on every scene: its far Gaussian is 3.4× wider than the
@@ -20,7 +21,7 @@ from data_synth import make_scene
 from sssbench import ops
 from sssbench.profiles import SumOfGaussians
 from sssbench.score.metrics import rel_rms
-from sssbench.score.verdict import skill, visible
+from sssbench.score.verdict import error_visibility, skill, visible
 
 SKIN = SumOfGaussians.from_table("skin_jg10")
 CONF = Path(__file__).resolve().parents[2] / "sssbench" / "conf" / "method"
@@ -77,18 +78,36 @@ def test_default_beats_doing_nothing_128(scored, name, scene):
     assert _skill(scored, name, scene, 128) > BAR
 
 
-@pytest.mark.parametrize("scene", ["step_edge", "light_dot", "face", "head_close"])
+@pytest.mark.parametrize("scene", ["step_edge", "light_dot", "face", "head_cheek"])
 @pytest.mark.parametrize("name", _GOOD)
 def test_default_beats_doing_nothing_256(scored, name, scene):
     assert _skill(scored, name, scene, 256) > BAR
 
 
-def test_head_close_at_128_is_not_visible_and_so_not_ranked(scored):
-    """At 128² and 0.3 mm/px head_close frames a smooth cheek: the reference differs from
+@pytest.mark.parametrize("name", _GOOD)
+def test_default_beats_doing_nothing_on_the_head_closeup_128(scored, name):
+    """The visible head close-up (what head_close meant at 128² before it was retired)."""
+    assert _skill(scored, name, "head_closeup", 128) > BAR
+
+
+def test_head_cheek_at_128_is_not_visible_and_so_not_ranked(scored):
+    """At 128² and 0.3 mm/px head_cheek frames a smooth cheek: the reference differs from
     the input by less than the visibility bar (on average and locally), so the report does
     not rank it."""
-    g, ref, _ = scored("head_close", 128)
+    g, ref, _ = scored("head_cheek", 128)
     assert not visible(ref, g.diffuse, g.mask)
+
+
+@pytest.mark.parametrize("scene", ["step_edge", "light_dot", "head_closeup"])
+def test_artist_default_is_visibly_wrong_where_it_fails(scored, scene):
+    """The artist default's failure is not only a number: its own error passes the same
+    visibility bar as SSS (issue 27), so the report flags it "visibly wrong"."""
+    g, ref, _ = scored(scene, 128)
+    with torch.no_grad():
+        result = DEFAULTS["artist"]()(g)
+    mean, local, wrong = error_visibility(result, ref, g.mask)
+    assert wrong, (scene, mean, local)
+    assert _skill(scored, "artist", scene, 128) < 0.0
 
 
 @pytest.mark.parametrize("scene", ["step_edge", "light_dot"])

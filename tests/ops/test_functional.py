@@ -33,7 +33,7 @@ TWINS = {
 
 @pytest.fixture(scope="module")
 def scene():
-    return data_synth.make_scene("head_close", (24, 24), dtype=torch.float64)
+    return data_synth.make_scene("head_cheek", (24, 24), dtype=torch.float64)
 
 
 @pytest.mark.parametrize("name", sorted(TWINS))

@@ -17,7 +17,7 @@ CONF = Path(__file__).resolve().parents[2] / "sssbench" / "conf" / "method"
 
 
 def test_pipeline_runs_identity_with_zero_passes():
-    g = make_scene("head_close", (16, 16), fields=["mask", "normal"], dtype=torch.float64)
+    g = make_scene("head_cheek", (16, 16), fields=["mask", "normal"], dtype=torch.float64)
     res = Pipeline(IdentitySSS(), add_specular=False).run(g)
     assert res.records == []  # zero passes: the baseline costs nothing
     assert torch.equal(res.image, g.diffuse)
@@ -26,7 +26,7 @@ def test_pipeline_runs_identity_with_zero_passes():
 
 
 def test_identity_accepts_every_pipeline_option():
-    g = make_scene("head_close", (16, 16), fields=["mask", "normal"], dtype=torch.float64)
+    g = make_scene("head_cheek", (16, 16), fields=["mask", "normal"], dtype=torch.float64)
     pipe = Pipeline(
         IdentitySSS(PROFILE),
         curvature=CurvatureModulation(),

@@ -106,7 +106,7 @@ def cell_integral_skip(monkeypatch):
 
 @pytest.mark.parametrize(
     ("scene", "res", "table"),
-    [("head", 48, "skin_deon6"), ("sphere", 40, "marble_jg10"), ("head_close", 24, "skin_jg10")],
+    [("head", 48, "skin_deon6"), ("sphere", 40, "marble_jg10"), ("head_cheek", 24, "skin_jg10")],
 )
 def test_batched_sum_of_gaussians_path_equals_the_offset_loop(
     scene, res, table, cell_integral_skip
@@ -132,7 +132,7 @@ def test_batched_path_equals_the_offset_loop_on_a_masked_plane(cell_integral_ski
     torch.testing.assert_close(fast, loop, rtol=0, atol=1e-12)
 
 
-@pytest.mark.parametrize(("scene", "res"), [("head", 64), ("head_close", 32), ("pores", 20)])
+@pytest.mark.parametrize(("scene", "res"), [("head", 64), ("head_cheek", 32), ("pores", 20)])
 def test_earlier_skip_of_far_gauss_legendre_cells_stays_within_its_bound(scene, res):
     # documented bound: 2 max E · 4.5e-10 over the gathered fraction of the weight (≥ ~0.1)
     from data_synth import make_scene
