@@ -25,7 +25,6 @@ average while measuring. The verdict's speed target is wall time on 2 cores.
 
 from __future__ import annotations
 
-import json
 import math
 import sys
 import tempfile
@@ -35,6 +34,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from experiments.common import Context, Section, main, md_table
+from sssbench import _json
 from sssbench.app import compose_spec
 from sssbench.run import runner
 
@@ -78,7 +78,7 @@ def _runs(ctx: Context) -> list[dict]:
                 out = runner.execute(spec, run_dir)
                 if out.status != "ok":
                     raise RuntimeError(f"{label} / {method}: {out.status}: {out.message}")
-                payload = json.loads((run_dir / "metrics.json").read_text())
+                payload = _json.loads((run_dir / "metrics.json").read_text())
                 keep = ("mc_photons", "mc_seconds")
                 rows.append({"scene": label, "method": method, **out.metrics,
                              **{k: payload[k] for k in keep}})  # fmt: skip

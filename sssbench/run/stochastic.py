@@ -8,6 +8,7 @@ from typing import Any
 import torch
 
 from sssbench.run import registry
+from sssbench.run.inputs import stage_pipeline
 from sssbench.run.spec import RunSpec
 from sssbench.score.bias_noise import bias_noise
 
@@ -46,5 +47,5 @@ def seed_split(
         if "seed" in params:
             params["seed"] = base + k
         other = registry.method_from_spec(spec, profile, seed=base + k, params=params)
-        images.append(registry.build_pipeline(other, profile, spec.stages).run(gbuffer).image)
+        images.append(stage_pipeline(spec, other, profile).run(gbuffer).image)
     return bias_noise(images, reference, mask)
