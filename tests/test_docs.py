@@ -63,7 +63,8 @@ def test_docs_link_only_inside_the_repo(path):
 #   would run (sssbench.app.compose_spec, the same checks as before a first run);
 # - `multirun/<date>/<time>` (or a dated example path) in a report command is the newest sweep
 #   directory of the block's folder; `my_frame.exr` is written (a 16² head_close G-buffer)
-#   before the command that reads it, as docs/io.md tells a user to make one.
+#   before the command that reads it, as docs/io.md tells a user to make one; the cluster
+#   example's shared folder (`/shared/project`) is a folder made inside the block's folder.
 TINY_RUN = ["resolution=[16,16]", "repeats=1", "warmup=0", "budget=false", "previews=false"]
 DRY = ("+experiment=paper_benchmark", "+experiment=optuna", "hydra/launcher=")
 _COMMAND = re.compile(r"^(?:.*&&\s*)?((?:sssbench|sssbench-report|sssbench-export-kernel)\b.*)$")
@@ -121,7 +122,9 @@ def test_documented_commands_run(block, tmp_path):
     env["PYTHONPATH"] = os.pathsep.join([str(REPO), env.get("PYTHONPATH", "")])
     env |= {"SSSBENCH_CACHE_DIR": str(tmp_path / "cache"), "MPLCONFIGDIR": str(tmp_path / "mpl")}
     for command in commands:
-        args = shlex.split(command)
+        shared = tmp_path / "shared" / "project"
+        shared.mkdir(parents=True, exist_ok=True)
+        args = shlex.split(command.replace("/shared/project", str(shared)))
         program, args = args[0], args[1:]
         if program == "sssbench" and any(a.startswith(DRY) for a in args):
             _dry(args)

@@ -303,7 +303,9 @@ def reference_sss(
     if method == "auto":
         method = "fft" if flat_depth else "multipole" if _is_sum_of_gaussians(profile) else "gather"
     if method == "fft":
-        num, den = _flat_fft(g, profile, k, profile.radius(tol), reconstruction)
+        n_active = int((mask > 0).sum())
+        with timed_pass("reference", (2 * k + 1) ** 2, n_active):  # timed like the others
+            num, den = _flat_fft(g, profile, k, profile.radius(tol), reconstruction)
         return _finish(g, mask, num, den).to(gbuffer.dtype)
     if method == "multipole" and not _is_sum_of_gaussians(profile):
         raise ValueError(
