@@ -426,3 +426,27 @@ def test_a_multirun_warms_its_caches_in_parallel(tmp_path, monkeypatch):
     cfg.hydra.overrides.task[1] = "resolution=[24,24]"
     app._warm_sweep(cfg)
     assert len(seen) == 1
+
+
+@pytest.mark.skipif(
+    __import__("shutil").which("node") is None, reason="needs node to run the page's script"
+)
+def test_the_pages_flip_shows_the_groups_reference_and_back():
+    # the reference is embedded once per group (an id); a result flips to it and back
+    from sssbench.report.html import _JS
+
+    harness = (
+        _JS.replace("window.addEventListener", "(function(){})")
+        + """
+var attrs={src:'RESULT','data-ref':'ref0'}, caption={textContent:'result'};
+var im={getAttribute:function(k){return k in attrs?attrs[k]:null;},
+        setAttribute:function(k,v){attrs[k]=v;}, removeAttribute:function(k){delete attrs[k];},
+        parentNode:{querySelector:function(){return caption;}}};
+var document={getElementById:function(i){return i==='ref0'?{src:'REFERENCE'}:null;}};
+flip(im); var a=attrs.src+'/'+caption.textContent;
+flip(im); var b=attrs.src+'/'+caption.textContent;
+console.log(a+' '+b);
+"""
+    )
+    proc = subprocess.run(["node", "-e", harness], capture_output=True, text=True, timeout=60)
+    assert proc.stdout.strip() == "REFERENCE/reference RESULT/result", proc.stderr
