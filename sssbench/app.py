@@ -572,7 +572,7 @@ def sweep_jobs(config: Any) -> list[list[str]]:
         key, _, value = str(o).partition("=")
         if key.lstrip("+~").startswith("hydra"):
             continue
-        if "," in value.strip("[]") and not value.startswith("[") or value.startswith("glob("):
+        if ("," in value and not value.startswith("[")) or value.startswith("glob("):
             params[key] = value
         else:
             fixed.append(str(o))

@@ -23,8 +23,9 @@ except ImportError:  # pragma: no cover
 
 
 def _say(line: str) -> None:
-    """A progress line of the report step on stderr (the table itself goes to stdout)."""
-    print(line, file=sys.stderr, flush=True)
+    """A progress line of the report step (stdout, with the table and the paths; stderr
+    carries errors only)."""
+    print(line, flush=True)
 
 
 class ReportCallback(_HydraCallback):
