@@ -598,6 +598,7 @@ def _warm_sweep(config: Any) -> None:
             return
         from hydra.initialize import get_gh_backup, restore_gh_from_backup
 
+        log.info("reading the %d jobs of the sweep for the warm-up", len(jobs))
         store = _config_store(config)
         backup = get_gh_backup()  # composing below resets Hydra's global state: keep the sweep's
         try:
