@@ -40,7 +40,6 @@ average while measuring. The verdict's speed target is wall time on 2 cores.
 
 from __future__ import annotations
 
-import json
 import math
 import sys
 import tempfile
@@ -53,6 +52,7 @@ import numpy as np
 import torch
 
 from experiments.common import Context, Section, main, md_table
+from sssbench import _json
 from sssbench.app import compose_spec
 from sssbench.mc.boundary import normal_specular
 from sssbench.mc.significance import K_SIGMA, bootstrap, compare, scene_errors
@@ -130,7 +130,7 @@ def _runs(ctx: Context) -> tuple[list[dict], list[dict]]:
                 out = runner.execute(spec, run_dir)
                 if out.status != "ok":
                     raise RuntimeError(f"{label} / {method}: {out.status}: {out.message}")
-                payload = json.loads((run_dir / "metrics.json").read_text())
+                payload = _json.loads((run_dir / "metrics.json").read_text())
                 keep = ("mc_photons", "mc_seconds", "mc_material")
                 rows.append({"scene": label, "method": method, **out.metrics,
                              **{k: payload[k] for k in keep}})  # fmt: skip

@@ -27,7 +27,9 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+from sssbench import _json
 from sssbench._checks import check_int
+from sssbench._console import quiet_third_party
 from sssbench.run import registry
 from sssbench.run.runner import execute, run_label
 from sssbench.run.spec import DEFAULT_SEEDS, REFERENCES, RunSpec
@@ -107,6 +109,7 @@ SCALAR_KEYS = {
     "store": "str",
     "store_journal": "str",
     "force": "bool",
+    "warm_workers": "int",
     "timeout_s": "float?",
     "reference_cache": "str?",
     "reference": "str",
@@ -123,8 +126,8 @@ def spec_from_cfg(cfg: Any, overridden: tuple[str, ...] = ()) -> RunSpec:
         cfg: the composed config.
         overridden: top-level keys given on the command line (or by a sweep); an option the
             method does not take (``samples`` for the baseline, ``sampling`` for the low-rank
-            method) that was given explicitly is kept in the point as ``ignored``, so distinct
-            requests are stored distinctly rather than silently merged into one point.
+            method) that was given explicitly is recorded as ``ignored`` (in ``metrics.json``),
+            never in the point: options a method does not use never split its point.
     """
     from omegaconf import OmegaConf
 
@@ -136,10 +139,15 @@ def spec_from_cfg(cfg: Any, overridden: tuple[str, ...] = ()) -> RunSpec:
     method = c["method"]["name"]
     registry.method_class(method)  # a clear error for an unknown method
     samples = c.get("samples")
+    if samples is not None and samples < 1:
+        raise ValueError(f"samples must be an integer >= 1 (taps per pass), got {samples!r}")
+    if c.get("threads") is not None and c["threads"] < 1:
+        raise ValueError(f"threads must be an integer >= 1 or null, got {c['threads']!r}")
+    store = _store_path(c["store"])
     ignored: dict[str, Any] = {}
     if not registry.method_takes(method, "samples"):
         if "samples" in overridden and samples is not None:
-            ignored["samples"] = samples  # stored distinctly, never merged into one point
+            ignored["samples"] = samples  # recorded, not in the point
         samples = None
     sampling = c["sampling"]["name"]
     if sampling == "default":  # the method's own default placement, recorded as such
@@ -178,8 +186,20 @@ def spec_from_cfg(cfg: Any, overridden: tuple[str, ...] = ()) -> RunSpec:
         if not raw or raw == "???":
             raise ValueError("scene=file needs scene.path=<G-buffer .exr or .npz>")
         path = Path(raw).expanduser().resolve()
-        scene_params = {"path": str(path), "sha256": scene_file_digest(path)}
-        res = list(read_gbuffer(path).shape[1:])
+        if not path.is_file():
+            what = "a directory, not a file" if path.is_dir() else "no such file"
+            raise ValueError(f"scene.path={raw}: {what} (a G-buffer .exr or .npz)")
+        try:
+            scene_params = {"path": str(path), "sha256": scene_file_digest(path)}
+            size = list(read_gbuffer(path).shape[1:])
+        except (OSError, ValueError, TypeError) as exc:
+            raise ValueError(f"scene.path={raw}: {exc}".replace("\n", " ")) from exc
+        if "resolution" in overridden and [int(v) for v in res] != size:
+            raise ValueError(
+                f"resolution={list(res)} was given but scene.path={raw} is {size[0]}x{size[1]}: "
+                "a file scene runs at the file's size (leave resolution out, or give its size)"
+            )
+        res = size
     stages = {}
     for group in STAGE_GROUPS:
         entry = c.get(group) or {}
@@ -211,7 +231,7 @@ def spec_from_cfg(cfg: Any, overridden: tuple[str, ...] = ()) -> RunSpec:
         warmup=c["warmup"],
         threads=c.get("threads"),
         backend=c["backend"],
-        store=Path(c["store"]).expanduser().resolve(),
+        store=store,
         store_journal=c.get("store_journal", "wal"),
         force=c.get("force", False),
         timeout_s=c.get("timeout_s"),
@@ -220,6 +240,21 @@ def spec_from_cfg(cfg: Any, overridden: tuple[str, ...] = ()) -> RunSpec:
         mlflow=_check_type("tracking.mlflow", tracking.get("mlflow", False), "bool"),
         mlflow_uri=tracking.get("mlflow_uri"),
     )
+
+
+def _store_path(value: str) -> Path:
+    """The run store's path, checked before any run: its folder must exist (the store file
+    is created on the first run, its folder never is)."""
+    path = Path(value).expanduser().resolve()
+    if path.is_dir():
+        raise ValueError(
+            f"store={value} is a directory; give the store's file, e.g. {path}/sssbench.sqlite"
+        )
+    if not path.parent.is_dir():
+        raise ValueError(
+            f"store={value}: its folder {path.parent} does not exist (create it first)"
+        )
+    return path
 
 
 def _reference_choice(c: dict[str, Any], scene: str) -> tuple[str, dict[str, Any], dict[str, Any]]:
@@ -379,6 +414,7 @@ def task(cfg: Any) -> str | tuple[float, ...]:
     from hydra.core.hydra_config import HydraConfig
     from hydra.types import RunMode
 
+    quiet_third_party()  # also in a launcher's worker processes
     hc = HydraConfig.get()
     run_dir = Path(hc.runtime.output_dir)
     multirun = hc.mode == RunMode.MULTIRUN
@@ -429,10 +465,10 @@ def _record_invalid(cfg: Any, run_dir: Path, sweep_dir: Path | None, message: st
     except Exception:
         return
     config = {k: v for k, v in config.items() if k not in ("store", "force", "timeout_s")}
-    point = {
+    point = {  # names first and last: the report shows the scene and method, not their dicts
+        **config,
         "scene": (config.get("scene") or {}).get("name"),
         "method": (config.get("method") or {}).get("name"),
-        **config,
     }
     store.record(
         RunRecord(
@@ -445,7 +481,7 @@ def _record_invalid(cfg: Any, run_dir: Path, sweep_dir: Path | None, message: st
     )
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "point.json").write_text(
-        json.dumps(
+        _json.dumps(
             {
                 "config_hash": config_hash(point),
                 "store": str(store.path),
@@ -475,6 +511,8 @@ class ExitStatusCallback(_HydraCallback):
         self._start = time.time()
         _STATE["start"] = self._start
         _STATE["total"] = _sweep_size(config)
+        _warm_sweep(config)
+        _STATE["start"] = time.time()  # the runs' ETA counts from the first run, not the warm-up
         mirror = _sweep_mirror(config)
         if mirror is not None:  # the parent run of the sweep's runs (created once, up front)
             mirror.start_sweep(str(Path(str(config.hydra.sweep.dir)).resolve()))
@@ -507,6 +545,90 @@ class ExitStatusCallback(_HydraCallback):
             mirror.end_sweep(counts)
 
 
+#: a multirun of images smaller than this (pixels) is not warmed: its references take less
+#: time than starting the worker processes
+WARM_MIN_PIXELS = 128 * 128
+
+
+def _config_store(config: Any) -> Path:
+    """The store of a sweep's config in a callback (Hydra's ``runtime.cwd`` resolver may not be
+    set yet when the sweep starts: it is the launch directory)."""
+    import os
+
+    from omegaconf import OmegaConf
+
+    raw = str(OmegaConf.to_container(config, resolve=False)["store"])
+    raw = raw.replace("${hydra:runtime.cwd}", os.getcwd())
+    if "${" in raw:
+        raw = str(config.store)
+    return Path(raw).expanduser().resolve()
+
+
+def sweep_jobs(config: Any) -> list[list[str]]:
+    """The override lists of a basic-sweeper multirun's jobs (the preset's grid and the command
+    line's swept values, the command line's other overrides in every job); ``[]`` for a search
+    or when the grid cannot be expanded here (Hydra functions other than ``glob``)."""
+    if "n_trials" in config.hydra.sweeper:
+        return []
+    params = {str(k): str(v) for k, v in dict(config.hydra.sweeper.get("params") or {}).items()}
+    fixed = []
+    for o in config.hydra.overrides.task:
+        key, _, value = str(o).partition("=")
+        if key.lstrip("+~").startswith("hydra"):
+            continue
+        if ("," in value and not value.startswith("[")) or value.startswith("glob("):
+            params[key] = value
+        else:
+            fixed.append(str(o))
+    if any("(" in v and not v.startswith("glob(") for v in params.values()):
+        return []
+    return [[*fixed, *job] for job in expand_grid(params)]
+
+
+def _warm_sweep(config: Any) -> None:
+    """Warm the sweep's reference cache in ``warm_workers`` processes before its first run
+    (:func:`sssbench.run.warm.warm`, as ``experiments/benchmark.py`` does): the references and
+    error-budget limits are computed in parallel, the runs are then timed one at a time. Only
+    under the basic launcher (a parallel launcher already spreads the runs), for grids of
+    images of at least :data:`WARM_MIN_PIXELS`; points already stored ok are left out. A
+    failure here is reported and the sweep goes on (each run computes what it misses)."""
+    try:
+        workers = int(config.get("warm_workers", 0) or 0)
+        launcher = str(config.hydra.launcher.get("_target_", ""))
+        if workers < 2 or "BasicLauncher" not in launcher:
+            return
+        jobs = sweep_jobs(config)
+        if len(jobs) < 2:
+            return
+        from hydra.initialize import get_gh_backup, restore_gh_from_backup
+
+        log.info("reading the %d jobs of the sweep for the warm-up", len(jobs))
+        store = _config_store(config)
+        backup = get_gh_backup()  # composing below resets Hydra's global state: keep the sweep's
+        try:
+            specs = [compose_spec(*job, store=store) for job in jobs]
+        finally:
+            restore_gh_from_backup(backup)
+        specs = [s for s in specs if s.resolution[0] * s.resolution[1] >= WARM_MIN_PIXELS]
+        done = RunStore(store) if store.is_file() else None
+        specs = [
+            s for s in specs if s.force or done is None or not done.is_done(config_hash(s.point()))
+        ]
+        from sssbench.run.warm import group_by_scene, warm
+
+        if len(group_by_scene(specs)) < 2:
+            return
+        log.info(
+            "warming the reference cache of %d runs in %d processes (one scene per task)",
+            len(specs),
+            workers,
+        )
+        seconds = warm(specs, workers, progress=True)
+        log.info("warm-up done in %.0f s; timing the runs one at a time", seconds)
+    except Exception as exc:  # the runs compute what they miss
+        log.error("warm-up skipped: %s: %s", type(exc).__name__, exc)
+
+
 def _sweep_mirror(config: Any) -> Any:
     """The MLflow mirror of a sweep when ``tracking.mlflow`` is on (errors logged, not raised:
     the run store stays the source of truth)."""
@@ -516,7 +638,7 @@ def _sweep_mirror(config: Any) -> Any:
     try:
         from sssbench.store.mlflow_mirror import MlflowMirror
 
-        store = Path(str(config.store)).expanduser().resolve()
+        store = _config_store(config)
         return MlflowMirror(tracking.get("mlflow_uri"), directory=store.parent)
     except Exception as exc:
         log.error("MLflow mirror unavailable: %s: %s", type(exc).__name__, exc)
@@ -606,6 +728,65 @@ def check_overrides(argv: list[str]) -> str | None:
     return None
 
 
+#: Hydra flags that print or inspect rather than run (no value check before them)
+_INSPECT_FLAGS = ("--help", "-h", "--hydra-help", "--info", "-i", "--shell-completion", "-sc")
+
+
+def _split_items(value: str) -> list[str]:
+    """``a,b,[1,2]`` -> ``["a", "b", "[1,2]"]``: a sweep's items (commas inside brackets kept)."""
+    items, depth, cur = [], 0, ""
+    for ch in value:
+        depth += ch in "[{"
+        depth -= ch in "]}"
+        if ch == "," and depth == 0:
+            items.append(cur)
+            cur = ""
+        else:
+            cur += ch
+    return [*items, cur]
+
+
+def check_values(argv: list[str]) -> str | None:
+    """A one-line message for a value no run could take, else ``None`` — checked before the
+    first run starts, so a bad value never gets a progress line, a ``failed`` row or exit 1.
+
+    Every job's config is composed and read into its :class:`RunSpec` exactly as a run reads it
+    (:func:`compose_spec`: resolution, ``scene.path``, samples, threads, the store's folder, …):
+    the first job of the sweep, and for each swept key each of its other values with the other
+    keys at their first (one composition per value, not per job). Values Hydra computes
+    (``range(...)``, a search's ``interval(...)``) are checked by each run."""
+    if any(a in _INSPECT_FLAGS or a.startswith("--cfg") or a == "-c" for a in argv):
+        return None
+    axes: list[list[str]] = []
+    for arg in argv:
+        if arg.startswith("-") or "=" not in arg:
+            continue
+        raw_key, value = arg.split("=", 1)
+        key = raw_key.lstrip("+~")
+        if raw_key.startswith("~") or key.split(".", 1)[0].split("/", 1)[0] == "hydra":
+            continue
+        if value.startswith("glob("):
+            options = [job[0].split("=", 1)[1] for job in expand_grid({key: value})]
+            if options:
+                axes.append([f"{raw_key}={o}" for o in options])
+        elif "(" in value:
+            continue
+        else:
+            axes.append([f"{raw_key}={v}" for v in _split_items(value)])
+    given = any(a[0].split("=", 1)[0].lstrip("+") == "store" for a in axes)
+    store = None if given else str(Path.cwd() / "sssbench.sqlite")  # the config's default
+    first = [a[0] for a in axes]
+    jobs = [first] + [
+        [*first[:i], v, *first[i + 1 :]] for i, axis in enumerate(axes) for v in axis[1:]
+    ]
+    for job in jobs:
+        try:
+            compose_spec(*job, store=store)
+        except Exception as exc:
+            return str(exc).replace("\n", " ")
+    return None
+
+
 def main() -> None:
     """Console entry point of ``sssbench`` / ``python -m sssbench``."""
     import hydra
@@ -620,7 +801,8 @@ def main() -> None:
             file=sys.stderr,
         )
         sys.exit(2)
-    problem = check_overrides(args)
+    quiet_third_party()
+    problem = check_overrides(args) or check_values(args)
     if problem:
         print(f"sssbench: {problem}", file=sys.stderr)
         sys.exit(2)

@@ -51,6 +51,7 @@ from typing import Any
 import torch
 from torch import nn
 
+from sssbench import _json
 from sssbench._checks import check_choice, check_magnitude
 from sssbench.kernels.kernel1d import Kernel1D
 
@@ -283,7 +284,7 @@ def kernels_json(
             for nk in kernels
         ],
     }
-    return json.dumps(payload, indent=1) + "\n"
+    return _json.dumps(payload, indent=1) + "\n"
 
 
 def load_kernels(source: str | Path) -> list[NamedKernel]:

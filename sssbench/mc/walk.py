@@ -204,23 +204,12 @@ def _new_directions(
 
 
 def _progress(total: int, enabled: bool | None):  # noqa: ANN202 - tqdm or a no-op
-    """A tqdm bar that appears only for runs longer than ~3 s (``enabled=None``)."""
-    try:
-        from tqdm.auto import tqdm
-    except ImportError:  # pragma: no cover - tqdm is a dependency, but keep the walk usable
-        tqdm = None
-    if tqdm is None or enabled is False:
+    """A tqdm bar on a terminal only, that appears only for runs longer than ~3 s
+    (``enabled=None``; :func:`sssbench._console.bar`)."""
+    from sssbench._console import bar
 
-        class _Null:
-            def update(self, n: int) -> None:
-                pass
-
-            def close(self) -> None:
-                pass
-
-        return _Null()
-    return tqdm(total=total, unit="photon", unit_scale=True, delay=0 if enabled else 3.0,
-                leave=False, desc="mc walk")  # fmt: skip
+    return bar(enabled, total=total, unit="photon", unit_scale=True,
+               delay=0 if enabled else 3.0, leave=False, desc="mc walk")  # fmt: skip
 
 
 def walk(

@@ -17,9 +17,9 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 from torch import nn
-from tqdm.auto import tqdm
 
 from sssbench._checks import check_choice, check_scalar
+from sssbench._console import bar as progress_bar
 from sssbench.gbuffer import GBuffer, pixel_size_mm
 from sssbench.ops._reference_far import Surface, gather, map_threads, with_border
 from sssbench.ops._reference_flat import flat_kernel
@@ -266,8 +266,9 @@ def reference_sss(
         radius_px: override the window half-size in pixels.
         method: ``"auto"``, ``"gather"``, ``"fft"`` or ``"multipole"`` (see above).
         reconstruction: ``"box"`` or ``"bilinear"`` (see above).
-        progress: show a progress bar (tqdm) on stderr; ``None``: when the multipole
-            evaluation has more than 500 000 target pixels × Gaussians (a few seconds).
+        progress: show a progress bar (tqdm) on stderr — on a terminal only; ``None``: when
+            the multipole evaluation has more than 500 000 target pixels × Gaussians (a few
+            seconds).
         threads: Python threads of the gather and multipole methods (independent tiles of
             targets, each computed with one intra-op torch thread, so the result is the same
             for every ``threads``); ``None``: ``torch.get_num_threads()``.
@@ -302,7 +303,9 @@ def reference_sss(
     if method == "auto":
         method = "fft" if flat_depth else "multipole" if _is_sum_of_gaussians(profile) else "gather"
     if method == "fft":
-        num, den = _flat_fft(g, profile, k, profile.radius(tol), reconstruction)
+        n_active = int((mask > 0).sum())
+        with timed_pass("reference", (2 * k + 1) ** 2, n_active):  # timed like the others
+            num, den = _flat_fft(g, profile, k, profile.radius(tol), reconstruction)
         return _finish(g, mask, num, den).to(gbuffer.dtype)
     if method == "multipole" and not _is_sum_of_gaussians(profile):
         raise ValueError(
@@ -406,14 +409,14 @@ def _multipole(
         k_n = min(k, math.ceil(r_n / unit) + 1)
         bi, rem = active // (h * w), active % (h * w)
         centre = bi * hp * wp + (rem // w + k) * wp + (rem % w + k)
-        with tqdm(desc="reference (cells)", unit="offset", disable=not show) as near_bar:
+        with progress_bar(show, desc="reference (cells)", unit="offset") as near_bar:
             acc, wsum = _gather_sog(
                 sub, surf.table, centre, wp, k_n, r_n, progress=near_bar, workers=workers
             )
     if not groups:
         return acc, wsum
     n_far = sum(len(ids) for ids, _ in groups)
-    bar = tqdm(total=e * n_far, desc="reference (moments)", unit="px·G", disable=not show)
+    bar = progress_bar(show, total=e * n_far, desc="reference (moments)", unit="px·G")
     foot = 2 * math.tan(g.fov_y / 2) / h
     for i in range(b):
         f = surf.fields[i]

@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from sssbench._console import quiet_third_party
 from sssbench.report.files import print_report, write_report
 from sssbench.store.tracking import read_only_uri
 
@@ -22,6 +23,12 @@ except ImportError:  # pragma: no cover
     _HydraCallback = object  # type: ignore[assignment,misc]
 
 
+def _say(line: str) -> None:
+    """A progress line of the report step (stdout, with the table and the paths; stderr
+    carries errors only)."""
+    print(line, flush=True)
+
+
 class ReportCallback(_HydraCallback):
     """Hydra callback: at the end of a multirun, write the report of the sweep directory and
     print the summary table and the report paths (``hydra.callbacks.report`` in a preset)."""
@@ -29,7 +36,7 @@ class ReportCallback(_HydraCallback):
     def on_multirun_end(self, config: Any, **kwargs: Any) -> None:
         sweep_dir = Path(str(config.hydra.sweep.dir)).resolve()
         try:
-            report = write_report(sweep_dir, html=True)
+            report = write_report(sweep_dir, html=True, progress=_say)
         except Exception as exc:  # the report must never hide the sweep's own outcome
             print(
                 f"sssbench-report: could not write the report of {sweep_dir}: {exc}",
@@ -116,9 +123,12 @@ def main(argv: list[str] | None = None) -> int:
         "--html", action="store_true", help="also write report.html (self-contained page)"
     )
     args = parser.parse_args(argv)
+    quiet_third_party()
     try:
         _check_source(Path(args.source).expanduser(), args.store)
-        report = write_report(args.source, args.out, store=args.store, html=args.html)
+        report = write_report(
+            args.source, args.out, store=args.store, html=args.html, progress=_say
+        )
     except (OSError, ValueError, KeyError, sqlite3.DatabaseError) as exc:
         print(f"sssbench-report: {exc}".replace("\n", " "), file=sys.stderr)
         return 2

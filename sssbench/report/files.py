@@ -20,6 +20,7 @@ Tables use pandas, plots matplotlib with the Agg backend.
 from __future__ import annotations
 
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -42,6 +43,7 @@ def write_report(
     *,
     store: str | Path | None = None,
     html: bool = False,
+    progress: Callable[[str], None] | None = None,
 ) -> Report:
     """Write the report files for a store or a sweep directory.
 
@@ -51,6 +53,8 @@ def write_report(
         store: the store to read when ``source`` is a directory (default: the one its jobs
             name in their ``point.json``).
         html: also write ``report.html`` (:mod:`sssbench.report.html`).
+        progress: called with one line per step (reading, tables, each plot, each group of
+            the page), so a long report is never silent; ``None``: quiet.
 
     Returns:
         A :class:`Report` with the written paths and the summary table.
@@ -74,12 +78,16 @@ def write_report(
         raise FileNotFoundError(f"source must be a run store or a sweep directory, got {source}")
     out = Path(out_dir) if out_dir is not None else default_out
     out.mkdir(parents=True, exist_ok=True)
+    say = progress or (lambda line: None)
+    say(f"report: reading the runs of {source}")
     runs, passes = load_runs(store_path, hashes)
+    say(f"report: {len(runs)} points; summary tables")
     table = summary_table(runs)
     csv_path = out / "summary.csv"
     table.to_csv(csv_path, index=False)
     md_path = out / "summary.md"
     md_path.write_text(summary_markdown(table, str(source)))
+    say("report: plots (error vs time, pass times, error budget)")
     plot = plot_error_vs_time(table, out / "error_vs_time.png")
     bars = plot_pass_times(table, passes, out / "pass_times.png")
     budget = plot_budget(table, out / "error_budget.png")
@@ -88,7 +96,11 @@ def write_report(
         from sssbench.report.html import write_html
 
         page = write_html(
-            table, out, str(source), [p for p in (plot, budget, bars) if p is not None]
+            table,
+            out,
+            str(source),
+            [p for p in (plot, budget, bars) if p is not None],
+            progress=progress,
         )
     return Report(out, csv_path, md_path, plot, bars, table, budget, page)
 

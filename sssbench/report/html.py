@@ -1,7 +1,11 @@
 """A browsable, self-contained HTML comparison report (``sssbench-report DIR --html``).
 
-One static page (every image embedded as a data URI: no server, opens from disk) per sweep or
-store. Per ranking group (scene · scale · resolution · stages):
+One static page (every image on it embedded as a data URI: no server, opens from disk) per sweep
+or store. Images larger than :data:`THUMB_PX` are embedded as thumbnails (an integer-factor
+reduction: area mean for images, the maximum for error maps, so no error is hidden) and written
+at full resolution as PNG files beside the page (``report_files/``, linked from each caption):
+the page of the paper benchmark stays a few MB instead of a hundred. Per ranking group (scene ·
+scale · resolution · stages):
 
 - the exact reference and each configuration's result and error map side by side at native
   resolution, with a zoom (1×–8×, nearest neighbour) and a flip (click a result, or hold
@@ -23,24 +27,31 @@ import html
 import io
 import json
 import math
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
 import torch
 
+from sssbench import _json
 from sssbench.report.tables import (
     BASELINE,
     MISSING,
     REFERENCE,
     _flags,
     _fmt,
+    config_text,
     group_keys,
     label,
     recommendations,
 )
 
-__all__ = ["write_html"]
+__all__ = ["write_html", "THUMB_PX"]
+
+#: largest side (pixels) of an image embedded in the page; larger ones are embedded reduced by
+#: an integer factor and written at full resolution beside the page (``report_files/``)
+THUMB_PX = 192
 
 _CSS = """
 body{font-family:system-ui,sans-serif;margin:1.5em;color:#222}
@@ -59,8 +70,10 @@ img.px{image-rendering:pixelated;display:block}
 _JS = """
 function setZoom(z){document.querySelectorAll('img.px').forEach(function(im){
   im.style.width=(im.naturalWidth*z)+'px';});}
-function flip(im){var a=im.getAttribute('data-ref');if(!a)return;
-  var b=im.getAttribute('src');im.setAttribute('src',a);im.setAttribute('data-ref',b);
+function flip(im){var r=document.getElementById(im.getAttribute('data-ref'));if(!r)return;
+  var own=im.getAttribute('data-own');
+  if(own){im.setAttribute('src',own);im.removeAttribute('data-own');}
+  else{im.setAttribute('data-own',im.getAttribute('src'));im.setAttribute('src',r.src);}
   var c=im.parentNode.querySelector('.which');
   if(c){c.textContent=c.textContent=='result'?'reference':'result';}}
 function flipAll(){document.querySelectorAll('img[data-ref]').forEach(flip);}
@@ -81,6 +94,40 @@ def _png(array: Any, **imsave: Any) -> str:
     buf = io.BytesIO()
     matplotlib.image.imsave(buf, array, format="png", **imsave)
     return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode()
+
+
+def _reduce(array: Any, reduce: str) -> Any:
+    """``array`` (H, W[, C]) reduced by the smallest integer factor that brings its larger side
+    to at most :data:`THUMB_PX`: area mean (``"mean"``) or maximum (``"max"``)."""
+    import torch.nn.functional as F
+
+    factor = math.ceil(max(array.shape[:2]) / THUMB_PX)
+    if factor <= 1:
+        return array
+    t = torch.as_tensor(array, dtype=torch.float64)
+    t = t[None, None] if t.ndim == 2 else t.permute(2, 0, 1)[None]
+    pool = F.max_pool2d if reduce == "max" else F.avg_pool2d
+    t = pool(t, factor, ceil_mode=True)
+    return (t[0, 0] if array.ndim == 2 else t[0].permute(1, 2, 0)).numpy()
+
+
+def _image(
+    array: Any, files: Path, name: str, reduce: str = "mean", **imsave: Any
+) -> tuple[str, str]:
+    """``(data URI to embed, caption link)`` of an image: as it is when small, else a thumbnail
+    and the full-resolution PNG written to ``files/name.png`` (linked)."""
+    small = _reduce(array, reduce)
+    if small is array:
+        return _png(array, **imsave), ""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.image
+
+    files.mkdir(parents=True, exist_ok=True)
+    matplotlib.image.imsave(files / f"{name}.png", array, format="png", **imsave)
+    href = html.escape(f"{files.name}/{name}.png")
+    return _png(small, **imsave), f"<a href='{href}'>{html.escape(name.rsplit('_', 1)[-1])}</a>"
 
 
 def _file_png(path: Path) -> str:
@@ -123,13 +170,15 @@ def _load(run_dir: Any) -> tuple[torch.Tensor, torch.Tensor] | None:
 
 
 def _config(run_dir: Any) -> str:
+    """The run's stored configuration as ``key=value`` lines (nested keys dotted)."""
     if not isinstance(run_dir, str):
         return "{}"
     p = Path(run_dir) / "point.json"
     try:
-        return json.dumps(json.loads(p.read_text()).get("config", {}), indent=2)
+        config = _json.loads(p.read_text()).get("config", {})
     except (OSError, json.JSONDecodeError):
         return "{}"
+    return "\n".join(config_text(v, str(k)) for k, v in config.items())
 
 
 def _table(df: pd.DataFrame, columns: list[str]) -> str:
@@ -144,7 +193,13 @@ def _table(df: pd.DataFrame, columns: list[str]) -> str:
     return f"<table><tr>{head}</tr>{''.join(rows)}</table>"
 
 
-def write_html(table: pd.DataFrame, out_dir: Path, source: str, plots: list[Path]) -> Path:
+def write_html(
+    table: pd.DataFrame,
+    out_dir: Path,
+    source: str,
+    plots: list[Path],
+    progress: Callable[[str], None] | None = None,
+) -> Path:
     """Write ``report.html`` into ``out_dir`` and return its path (see the module docstring).
 
     Args:
@@ -152,6 +207,7 @@ def write_html(table: pd.DataFrame, out_dir: Path, source: str, plots: list[Path
         out_dir: output directory.
         source: the store or sweep the report covers (shown in the title).
         plots: PNG plots to embed.
+        progress: called with a line per group of images (``report.html: k/n …``).
     """
     from sssbench.score.previews import relative_error
 
@@ -187,9 +243,14 @@ def write_html(table: pd.DataFrame, out_dir: Path, source: str, plots: list[Path
         parts.append(f"<img src='{_file_png(path)}' style='max-width:100%'>")
 
     ok = table[table["status"] == "ok"]
-    for key, group in ok.groupby(group_keys(ok), dropna=False, sort=True):
+    files = Path(out_dir) / "report_files"
+    groups_done: list[Any] = []
+    grouped = list(ok.groupby(group_keys(ok), dropna=False, sort=True))
+    for key, group in grouped:
         info = dict(zip(group_keys(ok), key, strict=True))
         title = " · ".join(str(info[k]) for k in group_keys(ok) if info[k] != MISSING)
+        if progress is not None:
+            progress(f"report.html: {len(groups_done) + 1}/{len(grouped)} {title}")
         parts.append(f"<h2>{html.escape(title)}</h2>")
         loaded = {i: _load(r["run_dir"]) for i, r in group.iterrows()}
         errors = {
@@ -198,36 +259,42 @@ def write_html(table: pd.DataFrame, out_dir: Path, source: str, plots: list[Path
             if pair is not None and group.loc[i, "method"] != REFERENCE
         }
         vmax = max((float(e.max()) for e in errors.values()), default=0.0) or 1e-12
-        ref_uri = None
+        ref_id = None
         figures = []
         for i, r in group.sort_values(["method", "samples"]).iterrows():
             pair = loaded.get(i)
             if pair is None:
                 continue
             result, reference = pair
-            if ref_uri is None:
-                ref_uri = _png(_rgb(reference))
+            name = f"{len(groups_done)}_{i}"
+            if ref_id is None:
+                ref_id = f"ref{len(groups_done)}"
+                ref_uri, ref_link = _image(_rgb(reference), files, f"{name}_reference")
+                full = f" (full resolution: {ref_link})" if ref_link else ""
                 figures.insert(
                     0,
-                    f"<figure><img class='px' src='{ref_uri}'><figcaption><b>exact "
-                    "reference</b></figcaption></figure>",
+                    f"<figure><img class='px' id='{ref_id}' src='{ref_uri}'><figcaption><b>exact "
+                    f"reference</b>{full}</figcaption></figure>",
                 )
             if r["method"] == REFERENCE:
                 continue
-            res_uri = _png(_rgb(result))
-            err_uri = _png(errors[i].numpy(), cmap="magma", vmin=0.0, vmax=vmax)
+            res_uri, res_link = _image(_rgb(result), files, f"{name}_result")
+            err_uri, err_link = _image(
+                errors[i].numpy(), files, f"{name}_error", "max", cmap="magma", vmin=0.0, vmax=vmax
+            )
+            links = f"<br>full resolution: {res_link} · {err_link}" if res_link else ""
             skill = r["skill"]
             tag = " (baseline)" if r["method"] == BASELINE else ""
             caption = (
                 f"<b>{html.escape(label(r))}</b>{tag} — <span class='which'>result</span><br>"
                 f"rel_rms {r['rel_rms']:.3g}, skill "
                 f"{'–' if pd.isna(skill) else f'{float(skill):+.2f}'}, "
-                f"{float(r['time_ms']):.3g} ms {html.escape(_flags(r, markdown=False))}"
+                f"{float(r['time_ms']):.3g} ms {html.escape(_flags(r, markdown=False))}{links}"
                 f"<details><summary>config</summary><pre>{html.escape(_config(r['run_dir']))}"
                 "</pre></details>"
             )
             figures.append(
-                f"<figure><img class='px' src='{res_uri}' data-ref='{ref_uri}' "
+                f"<figure><img class='px' src='{res_uri}' data-ref='{ref_id}' "
                 f"onclick='flip(this)' title='click: flip with the reference'>"
                 f"<img class='px' src='{err_uri}' title='error, shared scale'>"
                 f"<figcaption>{caption}</figcaption></figure>"
@@ -241,6 +308,7 @@ def write_html(table: pd.DataFrame, out_dir: Path, source: str, plots: list[Path
             parts.append("<div class='strip'>" + "".join(figures) + "</div>")
         else:
             parts.append("<p>No images stored for these runs (previews=false).</p>")
+        groups_done.append(key)
     parts.append("</body></html>")
     path = Path(out_dir) / "report.html"
     path.write_text("\n".join(parts))

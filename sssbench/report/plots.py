@@ -22,12 +22,26 @@ from sssbench.report.tables import (
     search_fronts,
 )
 
-__all__ = ["plot_error_vs_time", "plot_pass_times", "plot_budget", "MARKERS", "BUDGET_PARTS"]
+__all__ = [
+    "plot_error_vs_time",
+    "error_vs_time_figure",
+    "plot_pass_times",
+    "plot_budget",
+    "MARKERS",
+    "BUDGET_PARTS",
+    "PARETO_LABEL",
+    "REFERENCE_LABEL",
+    "WORSE_LABEL",
+]
 
 #: colour of the Optuna trials' Pareto front
 SEARCH_COLOUR = "tab:red"
 #: marker per sampling rule (the same in every plot)
 MARKERS = {"importance": "o", "uniform": "s", "power": "^", None: "D"}
+
+
+def _sampling_label(sampling: Any) -> str:
+    return f"{sampling} sampling" if isinstance(sampling, str) else "no tap placement"
 
 
 def _marker(sampling: Any) -> str:
@@ -64,10 +78,39 @@ def _title(info: dict[str, Any]) -> str:
     return t + (f" · {info['stages']}" if info.get("stages", MISSING) != MISSING else "")
 
 
+#: what each kind of mark of the error-versus-time plot means (its legend entry)
+PARETO_LABEL = "Pareto front (ringed, stepped line)"
+SEARCH_LABEL = "Optuna trials' front (red rings, dashed)"
+BASELINE_LABEL = "doing nothing (identity, dashed line)"
+REFERENCE_LABEL = "exact reference at its time (zero error drawn at the floor)"
+WORSE_LABEL = "worse than doing nothing (red cross)"
+
+
+def _legend_gid(*labels: str) -> str:
+    """The ``gid`` of a drawn mark: the legend entries that explain it (checked by a test:
+    every mark of the plot is explained by the legend)."""
+    return "legend:" + "|".join(labels)
+
+
 def plot_error_vs_time(table: pd.DataFrame, path: Path) -> Path | None:
     """Per ranking group: time against rel_rms, colour per method, marker per sampling,
-    samples written next to each point, the Pareto front, the do-nothing baseline as a dashed
-    line and the exact reference as the zero-error anchor (a star on the floor)."""
+    samples written next to each point, the Pareto front (rings and a stepped line), points
+    worse than doing nothing crossed in red, the do-nothing baseline as a dashed line and the
+    exact reference at its own time as the zero-error anchor (a star on the floor). Every kind
+    of mark has a legend entry (each drawn mark carries the entries that explain it as its
+    ``gid``)."""
+    import matplotlib.pyplot as plt
+
+    fig = error_vs_time_figure(table)
+    if fig is None:
+        return None
+    fig.savefig(path, dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
+def error_vs_time_figure(table: pd.DataFrame) -> Any:
+    """The figure of :func:`plot_error_vs_time` (``None`` without a plottable run)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -96,15 +139,21 @@ def plot_error_vs_time(table: pd.DataFrame, path: Path) -> Path | None:
                 continue
             e = max(float(r[PLOT_METRIC]), floor)
             t = max(float(r["time_ms"]), tmin / 3)
+            sampling = r["sampling"] if isinstance(r["sampling"], str) else None
             ax.scatter(
                 t,
                 e,
                 color=colours[r["method"]],
-                marker=_marker(r["sampling"]),
+                marker=_marker(sampling),
                 s=34,
                 zorder=3,
-                edgecolors="k" if r["worse_than_nothing"] else "none",
+                edgecolors="none",
+                gid=_legend_gid(r["method"], _sampling_label(sampling)),
             )
+            if r["worse_than_nothing"]:
+                ax.scatter(
+                    t, e, marker="x", s=60, color="tab:red", zorder=6, gid=_legend_gid(WORSE_LABEL)
+                )
             if not pd.isna(r["samples"]):
                 ax.annotate(
                     str(int(r["samples"])),
@@ -117,7 +166,14 @@ def plot_error_vs_time(table: pd.DataFrame, path: Path) -> Path | None:
         base = sub[sub["method"] == BASELINE]
         if len(base):
             be = float(base[PLOT_METRIC].iloc[0])
-            ax.axhline(max(be, floor), color="0.3", ls="--", lw=1, zorder=1)
+            ax.axhline(
+                max(be, floor),
+                color="0.3",
+                ls="--",
+                lw=1,
+                zorder=1,
+                gid=_legend_gid(BASELINE_LABEL),
+            )
             ax.annotate(
                 "doing nothing (identity)",
                 (0.02, max(be, floor)),
@@ -137,6 +193,7 @@ def plot_error_vs_time(table: pd.DataFrame, path: Path) -> Path | None:
                 color="gold",
                 edgecolors="k",
                 zorder=5,
+                gid=_legend_gid(REFERENCE_LABEL),
             )
             ax.annotate(
                 "exact reference (zero error)",
@@ -149,10 +206,11 @@ def plot_error_vs_time(table: pd.DataFrame, path: Path) -> Path | None:
         for name, front in search_fronts(sub).items():  # the grid's and the search's
             searched |= name == SEARCH
             colour, ls = ("k", "-") if name == "grid" else (SEARCH_COLOUR, "--")
+            gid = _legend_gid(PARETO_LABEL if name == "grid" else SEARCH_LABEL)
             ft = [max(float(t), tmin / 3) for t in front["time_ms"]]
             fe = [max(float(e), floor) for e in front[PLOT_METRIC]]
-            ax.step(ft, fe, where="post", color=colour, ls=ls, lw=1, alpha=0.6, zorder=2)
-            ax.scatter(ft, fe, s=120, facecolors="none", edgecolors=colour, zorder=4)
+            ax.step(ft, fe, where="post", color=colour, ls=ls, lw=1, alpha=0.6, zorder=2, gid=gid)
+            ax.scatter(ft, fe, s=120, facecolors="none", edgecolors=colour, zorder=4, gid=gid)
         ax.set_xscale("log")
         ax.set_yscale("log")
         lo_t, hi_t = ax.get_xlim()
@@ -170,37 +228,36 @@ def plot_error_vs_time(table: pd.DataFrame, path: Path) -> Path | None:
         if m not in (BASELINE, REFERENCE)
     ]
     samplings = sorted({s for s in ok["sampling"] if isinstance(s, str)})
+    points = ok[~ok["method"].isin((BASELINE, REFERENCE))]
+    drawn = {_sampling_label(s if isinstance(s, str) else None) for s in points["sampling"]}
     handles += [
-        Line2D([], [], ls="", marker=_marker(s), color="0.4", label=f"{s} sampling")
-        for s in samplings
+        Line2D([], [], ls="", marker=_marker(s), color="0.4", label=_sampling_label(s))
+        for s in [*samplings, None]
+        if _sampling_label(s) in drawn
     ]
-    front_label = "Pareto front (grid)" if searched else "Pareto front"
-    handles.append(Line2D([], [], color="k", alpha=0.6, label=front_label))
+    ring = {"marker": "o", "ms": 11, "mfc": "none", "alpha": 0.6}
+    handles.append(Line2D([], [], color="k", mec="k", label=PARETO_LABEL, **ring))
     if searched:
         handles.append(
-            Line2D([], [], color=SEARCH_COLOUR, ls="--", alpha=0.6, label="Optuna trials' front")
+            Line2D(
+                [], [], color=SEARCH_COLOUR, mec=SEARCH_COLOUR, ls="--", label=SEARCH_LABEL, **ring
+            )
         )
-    handles += [
-        Line2D([], [], color="0.3", ls="--", label="doing nothing"),
-        Line2D(
-            [],
-            [],
-            ls="",
-            marker="o",
-            mfc="none",
-            mec="k",
-            label="worse than doing nothing (black edge)",
-        ),
-    ]
+    if ok["method"].eq(BASELINE).any():
+        handles.append(Line2D([], [], color="0.3", ls="--", label=BASELINE_LABEL))
+    if ok["method"].eq(REFERENCE).any():
+        handles.append(
+            Line2D([], [], ls="", marker="*", ms=12, color="gold", mec="k", label=REFERENCE_LABEL)
+        )
+    if ok["worse_than_nothing"].fillna(False).astype(bool).any():
+        handles.append(Line2D([], [], ls="", marker="x", color="tab:red", label=WORSE_LABEL))
     ncol = 3 * min(3, len(axes))
     legend_rows = math.ceil(len(handles) / ncol)
     fig.legend(
         handles=handles, loc="lower center", ncol=ncol, fontsize=7, bbox_to_anchor=(0.5, 0.0)
     )
     fig.tight_layout(rect=(0, min(0.4, 0.25 * legend_rows / fig.get_figheight()), 1, 1))
-    fig.savefig(path, dpi=110, bbox_inches="tight")
-    plt.close(fig)
-    return path
+    return fig
 
 
 def plot_pass_times(table: pd.DataFrame, passes: pd.DataFrame, path: Path) -> Path | None:

@@ -30,6 +30,7 @@ __all__ = [
     "search_fronts",
     "summary_markdown",
     "format_console",
+    "config_text",
     "Report",
 ]
 
@@ -174,6 +175,11 @@ def summary_table(runs: pd.DataFrame) -> pd.DataFrame:
         if col not in table.columns:
             table[col] = None
     table = table[SUMMARY_COLUMNS].copy()
+    for col in ("scene", "method", "profile", "sampling"):  # rows that stored a config group
+        table[col] = [
+            config_text(c[col]) if isinstance(c, dict) and isinstance(c.get(col), dict) else v
+            for c, v in zip(configs, table[col], strict=True)
+        ]
     table["samples"] = pd.array(
         [None if pd.isna(v) else int(v) for v in table["samples"]], dtype="Int64"
     )
@@ -185,6 +191,22 @@ def summary_table(runs: pd.DataFrame) -> pd.DataFrame:
         na_position="first",
     ).reset_index(drop=True)
     return annotate(table)
+
+
+def config_text(value: Any, prefix: str = "") -> str:
+    """A stored configuration as readable ``key=value`` text (nested keys dotted), never a
+    raw Python dict: ``{"name": "file", "params": {"pixel_mm": 0.3}}`` ->
+    ``name=file, params.pixel_mm=0.3``."""
+    if isinstance(value, dict):
+        if not value:
+            return f"{prefix}={{}}" if prefix else ""
+        parts = [config_text(v, f"{prefix}.{k}" if prefix else str(k)) for k, v in value.items()]
+        return ", ".join(p for p in parts if p)
+    if isinstance(value, (list, tuple)):
+        text = "[" + ",".join(str(v) for v in value) + "]"
+    else:
+        text = "null" if value is None else str(value)
+    return f"{prefix}={text}" if prefix else text
 
 
 def _resolution(config: Any) -> str | None:
@@ -582,8 +604,9 @@ def summary_markdown(table: pd.DataFrame, source: str) -> str:
 
 
 def format_console(table: pd.DataFrame) -> str:
-    """A compact text table for the terminal: sampling and scale shown, skill against doing
-    nothing, flags (``*`` best, ``P`` Pareto, ``!`` visibly wrong, ``-`` worse than doing
+    """A compact text table for the terminal: sampling and scale shown (and the stages when
+    the rows differ in them, so two points of a stage sweep never look alike), skill against
+    doing nothing, flags (``*`` best, ``P`` Pareto, ``!`` visibly wrong, ``-`` worse than doing
     nothing, ``~`` SSS not visible), then one recommendation line per scene and scale."""
     if table.empty:
         return "(no runs)"
@@ -600,6 +623,8 @@ def format_console(table: pd.DataFrame) -> str:
         "flip",
         "status",
     ]
+    if table["stages"].nunique(dropna=False) > 1:  # a sweep varies a stage: show which ran
+        cols.insert(cols.index("samples") + 1, "stages")
     shown = table[cols].copy()
     shown["samples"] = [MISSING if pd.isna(v) else str(int(v)) for v in shown["samples"]]
     shown["sampling"] = [v if isinstance(v, str) else MISSING for v in shown["sampling"]]

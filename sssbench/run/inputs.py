@@ -19,6 +19,7 @@ __all__ = [
     "Built",
     "baseline",
     "build",
+    "check_requested",
     "check_untouched",
     "error_scale",
     "metric_mask",
@@ -28,6 +29,7 @@ __all__ = [
     "run_pixel_mm",
     "scene_gbuffer",
     "scene_key",
+    "stage_pipeline",
     "without_specular",
 ]
 
@@ -45,11 +47,37 @@ class Built:
 
 
 def build(spec: RunSpec) -> Built:
-    """Build the run's profile, pipelines and G-buffer (the fields both pipelines need)."""
+    """Build the run's profile, pipelines and G-buffer (the fields both pipelines need), and
+    check that every stage the run asks for can run on the scene (:func:`check_requested`)."""
     profile = registry.build_profile(spec.profile, spec.profile_kind, **spec.profile_params)
     pipeline, ref_pipeline = pipelines(spec, profile)
     fields = tuple(sorted(set(pipeline.needs) | set(ref_pipeline.needs)))
-    return Built(profile, pipeline, ref_pipeline, fields, scene_gbuffer(spec, fields))
+    gbuffer = scene_gbuffer(spec, fields)
+    check_requested(spec, pipeline, gbuffer)
+    return Built(profile, pipeline, ref_pipeline, fields, gbuffer)
+
+
+def stage_pipeline(spec: RunSpec, method: Any, profile: Any, *, for_reference: bool = False) -> Any:
+    """The pipeline of ``method`` with the run's stages. A stage a run switches on was asked
+    for (every stage is off by default), so the pipeline's automatic plan — which leaves out a
+    stage it judges negligible on the scene — is off: the requested stage runs, or the run
+    fails naming why (:func:`check_requested`); only defaults are ever planned away."""
+    return registry.build_pipeline(
+        method, profile, spec.stages, for_reference=for_reference, auto=False
+    )
+
+
+def check_requested(spec: RunSpec, pipeline: Any, gbuffer: Any) -> None:
+    """Raise ``ValueError`` naming the stage and the reason when a stage the run switches on
+    cannot run on its scene (a G-buffer field the scene does not have, no back light, an
+    empty mask): such a run would otherwise be stored ``ok`` with the stage silently left out."""
+    requested = {k for k, v in spec.stages.items() if v is not None}
+    for entry in pipeline.plan(gbuffer):
+        if entry.stage in requested and not entry.runs:
+            raise ValueError(
+                f"{entry.stage}=on cannot run on scene {spec.scene}: {entry.reason} "
+                f"(leave {entry.stage} off for this scene, or choose a scene that has it)"
+            )
 
 
 def reference_image(
@@ -143,16 +171,8 @@ def baseline(
 
     def compute() -> tuple[torch.Tensor, float, float, float]:
         with torch.inference_mode():
-            identity = (
-                registry.build_pipeline(
-                    registry.build_method("identity", profile),
-                    profile,
-                    spec.stages,
-                    for_reference=True,
-                )
-                .run(gbuffer)
-                .image
-            )
+            method = registry.build_method("identity", profile)
+            identity = stage_pipeline(spec, method, profile, for_reference=True).run(gbuffer).image
         identity = identity.clone()  # a normal tensor (deep-copyable outside inference mode)
         flip_mean, flip_local = verdict.visibility_stats(reference, identity, mask)
         return identity, rel_rms(identity, reference, mask), flip_mean, flip_local
@@ -183,10 +203,9 @@ def pipelines(spec: RunSpec, profile: Any) -> tuple[Any, Any]:
     from sssbench.ops import ReferenceSSS
 
     method = registry.method_from_spec(spec, profile)
-    pipeline = registry.build_pipeline(method, profile, spec.stages)
-    ref_pipeline = registry.build_pipeline(
-        ReferenceSSS(profile, **spec.reference_params), profile, spec.stages, for_reference=True
-    )
+    pipeline = stage_pipeline(spec, method, profile)
+    reference = ReferenceSSS(profile, **spec.reference_params)
+    ref_pipeline = stage_pipeline(spec, reference, profile, for_reference=True)
     return pipeline, ref_pipeline
 
 

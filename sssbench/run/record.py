@@ -4,12 +4,12 @@ ends, one row in the run store, the optional MLflow mirror, and the log line."""
 from __future__ import annotations
 
 import csv
-import json
 import logging
 import os
 from pathlib import Path
 from typing import Any
 
+from sssbench import _json
 from sssbench.run.spec import RunSpec
 from sssbench.store.tracking import PassStats, RunRecord, RunStore, utc_now
 
@@ -42,7 +42,7 @@ INFO_KEYS = (
 
 def write_json(path: Path, payload: dict[str, Any]) -> None:
     tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(payload, indent=2, default=str))
+    tmp.write_text(_json.dumps(payload, indent=2, default=str))
     os.replace(tmp, path)
 
 

@@ -38,8 +38,10 @@ class RunSpec:
         stages: pipeline stage name -> its parameters (``None`` = off); see
             :data:`sssbench.run.registry.STAGES`.
         ignored: options given explicitly that the method does not take (e.g. ``samples``
-            for the baseline in a samples sweep): not passed to the method, but part of the
-            point, so two such requests are never merged.
+            for the baseline in a samples sweep): not passed to the method and not part of the
+            point — an option a method does not use never splits it (the baseline is one point
+            per scene; the second job of such a sweep finds it stored and is skipped). Recorded
+            in ``metrics.json``.
         resolution: ``(H, W)`` pixels.
         reference: ``profile`` or ``mc`` (:data:`REFERENCES`); in the point only when ``mc``
             (points stored before the option existed keep their hash).
@@ -103,7 +105,6 @@ class RunSpec:
             "sampling": self.sampling,
             "samples": self.samples,
             "stages": {k: v for k, v in sorted(self.stages.items()) if v is not None},
-            **({"ignored": self.ignored} if self.ignored else {}),
             "reference_params": self.reference_params,
             **(
                 {"reference": self.reference, "mc_params": self.mc_params}

@@ -9,6 +9,7 @@ import torch
 
 from sssbench._checks import MAX_SEED
 from sssbench.run import registry
+from sssbench.run.inputs import stage_pipeline
 from sssbench.run.spec import RunSpec
 from sssbench.score.bias_noise import bias_noise
 
@@ -50,5 +51,5 @@ def seed_split(
         if "seed" in params:
             params["seed"] = s_k
         other = registry.method_from_spec(spec, profile, seed=s_k, params=params)
-        images.append(registry.build_pipeline(other, profile, spec.stages).run(gbuffer).image)
+        images.append(stage_pipeline(spec, other, profile).run(gbuffer).image)
     return bias_noise(images, reference, mask)

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import hashlib
 import importlib.util
-import json
 import numbers
 import os
 import re
@@ -34,6 +33,8 @@ from collections.abc import Iterable, Mapping, Sequence
 from datetime import datetime
 from pathlib import Path
 from typing import Any
+
+from sssbench import _json
 
 __all__ = [
     "MlflowMirror",
@@ -105,7 +106,7 @@ def _key(key: str) -> str:
 def _text(value: object, limit: int) -> str:
     """``value`` as a string (strings as they are, else JSON), cut to ``limit`` characters
     ending in ``...`` when cut."""
-    text = value if isinstance(value, str) else json.dumps(value, sort_keys=True, default=str)
+    text = value if isinstance(value, str) else _json.dumps(value, sort_keys=True, default=str)
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 

@@ -44,7 +44,6 @@ Example:
 from __future__ import annotations
 
 import hashlib
-import json
 import logging
 import math
 import random
@@ -56,6 +55,8 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
+
+from sssbench import _json
 
 __all__ = [
     "RunStore",
@@ -149,7 +150,7 @@ def utc_now() -> str:
 
 
 def _canonical(obj: Any) -> str:
-    return json.dumps(obj, sort_keys=True, separators=(",", ":"), default=str)
+    return _json.dumps(obj, sort_keys=True, separators=(",", ":"), default=str)
 
 
 def config_hash(config: dict[str, Any]) -> str:
@@ -354,14 +355,16 @@ class RunStore:
             "time_ms": _num(run.time_ms),
             "passes": len(run.passes),
             **{m: _num(run.metrics.get(m)) for m in METRIC_COLUMNS},
-            "metrics_json": json.dumps(run.metrics, sort_keys=True),
-            "info_json": json.dumps(run.info, sort_keys=True, default=str),
+            "metrics_json": _json.dumps(run.metrics, sort_keys=True),
+            "info_json": _json.dumps(run.info, sort_keys=True, default=str),
             "run_dir": run.run_dir,
             "sweep_dir": run.sweep_dir,
             "started_at": run.started_at,
             "finished_at": run.finished_at,
         }
         for key in ("scene", "method", "profile", "sampling"):
+            if isinstance(row[key], dict):  # a config group: its name, not a Python repr
+                row[key] = row[key].get("name", _canonical(row[key]))
             if row[key] is not None:
                 row[key] = str(row[key])
         if row["samples"] is not None:
@@ -441,9 +444,9 @@ class RunStore:
         for r in rows:
             if status is not None and r["status"] != status:
                 continue
-            r["config"] = json.loads(r.pop("config_json"))
-            r["metrics"] = json.loads(r.pop("metrics_json"))
-            r["info"] = json.loads(r.pop("info_json"))
+            r["config"] = _json.loads(r.pop("config_json"))
+            r["metrics"] = _json.loads(r.pop("metrics_json"))
+            r["info"] = _json.loads(r.pop("info_json"))
             out.append(r)
         return out
 

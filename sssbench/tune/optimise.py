@@ -75,6 +75,7 @@ from typing import Any
 import torch
 from torch import nn
 
+from sssbench import _json
 from sssbench._checks import check_choice, check_int, check_scalar, check_seed
 from sssbench.kernels.kernel1d import Kernel1D
 from sssbench.kernels.parametrise import (
@@ -519,8 +520,8 @@ def _load(path: Path, key: Mapping[str, Any], pixel_mm: float) -> OptimisedKerne
     if not path.is_file():
         return None
     try:
-        entry = json.loads(path.read_text())
-        if entry["key"] != json.loads(json.dumps(dict(key))):
+        entry = _json.loads(path.read_text())
+        if entry["key"] != _json.loads(_json.dumps(dict(key))):
             return None  # a hash collision: never serve another key's kernel
         stored = {name: entry[name] for name in _STORED}
         if not all(math.isfinite(v) for v in (entry["loss"], entry["init_loss"])):
@@ -539,7 +540,7 @@ def _store(path: Path, result: OptimisedKernel) -> None:
     tmp = path.with_name(f"{path.name}.{os.getpid()}.{threading.get_ident()}.tmp")
     entry = {"key": result.key, "fitted": result.fitted.as_dict()}
     entry |= {name: getattr(result, name) for name in _STORED}
-    tmp.write_text(json.dumps(entry))
+    tmp.write_text(_json.dumps(entry))
     os.replace(tmp, path)
 
 
