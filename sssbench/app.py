@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from sssbench import _json
-from sssbench._checks import check_int
+from sssbench._checks import check_int, check_seed
 from sssbench._console import quiet_third_party
 from sssbench.run import registry
 from sssbench.run.runner import execute, run_label
@@ -225,7 +225,7 @@ def spec_from_cfg(cfg: Any, overridden: tuple[str, ...] = ()) -> RunSpec:
         budget=bool(c.get("budget", True)),
         seeds=check_int("seeds", c.get("seeds", DEFAULT_SEEDS), 2),
         resolution=(int(res[0]), int(res[1])),
-        seed=c["seed"],
+        seed=check_seed("seed", c["seed"]),  # all its bits honoured, or refused up front
         dtype=c["dtype"],
         repeats=c["repeats"],
         warmup=c["warmup"],

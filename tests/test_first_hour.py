@@ -130,6 +130,8 @@ def test_explicit_resolution_with_a_file_scene_is_honoured_or_refused(tmp_path):
         (["-m", "samples=3,-3"], "samples"),
         (["threads=0"], "threads"),
         (["store=/no/such/folder/s.sqlite"], "store"),
+        (["seed=4294967296"], "seed"),  # 2^32: its bit 32 would be dropped (issue 29.1)
+        (["seed=-1"], "seed"),
     ],
 )
 def test_every_value_is_checked_before_the_first_run(args, key):
