@@ -9,7 +9,11 @@ import torch
 from sssbench.run.inputs import without_specular
 from sssbench.run.spec import RunSpec
 
-__all__ = ["mc_metrics"]
+__all__ = ["mc_metrics", "mc_verdicts", "TOL"]
+
+#: differences of relative RMS errors at or below this are "no difference" however small their
+#: noise (a 4e-9 difference is no finding; experiments/mc_gap.py uses the same)
+TOL = 1e-4
 
 
 def mc_metrics(
@@ -58,8 +62,47 @@ def mc_metrics(
     for name, image in (("rel_rms_mc", result), ("reference_vs_mc", reference)):
         value, se = noise_corrected_rel_rms(without_specular(image, gbuffer)[:1], batches, region)
         out[name], out[f"{name}_se"] = value, se
-    out["identity_vs_mc"] = noise_corrected_rel_rms(
+    out["identity_vs_mc"], out["identity_vs_mc_se"] = noise_corrected_rel_rms(
         without_specular(identity, gbuffer)[:1], batches, region
-    )[0]
+    )
     out |= {"mc_photons": mc.photons, "mc_seconds": mc.seconds, "mc_material": str(material)}
+    out["mc_verdicts"] = mc_verdicts(
+        {"run": result, "reference": reference, "identity": identity},
+        gbuffer,
+        batches,
+        region,
+        mc.photons,
+    )
     return out
+
+
+def mc_verdicts(
+    images: dict[str, torch.Tensor],
+    gbuffer: Any,
+    batches: torch.Tensor,
+    region: torch.Tensor,
+    photons: int,
+) -> dict[str, str]:
+    """The run against doing nothing and against the exact profile reference, each judged
+    against Monte Carlo by the one significance rule (:func:`sssbench.mc.significance.compare`:
+    resolved beyond ``K_SIGMA`` paired jackknife standard errors over the same MC batches,
+    below :data:`TOL` "no difference", else "not resolved at N photons"). The verdict reads
+    "run is <verdict> than ..." (closer: smaller error against the MC).
+
+    Args:
+        images: ``run``, ``reference`` and ``identity`` images ``(B, 3, H, W)``.
+        batches: ``(K, 3, H, W)`` independent MC batch images (K >= 3).
+        region: ``(H, W)`` pixels scored.
+        photons: the MC's photon count, named in an unresolved verdict.
+
+    Returns:
+        ``{"run_vs_identity": verdict, "run_vs_reference": verdict}``.
+    """
+    from sssbench.mc.significance import compare, scene_errors
+
+    diffuse = {k: without_specular(v, gbuffer)[:1] for k, v in images.items()}
+    _, diff = scene_errors(diffuse, batches, region)
+    return {
+        f"run_vs_{other}": compare(*diff("run", other), photons=photons, tol=TOL).verdict
+        for other in ("identity", "reference")
+    }

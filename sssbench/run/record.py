@@ -37,6 +37,7 @@ INFO_KEYS = (
     "visible",
     "error_visible",
     "error_scale",
+    "mc_verdicts",
 )
 
 

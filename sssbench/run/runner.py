@@ -126,6 +126,7 @@ METRIC_KEYS = (
     "reference_vs_mc",
     "reference_vs_mc_se",
     "identity_vs_mc",
+    "identity_vs_mc_se",
 )
 
 

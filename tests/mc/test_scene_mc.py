@@ -4,6 +4,7 @@ perturbation, and the app's ``reference=mc``."""
 
 from __future__ import annotations
 
+import json
 import math
 
 import pytest
@@ -152,6 +153,17 @@ def test_app_reference_mc_stores_both_errors(tmp_path, monkeypatch):
         # reference's (the baseline's), computed independently of the run's own metric
         twin = "reference_vs_mc" if method == "reference" else "identity_vs_mc"
         assert m["rel_rms_mc"] == pytest.approx(m[twin], rel=1e-9)
+        # the significance rule on identical images: a difference of exactly 0 is never a
+        # finding; the other comparison is a verdict of the rule's vocabulary
+        verdicts = json.loads((tmp_path / method / "metrics.json").read_text())["mc_verdicts"]
+        assert verdicts[f"run_vs_{'reference' if method == 'reference' else 'identity'}"] == (
+            "no difference"
+        )
+        assert set(verdicts) == {"run_vs_identity", "run_vs_reference"}
+        assert all(
+            v in ("closer", "worse", "no difference") or v.startswith("not resolved at")
+            for v in verdicts.values()
+        )
     rows = RunStore(store).runs()
     assert len(rows) == 2
     # 6 000 photons cannot resolve these errors: the noise-corrected error may be clamped at 0
