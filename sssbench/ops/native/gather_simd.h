@@ -148,6 +148,23 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
                  * contiguous rows of VW columns and selects per plane instead of a gather */
                 const int32_t r0 = i0[0] - 1;
                 const ivec ra = i0 - r0, rb = i1 - r0;
+                if (!IANY((ra != 1) | (rb != 2))) { /* one row pair for all: no selects */
+                    const int64_t at1 = (i0[0] - ln->lo) * ln->pitch + (c - ln->s0);
+                    const int64_t at2 = at1 + ln->pitch;
+#define PAIR(P, out)                                                              \
+    do {                                                                          \
+        vec a_, b_;                                                               \
+        __builtin_memcpy(&a_, (P) + at1, sizeof a_);                              \
+        __builtin_memcpy(&b_, (P) + at2, sizeof b_);                              \
+        out = a_ + f * (b_ - a_);                                                 \
+    } while (0)
+                    PAIR(p0, v0);
+                    PAIR(p1, v1);
+                    PAIR(p2, v2);
+                    PAIR(p3, v3);
+#undef PAIR
+                    goto fetched;
+                }
                 if (!IANY((uivec)(ra | rb) > (uivec)(izero + 3))) {
                     int64_t at[4];
                     for (int k = 0; k < 4; ++k) {
