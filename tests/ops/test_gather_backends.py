@@ -2,7 +2,10 @@
 
 Every case runs one ``separable_pass`` twice, once per backend, on G-buffers with random
 depth, random mask strength and holes; the torch loop is vectorised torch code, the native
-loop scalar C, so agreement is between two independent implementations of the same formulas.
+loop C, so agreement is between two independent implementations of the same formulas. The
+native cases run at every instruction-set level of the C loop this CPU has (the ``simd``
+fixture: the scalar loop, and the vectorised AVX2 and AVX-512 loops of
+``native/gather_simd.h`` where supported).
 """
 
 import subprocess
@@ -19,6 +22,16 @@ from sssbench.ops._stencil import image_stencils
 from sssbench.ops.gather import backend
 
 pytestmark = pytest.mark.skipif(native.library() is None, reason="no C compiler")
+
+#: the C loop's levels this CPU supports (the scalar one alone without the library)
+LEVELS = native.simd_levels() or ("scalar",)
+
+
+@pytest.fixture(params=LEVELS)
+def simd(request):
+    """Run the test's native passes at each supported instruction-set level."""
+    with native.simd(request.param):
+        yield request.param
 
 
 def scene(seed=0, b=1, h=23, w=31, dtype=torch.float64, holes=True, cover=0.7):
@@ -73,7 +86,7 @@ def tol(dtype):
     ],
     ids=lambda o: "-".join(f"{k}" for k in o) or "plain",
 )
-def test_native_equals_torch_loop(dtype, direction, cover, options):
+def test_native_equals_torch_loop(simd, dtype, direction, cover, options):
     """Dense and sparse stencils (the y pass uses wide and narrow column strips)."""
     g = scene(dtype=dtype, cover=cover)
     ref, got = both(g.diffuse, kernel(), direction, g, **options)
@@ -82,7 +95,7 @@ def test_native_equals_torch_loop(dtype, direction, cover, options):
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
-def test_native_equals_torch_loop_with_per_pixel_width_batch_and_no_mask(dtype):
+def test_native_equals_torch_loop_with_per_pixel_width_batch_and_no_mask(simd, dtype):
     g = scene(seed=3, b=3, dtype=dtype)
     # one image of the batch has an empty stencil: it must come back unchanged
     mask = g.mask.clone()
@@ -101,7 +114,7 @@ def test_native_equals_torch_loop_with_per_pixel_width_batch_and_no_mask(dtype):
     torch.testing.assert_close(got, ref, **tol(dtype))
 
 
-def test_native_handles_non_contiguous_inputs():
+def test_native_handles_non_contiguous_inputs(simd):
     g = scene(h=20, w=26)
     wide = torch.rand(1, 3, 26, 20, dtype=torch.float64).transpose(2, 3)  # strided view
     g = g.replace(diffuse=wide)
@@ -180,7 +193,7 @@ BIG_H = 180
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 @pytest.mark.parametrize("cover", [0.95, 0.12], ids=["dense", "sparse"])
-def test_native_lines_windows_and_threads_on_a_larger_image(dtype, cover):
+def test_native_lines_windows_and_threads_on_a_larger_image(simd, dtype, cover):
     """An image large enough for two threads and many y strips (spans crossing strip edges),
     kernels from a pixel wide to wider than the image, a per-pixel width with a few huge
     values (their window is the whole line) and both follow-surface modes: each line reads
@@ -354,7 +367,7 @@ def test_memo_sees_writes_that_bump_no_version_counter():
 
 @pytest.mark.parametrize("name", ["native", "torch"])
 @pytest.mark.parametrize("cover", [0.1, 0.7, None], ids=["sparse", "dense", "full"])
-def test_inplace_pass_equals_the_copying_pass(name, cover):
+def test_inplace_pass_equals_the_copying_pass(simd, name, cover):
     """``inplace=True`` reads every tap before it writes: the native loop copies each row (x)
     or column strip (y) it works on first; the torch loop gathers every tap first."""
     g = scene(b=2, holes=cover is not None, cover=cover or 0.0)
@@ -408,7 +421,7 @@ def test_blend_on_stencil_native_equals_torch_lerp(dtype):
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
-def test_sum_of_gaussians_native_equals_torch(dtype):
+def test_sum_of_gaussians_native_equals_torch(simd, dtype):
     """The whole 12-pass schedule (passes and blends, LOD stencils) on both backends."""
     import data_synth
     from sssbench.ops import SumOfGaussiansSSS
@@ -428,7 +441,7 @@ def test_sum_of_gaussians_native_equals_torch(dtype):
 @pytest.mark.parametrize("kernel_dtype", [torch.float32, torch.float64])
 @pytest.mark.parametrize("surface_scale", [1e-40, 2.5, "per-channel"])
 def test_native_converts_the_kernel_itself_as_the_torch_loop(
-    image_dtype, kernel_dtype, surface_scale
+    simd, image_dtype, kernel_dtype, surface_scale
 ):
     """Without autograd the C loop takes the kernel's taps as they are and converts them to the
     pass's dtype itself: offsets beyond its range clamp to its largest value (taps on the
@@ -467,3 +480,71 @@ def test_weights_beyond_the_pass_dtype_are_refused_by_both_loops(inplace, masked
         with backend(name), pytest.raises(ValueError, match="kernel.weights"):
             separable_pass(image, k, "x", g, inplace=inplace)
         assert torch.equal(image, g.diffuse)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("inplace", [False, True])
+def test_every_simd_level_gives_the_scalar_loops_bits(dtype, inplace):
+    """The vectorised loops (issue 30) against the scalar one and the torch loop, bitwise but
+    for the gaussian's exp (the vectorised loops' polynomial exp: the stated tolerance): runs of
+    every length (vectors with spare lanes), smooth per-pixel widths (the permute / row-select
+    fetch) with rough patches and a few huge values (lanes far apart: the gather fallback),
+    the stretch, both axes, dense and sparse stencils."""
+    h, w = 61, 203
+    gen = torch.Generator().manual_seed(7)
+    width = 0.5 + 0.3 * torch.linspace(0, 1, w, dtype=torch.float64).expand(1, 1, h, w).clone()
+    width[..., 10:20, :] = 0.05 + 4 * torch.rand(1, 1, 10, w, generator=gen, dtype=torch.float64)
+    width[0, 0, 30, 50:53] = 1e4
+    width = width.to(dtype)
+    cases = [
+        {},
+        {"follow_surface": "lerp", "surface_scale": torch.tensor([1.0, 4.0, 20.0])},
+        {"follow_surface": "gaussian", "surface_scale": 2.0},
+        {
+            "stretch": Stretch(ssslevel=2.0, correction=50.0, maxdd=0.5),
+            "follow_surface": "lerp",
+            "surface_scale": 3.0,
+        },
+        {"use_mask": False},
+    ]
+    for cover in (0.95, 0.3):
+        g = scene(seed=11, h=h, w=w, dtype=dtype, cover=cover)
+        for kw in cases:
+            kw = {k: (v.to(dtype) if isinstance(v, torch.Tensor) else v) for k, v in kw.items()}
+            for wide in (1.0, 8.0):
+                for direction in ("x", "y"):
+                    args = (kernel(9), direction, g)
+                    opts = dict(width=width * wide, **kw)
+                    with backend("torch"):
+                        ref = separable_pass(g.diffuse.clone(), *args, **opts)
+                    outs = {}
+                    for level in LEVELS:
+                        with native.simd(level), backend("native"):
+                            image = g.diffuse.clone()
+                            outs[level] = separable_pass(image, *args, inplace=inplace, **opts)
+                    for level, out in outs.items():
+                        if kw.get("follow_surface") != "gaussian":
+                            assert torch.equal(out, outs["scalar"]), (level, kw, direction)
+                            assert torch.equal(out, ref), (level, kw, direction)
+                        else:  # BACKEND_AGREEMENT's tolerance (the vectorised exp)
+                            span = float(g.diffuse.abs().max())
+                            for other in (outs["scalar"], ref):
+                                err = float((out - other).abs().max()) / span
+                                assert err <= (1e-6 if dtype == torch.float32 else 1e-14), err
+
+
+def test_simd_level_is_capped_chosen_by_name_and_by_the_environment():
+    best = native.simd_levels()[-1]
+    with native.simd("avx512") as level:
+        assert level == ("avx512" if "avx512" in native.simd_levels() else best)
+        assert native.simd_level() == level
+    assert native.simd_level() == best
+    with native.simd("scalar"):
+        assert native.simd_level() == "scalar"
+    with pytest.raises(ValueError, match="unknown SIMD level"):
+        native.set_simd("sse9")
+    code = "from sssbench.ops import native; print(native.simd_level())"
+    env = {**__import__("os").environ, "SSSBENCH_SIMD": "scalar"}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                         check=True)  # fmt: skip
+    assert out.stdout.strip() == "scalar"

@@ -367,9 +367,13 @@ def test_the_fallback_warning_states_the_tested_agreement():
     ],
     ids=["plain", "lerp", "lerp-per-channel", "stretch-lerp", "width-nomask"],
 )
-def test_native_and_torch_loop_are_bitwise_equal_but_for_exp(dtype, kw):
+@pytest.mark.parametrize("level", native.SIMD_LEVELS)
+def test_native_and_torch_loop_are_bitwise_equal_but_for_exp(dtype, kw, level):
     """The claim of BACKEND_AGREEMENT (and the fallback warning): bitwise, float32 and float64,
-    without the gaussian's exp, both axes, random per-pixel width, batch of two."""
+    without the gaussian's exp, both axes, random per-pixel width, batch of two; at every
+    instruction-set level of the C loop (a level the CPU lacks is skipped)."""
+    if level not in native.simd_levels():
+        pytest.skip(f"this CPU has no {level}")
     g = scene(seed=4, h=40, w=53, dtype=dtype, b=2)
     kw = {k: (v.to(dtype) if isinstance(v, torch.Tensor) else v) for k, v in kw.items()}
     if "width" not in kw:
@@ -377,20 +381,23 @@ def test_native_and_torch_loop_are_bitwise_equal_but_for_exp(dtype, kw):
     for direction in ("x", "y"):
         with backend("torch"):
             ref = separable_pass(g.diffuse, kernel(9), direction, g, **kw)
-        with backend("native"):
+        with backend("native"), native.simd(level):
             got = separable_pass(g.diffuse, kernel(9), direction, g, **kw)
         assert torch.equal(got, ref), float((got - ref).abs().max())
 
 
 @NATIVE
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
-def test_native_and_torch_loop_with_gaussian_agree_to_the_stated_tolerance(dtype):
+@pytest.mark.parametrize("level", native.SIMD_LEVELS)
+def test_native_and_torch_loop_with_gaussian_agree_to_the_stated_tolerance(dtype, level):
+    if level not in native.simd_levels():
+        pytest.skip(f"this CPU has no {level}")
     g = scene(seed=5, h=40, w=53, dtype=dtype)
     tol = 1e-6 if dtype == torch.float32 else 1e-14
     for direction in ("x", "y"):
         outs = []
         for name in ("torch", "native"):
-            with backend(name):
+            with backend(name), native.simd(level):
                 out = separable_pass(
                     g.diffuse, kernel(9), direction, g, follow_surface="gaussian", surface_scale=2.0
                 )

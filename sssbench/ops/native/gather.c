@@ -27,6 +27,50 @@
 
 #include "pool.h"
 
+/* The vectorised tap loop (gather_simd.h): x86-64 with GCC or clang builds it for AVX2 and
+ * AVX-512F through target attributes (no -march: the library runs on any x86-64) and a pass
+ * uses the widest set the CPU and OS support, or the level sss_set_simd asked for. */
+#if (defined(__x86_64__) || defined(_M_X64)) && defined(__GNUC__)
+#define SSS_SIMD 1
+#include <immintrin.h>
+#else
+#define SSS_SIMD 0
+#endif
+
+/* lanes idx (0..15) of the 16 floats of lo and hi (AVX2): vpermps of each, the second's
+ * lanes where bit 3 of the index is set (two-vector permutes through intrinsics: GCC 12 makes
+ * of __builtin_shuffle with a variable index element-by-element code for AVX2, and clang has
+ * no __builtin_shuffle) */
+#define SHUFFLE2_PS(lo, hi, idx)                                                        \
+    _mm256_blendv_ps(_mm256_permutevar8x32_ps((lo), (idx)),                            \
+                     _mm256_permutevar8x32_ps((hi), (idx)),                            \
+                     _mm256_castsi256_ps(_mm256_slli_epi32((idx), 28)))
+
+static int simd_level = -1; /* 0: the scalar loop, 1: AVX2, 2: AVX-512F; -1: not chosen yet */
+
+/* the widest level this CPU (and the OS, which must save its registers) supports */
+int sss_simd_best(void) {
+#if SSS_SIMD
+    __builtin_cpu_init();
+    if (__builtin_cpu_supports("avx512f")) return 2;
+    if (__builtin_cpu_supports("avx2")) return 1;
+#endif
+    return 0;
+}
+
+/* use `level` (capped at the best the CPU supports; < 0: the best); returns the level set */
+int sss_set_simd(int level) {
+    const int best = sss_simd_best();
+    const int chosen = level < 0 || level > best ? best : level;
+    __atomic_store_n(&simd_level, chosen, __ATOMIC_RELAXED);
+    return chosen;
+}
+
+int sss_get_simd(void) {
+    const int level = __atomic_load_n(&simd_level, __ATOMIC_RELAXED);
+    return level >= 0 ? level : sss_set_simd(-1);
+}
+
 #define SCALAR float
 #define LANE int32_t
 #define SUFFIX f32
@@ -35,6 +79,15 @@
 #define FABSF fabsf
 #define VMIN VMIN_F32
 #define VMAX VMAX_F32
+#define VW_AVX2 8
+#define GATHER_AVX2(base, idx) _mm256_i32gather_ps((base), (__m256i)(idx), 4)
+#define VW_AVX512 16
+#define GATHER_AVX512(base, idx) _mm512_i32gather_ps((__m512i)(idx), (base), 4)
+#define IANY_AVX2(m) _mm256_movemask_ps((__m256)(m))
+#define SHUFFLE2_AVX2(lo, hi, idx) SHUFFLE2_PS((__m256)(lo), (__m256)(hi), (__m256i)(idx))
+#define SHUFFLE2_AVX512(lo, hi, idx) \
+    _mm512_permutex2var_ps((__m512)(lo), (__m512i)(idx), (__m512)(hi))
+#define IANY_AVX512(m) _mm512_test_epi32_mask((__m512i)(m), (__m512i)(m))
 #include "gather_body.h"
 #undef SCALAR
 #undef LANE
@@ -44,6 +97,14 @@
 #undef FABSF
 #undef VMIN
 #undef VMAX
+#undef VW_AVX2
+#undef GATHER_AVX2
+#undef VW_AVX512
+#undef GATHER_AVX512
+#undef IANY_AVX2
+#undef IANY_AVX512
+#undef SHUFFLE2_AVX2
+#undef SHUFFLE2_AVX512
 
 #define SCALAR double
 #define LANE int64_t
@@ -53,4 +114,16 @@
 #define FABSF fabs
 #define VMIN VMIN_F64
 #define VMAX VMAX_F64
+#define VW_AVX2 4
+#define GATHER_AVX2(base, idx) _mm256_i32gather_pd((base), (__m128i)(idx), 8)
+#define VW_AVX512 8
+#define GATHER_AVX512(base, idx) _mm512_i32gather_pd((__m256i)(idx), (base), 8)
+#define IANY_AVX2(m) _mm_movemask_ps((__m128)(m))
+#define IANY_AVX512(m) _mm256_movemask_ps((__m256)(m))
+/* the float permute on each double's two halves: indices 2i, 2i + 1 per 64-bit lane */
+#define SHUFFLE2_AVX2(lo, hi, idx)                                                  \
+    _mm256_castps_pd(SHUFFLE2_PS((__m256)(lo), (__m256)(hi),                        \
+                                 (__m256i)(((idx) << 1) | ((((idx) << 1) + 1) << 32))))
+#define SHUFFLE2_AVX512(lo, hi, idx) \
+    _mm512_permutex2var_pd((__m512d)(lo), (__m512i)(idx), (__m512d)(hi))
 #include "gather_body.h"

@@ -150,70 +150,125 @@ static inline void CAT(prefetch_row_, SUFFIX)(const CAT(job_, SUFFIX) *j, int64_
                 __builtin_prefetch(rows[a] + (c < c1 ? c : c1 - 1));
 }
 
+/* One line's preparation, shared by the scalar loop and the vectorised ones (gather_simd.h),
+ * in three steps (line_begin_, line_scales_ or its vectorised twin, line_window_):
+ * the copy of the line's pixels (copy mode), the prefetch of the next short row (x pass), the
+ * scales of its active pixels into j->scale, the window [lo, hi] along the axis and the
+ * window's samples in j->buf. PLANAR = 0: interleaved (r, g, b, depth) vectors, position p,
+ * column c at vector (p - lo) * pitch + (c - s0); PLANAR = 1: four planes (r, g, b, depth) of
+ * plane SCALARs each, the same index within a plane. line_begin_ returns 0 when the line has
+ * no active pixel. */
+typedef struct {
+    const int64_t *ids; /* the spans crossing the line */
+    int64_t count, s0, s1, lo, hi, pitch, plane;
+} CAT(line_, SUFFIX);
+
+static inline __attribute__((always_inline)) int CAT(line_begin_, SUFFIX)(
+    const CAT(job_, SUFFIX) *j, int64_t q, const int AXIS_Y, CAT(line_, SUFFIX) *ln) {
+    const int64_t w = j->w, h = j->h, hw = h * w;
+    const int64_t *ids = j->ids + j->lines[3 * q], count = j->lines[3 * q + 1];
+    const int64_t s0 = AXIS_Y ? q * j->strip : 0;
+    const int64_t s1 = AXIS_Y && s0 + j->strip < w ? s0 + j->strip : w;
+    if (j->copy) /* the line's pixels, before its results overwrite the active ones */
+        for (int ch = 0; ch < 3; ++ch)
+            for (int64_t r = AXIS_Y ? 0 : q; r < (AXIS_Y ? h : q + 1); ++r)
+                memcpy(j->dst + ch * hw + r * w + s0, j->src + ch * hw + r * w + s0,
+                       sizeof(SCALAR) * (size_t)(s1 - s0));
+    if (count == 0) return 0;
+    if (!AXIS_Y && !j->copy) { /* the next active row of this thread, prefetched */
+        int64_t nq = q + 1;
+        while (nq < j->last && j->lines[3 * nq + 1] == 0) ++nq;
+        if (nq < j->last) {
+            const int64_t *nids = j->ids + j->lines[3 * nq];
+            const int64_t nc = j->lines[3 * nq + 1];
+            const int64_t a = j->spans[3 * nids[0] + 1], b = j->spans[3 * nids[nc - 1] + 2];
+            if (b - a <= SHORT_ROW) CAT(prefetch_row_, SUFFIX)(j, nq, a, b);
+        }
+    }
+    ln->ids = ids;
+    ln->count = count;
+    ln->s0 = s0;
+    ln->s1 = s1;
+    return 1;
+}
+
+/* the scales of the line's active pixels into j->scale; returns the largest |scale| */
+static inline __attribute__((always_inline)) SCALAR CAT(line_scales_, SUFFIX)(
+    const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX) *ln) {
+    SCALAR max_abs = 0;
+    int64_t idx = 0;
+    for (int64_t e = 0; e < ln->count; ++e) {
+        const int64_t *sp = j->spans + 3 * ln->ids[e];
+        const int64_t c0 = sp[1] > ln->s0 ? sp[1] : ln->s0, c1 = sp[2] < ln->s1 ? sp[2] : ln->s1;
+        for (int64_t c = c0; c < c1; ++c) {
+            const SCALAR sc = CAT(scale_at_, SUFFIX)(j, sp[0] * j->w + c);
+            const SCALAR a = FABSF(sc);
+            if (!(a <= max_abs)) max_abs = a == a ? a : (SCALAR)INFINITY;
+            j->scale[idx++] = sc;
+        }
+    }
+    return max_abs;
+}
+
+/* the window and its samples in j->buf (see above), given the largest |scale| */
+static inline __attribute__((always_inline)) void CAT(line_window_, SUFFIX)(
+    const CAT(job_, SUFFIX) *j, int64_t q, const int AXIS_Y, const int PLANAR, SCALAR max_abs,
+    CAT(line_, SUFFIX) *ln) {
+    const int64_t w = j->w, h = j->h, hw = h * w, n_axis = AXIS_Y ? h : w;
+    const int64_t s0 = ln->s0, s1 = ln->s1;
+    const int64_t *head = j->spans + 3 * ln->ids[0], *tail = j->spans + 3 * ln->ids[ln->count - 1];
+    int64_t lo, hi; /* the window along the axis */
+    CAT(window_, SUFFIX)(j, max_abs, AXIS_Y ? head[0] : head[1],
+                         AXIS_Y ? tail[0] : tail[2] - 1, n_axis, &lo, &hi);
+    /* rows r0..r1 x columns c0..c1 (a y strip; an x row's window) */
+    const int64_t r0 = AXIS_Y ? lo : q, r1 = AXIS_Y ? hi : q;
+    const int64_t c0 = AXIS_Y ? s0 : lo, c1 = AXIS_Y ? s1 - 1 : hi;
+    const int64_t pitch = AXIS_Y ? s1 - s0 : 1; /* from one position to the next */
+    const int64_t plane = (r1 - r0 + 1) * (c1 - c0 + 1);
+    for (int64_t r = r0; r <= r1; ++r) {
+        const SCALAR *rgb = j->src + r * w, *z = j->depth + r * w;
+        if (PLANAR) {
+            SCALAR *o = j->buf + (r - r0) * (c1 - c0 + 1);
+            const size_t bytes = sizeof(SCALAR) * (size_t)(c1 - c0 + 1);
+            memcpy(o, rgb + c0, bytes);
+            memcpy(o + plane, rgb + hw + c0, bytes);
+            memcpy(o + 2 * plane, rgb + 2 * hw + c0, bytes);
+            memcpy(o + 3 * plane, z + c0, bytes);
+            continue;
+        }
+        SCALAR *o = j->buf + 4 * (r - r0) * (c1 - c0 + 1) - 4 * c0;
+        for (int64_t c = c0; c <= c1; ++c) {
+            o[4 * c] = rgb[c];
+            o[4 * c + 1] = rgb[hw + c];
+            o[4 * c + 2] = rgb[2 * hw + c];
+            o[4 * c + 3] = z[c];
+        }
+    }
+    ln->lo = lo;
+    ln->hi = hi;
+    ln->pitch = pitch;
+    ln->plane = plane;
+}
+
 /* This thread's lines: rows (x pass) or strips of j->strip columns (y pass). The spans
- * crossing a line are listed in j->ids in row order; a y pass clips them to its strip. */
+ * crossing a line are listed in j->ids in row order; a y pass clips them to its strip. The
+ * scalar loop: one pixel at a time, its (r, g, b, depth) as one 4-lane vector. */
 static inline __attribute__((always_inline)) void CAT(lines_, SUFFIX)(
     const CAT(job_, SUFFIX) *j, const int AXIS_Y, const int FOLLOW) {
     const int64_t w = j->w, h = j->h, hw = h * w, n_axis = AXIS_Y ? h : w;
     for (int64_t q = j->first; q < j->last; ++q) {
-        const int64_t *ids = j->ids + j->lines[3 * q], count = j->lines[3 * q + 1];
-        const int64_t s0 = AXIS_Y ? q * j->strip : 0;
-        const int64_t s1 = AXIS_Y && s0 + j->strip < w ? s0 + j->strip : w;
-        if (j->copy) /* the line's pixels, before its results overwrite the active ones */
-            for (int ch = 0; ch < 3; ++ch)
-                for (int64_t r = AXIS_Y ? 0 : q; r < (AXIS_Y ? h : q + 1); ++r)
-                    memcpy(j->dst + ch * hw + r * w + s0, j->src + ch * hw + r * w + s0,
-                           sizeof(SCALAR) * (size_t)(s1 - s0));
-        if (count == 0) continue;
-        if (!AXIS_Y && !j->copy) { /* the next active row of this thread, prefetched */
-            int64_t nq = q + 1;
-            while (nq < j->last && j->lines[3 * nq + 1] == 0) ++nq;
-            if (nq < j->last) {
-                const int64_t *nids = j->ids + j->lines[3 * nq];
-                const int64_t nc = j->lines[3 * nq + 1];
-                const int64_t a = j->spans[3 * nids[0] + 1], b = j->spans[3 * nids[nc - 1] + 2];
-                if (b - a <= SHORT_ROW) CAT(prefetch_row_, SUFFIX)(j, nq, a, b);
-            }
-        }
-        SCALAR max_abs = 0;
+        CAT(line_, SUFFIX) ln;
+        if (!CAT(line_begin_, SUFFIX)(j, q, AXIS_Y, &ln)) continue;
+        CAT(line_window_, SUFFIX)(j, q, AXIS_Y, 0, CAT(line_scales_, SUFFIX)(j, &ln), &ln);
         int64_t idx = 0;
-        for (int64_t e = 0; e < count; ++e) { /* the scales, and the largest */
-            const int64_t *sp = j->spans + 3 * ids[e];
-            const int64_t c0 = sp[1] > s0 ? sp[1] : s0, c1 = sp[2] < s1 ? sp[2] : s1;
-            for (int64_t c = c0; c < c1; ++c) {
-                const SCALAR sc = CAT(scale_at_, SUFFIX)(j, sp[0] * w + c);
-                const SCALAR a = FABSF(sc);
-                if (!(a <= max_abs)) max_abs = a == a ? a : (SCALAR)INFINITY;
-                j->scale[idx++] = sc;
-            }
-        }
-        const int64_t *head = j->spans + 3 * ids[0], *tail = j->spans + 3 * ids[count - 1];
-        int64_t lo, hi; /* the window along the axis */
-        CAT(window_, SUFFIX)(j, max_abs, AXIS_Y ? head[0] : head[1],
-                             AXIS_Y ? tail[0] : tail[2] - 1, n_axis, &lo, &hi);
-        /* interleave rows r0..r1 x columns c0..c1 (a y strip; an x row's window) */
-        const int64_t r0 = AXIS_Y ? lo : q, r1 = AXIS_Y ? hi : q;
-        const int64_t c0 = AXIS_Y ? s0 : lo, c1 = AXIS_Y ? s1 - 1 : hi;
-        const int64_t pitch = AXIS_Y ? s1 - s0 : 1; /* vectors from one position to the next */
-        for (int64_t r = r0; r <= r1; ++r) {
-            const SCALAR *rgb = j->src + r * w, *z = j->depth + r * w;
-            SCALAR *o = j->buf + 4 * (r - r0) * (c1 - c0 + 1) - 4 * c0;
-            for (int64_t c = c0; c <= c1; ++c) {
-                o[4 * c] = rgb[c];
-                o[4 * c + 1] = rgb[hw + c];
-                o[4 * c + 2] = rgb[2 * hw + c];
-                o[4 * c + 3] = z[c];
-            }
-        }
-        idx = 0;
-        for (int64_t e = 0; e < count; ++e) { /* the taps */
-            const int64_t *sp = j->spans + 3 * ids[e];
+        for (int64_t e = 0; e < ln.count; ++e) { /* the taps */
+            const int64_t *sp = j->spans + 3 * ln.ids[e];
             const int64_t row = sp[0];
-            const int64_t a = sp[1] > s0 ? sp[1] : s0, b = sp[2] < s1 ? sp[2] : s1;
+            const int64_t a = sp[1] > ln.s0 ? sp[1] : ln.s0, b = sp[2] < ln.s1 ? sp[2] : ln.s1;
             for (int64_t c = a; c < b; ++c) {
                 const CAT(vec_, SUFFIX) acc = CAT(taps_, SUFFIX)(
-                    j, j->buf, pitch, AXIS_Y ? c - s0 : 0, lo, (SCALAR)(AXIS_Y ? row : c),
-                    j->scale[idx++], n_axis, FOLLOW);
+                    j, j->buf, ln.pitch, AXIS_Y ? c - ln.s0 : 0, ln.lo,
+                    (SCALAR)(AXIS_Y ? row : c), j->scale[idx++], n_axis, FOLLOW);
                 const int64_t l = row * w + c;
                 j->dst[l] = acc[0];
                 j->dst[hw + l] = acc[1];
@@ -222,6 +277,35 @@ static inline __attribute__((always_inline)) void CAT(lines_, SUFFIX)(
         }
     }
 }
+
+#if SSS_SIMD /* the vectorised loops (gather_simd.h), one per instruction set */
+#define ISA avx2
+#define ISA_TARGET "avx2"
+#define VW VW_AVX2
+#define GATHER_RAW GATHER_AVX2
+#define IANY IANY_AVX2
+#define SHUFFLE2 SHUFFLE2_AVX2
+#include "gather_simd.h"
+#undef ISA
+#undef ISA_TARGET
+#undef VW
+#undef GATHER_RAW
+#undef IANY
+#undef SHUFFLE2
+#define ISA avx512
+#define ISA_TARGET "avx512f"
+#define VW VW_AVX512
+#define GATHER_RAW GATHER_AVX512
+#define IANY IANY_AVX512
+#define SHUFFLE2 SHUFFLE2_AVX512
+#include "gather_simd.h"
+#undef ISA
+#undef ISA_TARGET
+#undef VW
+#undef GATHER_RAW
+#undef IANY
+#undef SHUFFLE2
+#endif
 
 /* One thread's lines, specialised per axis and follow-surface mode (constants there). */
 static void *CAT(run_, SUFFIX)(void *arg) {
@@ -298,7 +382,9 @@ int64_t CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const i
     if (axis_y)
         for (int64_t s = 0; s < n_spans; ++s)
             entries += (spans[3 * s + 2] - 1) / strip - spans[3 * s + 1] / strip;
-    const size_t per_thread = (size_t)line_len * 5; /* window (4 lanes) + scales */
+    /* window (4 lanes) + scales, and a margin the vectorised loops' loads may read past the
+     * window (into values they never select) */
+    const size_t per_thread = (size_t)line_len * 5 + 64;
     const size_t list_bytes = ((size_t)(3 * n_lines + entries) * sizeof(int64_t) + 63) / 64 * 64;
     int owned;
     const size_t taps = ((size_t)k * 5 + 4 + 3) / 4 * 4; /* taps_in_'s SCALARs, 4-aligned */
@@ -353,7 +439,15 @@ int64_t CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const i
                                 mine, mine + 4 * (size_t)line_len};
         jobs[t] = jb;
     }
-    pool_run(CAT(run_, SUFFIX), (char *)jobs, sizeof jobs[0], threads);
+    void *(*run)(void *) = CAT(run_, SUFFIX); /* the widest loop the CPU allows (sss_set_simd) */
+#if SSS_SIMD
+    /* its gathers index the line's window with int32 */
+    const int level = sss_get_simd();
+    if (line_len < INT32_MAX && (axis_y ? h : w) < INT32_MAX)
+        run = level >= 2 ? CAT(CAT(run_, SUFFIX), _avx512)
+              : level == 1 ? CAT(CAT(run_, SUFFIX), _avx2) : run;
+#endif
+    pool_run(run, (char *)jobs, sizeof jobs[0], threads);
     workspace_release(block, owned);
     return n;
 }

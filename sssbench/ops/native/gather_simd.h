@@ -1,0 +1,343 @@
+/* The vectorised tap loop for one scalar type and one instruction set (included by
+ * gather_body.h once per set: ISA names it, ISA_TARGET is its target attribute, VW the pixels
+ * per vector, GATHER_RAW(base, int32 index vector) its gather of VW SCALARs, SHUFFLE2(lo, hi,
+ * LANE index vector) the lanes of two vectors' concatenation and IANY(int32 mask) whether any
+ * lane is set).
+ *
+ * The scalar loop (taps_ in gather_body.h) computes one pixel at a time, its (r, g, b, depth)
+ * in one 4-lane vector; here one vector holds VW pixels that lie next to each other on one
+ * row: along the row for an x pass, and for a y pass VW columns of the same row, so that the
+ * pixels a vector holds are contiguous in memory in both passes (the y pass walks its strip of
+ * columns row block by row block, as the spans list it). The line's window is kept as four
+ * planes (r, g, b, depth; line_window_ with PLANAR = 1), each tap's two samples are fetched
+ * per plane by a gather, and every pixel goes through the same float operations in the same
+ * order as in the scalar loop (lane-wise IEEE arithmetic, no FMA: the library is built with
+ * -ffp-contract=off; min / max / clamp as the same selects): the results are bitwise those of
+ * the scalar loop, so of the torch loop, but for the gaussian follow-surface's exp, computed
+ * here by a vectorised polynomial (exp_ below) instead of the C library's expf / exp. Built without -march: the functions carry target attributes and sss_gather_ calls
+ * them only when the CPU has the set (sss_set_simd in gather.c). */
+
+#define SIMDN(name) CAT(CAT(name, SUFFIX), CAT(_, ISA))
+#define SIMD_FN static inline __attribute__((always_inline, target(ISA_TARGET)))
+
+typedef SCALAR SIMDN(vs_) __attribute__((vector_size(VW * sizeof(SCALAR))));
+typedef LANE SIMDN(vm_) __attribute__((vector_size(VW * sizeof(SCALAR))));
+typedef int32_t SIMDN(vi_) __attribute__((vector_size(VW * 4)));
+typedef uint32_t SIMDN(vu_) __attribute__((vector_size(VW * 4)));
+
+/* exp(x) for x <= 0 (also -inf), all lanes at once: the gaussian follow-surface factor
+ * (000 eq. 7), whose argument -d^2 / 2 is never positive. Cody-Waite reduction x = n ln 2 + r,
+ * |r| <= ln 2 / 2, then Cephes' degree-7 polynomial (float) or the Taylor polynomial of degree
+ * 13 (double), scaled by 2^n built in the exponent bits; 0 where 2^n would be subnormal (an
+ * absolute error below 1.2e-38 / 2.3e-308). Not the C library's exp: a few ulp from it (the
+ * measured bound is BACKEND_AGREEMENT's, sssbench/ops/gather.py). */
+SIMD_FN SIMDN(vs_) SIMDN(exp_)(SIMDN(vs_) x) {
+    typedef SIMDN(vs_) vec;
+    typedef SIMDN(vm_) mask;
+    typedef SIMDN(vi_) ivec;
+    const int F32 = sizeof(SCALAR) == 4;
+    const vec zero = {0};
+    const vec lowest = zero + (SCALAR)(F32 ? -104.0 : -746.0);
+    x = VSELECT(x > lowest, x, lowest); /* also -inf; n stays within int32 */
+    const vec t = x * (SCALAR)1.44269504088896340736 - (SCALAR)0.5; /* x log2(e) - 1/2 <= 0 */
+    const ivec n = __builtin_convertvector(t, ivec);                 /* round(x log2(e)) */
+    const vec nf = __builtin_convertvector(n, vec);
+    vec r;
+    if (F32)
+        r = (x - nf * (SCALAR)0.693359375) - nf * (SCALAR)-2.12194440e-4;
+    else
+        r = (x - nf * (SCALAR)6.93145751953125E-1) - nf * (SCALAR)1.42860682030941723212E-6;
+    vec p;
+    if (F32) {
+        p = zero + (SCALAR)1.9875691500E-4;
+        p = p * r + (SCALAR)1.3981999507E-3;
+        p = p * r + (SCALAR)8.3334519073E-3;
+        p = p * r + (SCALAR)4.1665795894E-2;
+        p = p * r + (SCALAR)1.6666665459E-1;
+        p = p * r + (SCALAR)5.0000001201E-1;
+        p = p * (r * r) + r + (SCALAR)1;
+    } else {
+        static const double inv_fact[14] = {
+            1.0, 1.0, 1.0 / 2, 1.0 / 6, 1.0 / 24, 1.0 / 120, 1.0 / 720, 1.0 / 5040,
+            1.0 / 40320, 1.0 / 362880, 1.0 / 3628800, 1.0 / 39916800, 1.0 / 479001600,
+            1.0 / 6227020800.0};
+        p = zero + (SCALAR)inv_fact[13];
+        for (int i = 12; i >= 0; --i) p = p * r + (SCALAR)inv_fact[i];
+    }
+    const int bias = F32 ? 127 : 1023, shift = F32 ? 23 : 52;
+    const ivec biased = n + bias; /* > 0: 2^n is normal */
+    const mask e = __builtin_convertvector(biased, mask) << shift;
+    const vec scale = VSELECT(__builtin_convertvector(biased > 0, mask), (vec)e, zero);
+    return p * scale;
+}
+
+/* The taps of the active pixels [a, b) of row `row` (within the line's strip), VW at a time;
+ * `scale` holds their scales. The last vector of a run shorter than VW repeats its last pixel
+ * in the spare lanes (computed, not written). */
+SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX) *ln,
+                             int64_t row, int64_t a, int64_t b, const SCALAR *scale,
+                             int64_t n_axis, const int AXIS_Y, const int FOLLOW) {
+    typedef SIMDN(vs_) vec;
+    typedef SIMDN(vm_) mask;
+    typedef SIMDN(vi_) ivec;
+    typedef SIMDN(vu_) uivec;
+    const int64_t w = j->w, hw = j->h * w;
+    const SCALAR *p0 = j->buf, *p1 = p0 + ln->plane, *p2 = p1 + ln->plane, *p3 = p2 + ln->plane;
+    const vec zero = {0}, one = zero + 1, last = zero + (SCALAR)(n_axis - 1);
+    const mask sign = (mask)(-zero); /* the sign bits (-0.0) */
+    const ivec izero = {0}, ilast = izero + (int32_t)(n_axis - 1);
+    const ivec win0 = izero + (int32_t)ln->lo, pitch = izero + (int32_t)ln->pitch;
+    const vec inv0 = zero + j->inv_scale[0], inv1 = zero + j->inv_scale[1],
+              inv2 = zero + j->inv_scale[2];
+    ivec iota;
+    for (int l = 0; l < VW; ++l) iota[l] = l;
+    for (int64_t c = a; c < b; c += VW) {
+        const int64_t n = b - c < VW ? b - c : VW;
+        vec sc;
+        ivec lane = iota; /* the pixel of each lane: c + lane */
+        if (n == VW) {
+            __builtin_memcpy(&sc, scale + (c - a), sizeof sc);
+        } else {
+            for (int l = 0; l < VW; ++l) {
+                const int m = l < n ? l : (int)n - 1;
+                lane[l] = m;
+                sc[l] = scale[c - a + m];
+            }
+        }
+        const ivec posi = AXIS_Y ? izero + (int32_t)row : lane + (int32_t)c;
+        const ivec col = AXIS_Y ? lane + (int32_t)(c - ln->s0) : izero;
+        const vec pos = __builtin_convertvector(posi, vec);
+        const ivec centre = (posi - win0) * pitch + col;
+        const vec c0 = (vec)GATHER_RAW(p0, centre), c1 = (vec)GATHER_RAW(p1, centre),
+                  c2 = (vec)GATHER_RAW(p2, centre), cz = (vec)GATHER_RAW(p3, centre);
+        vec acc0 = zero, acc1 = zero, acc2 = zero;
+        for (int64_t t = 0; t < j->k; ++t) {
+            vec p = pos + j->offsets[t] * sc;
+            p = VSELECT(p >= zero, VSELECT(p <= last, p, last), zero); /* border; NaN -> 0 */
+            const ivec i0 = __builtin_convertvector(p, ivec); /* = floor(p) since p >= 0 */
+            const vec f = p - __builtin_convertvector(i0, vec);
+            const ivec i1 = VSELECT(i0 + 1 <= ilast, i0 + 1, ilast);
+            const ivec ia = (i0 - win0) * pitch + col, ib = (i1 - win0) * pitch + col;
+            vec v0, v1, v2, v3;
+            if (!AXIS_Y) {
+                /* the lanes' samples lie within 2 VW positions of the first's, as a rule:
+                 * two loads and a two-vector permute per plane instead of a gather */
+                const int32_t base = ia[0] > 2 ? ia[0] - 2 : 0;
+                const ivec ra = ia - base, rb = ib - base;
+                if (!IANY((uivec)(ra | rb) > (uivec)(izero + (2 * VW - 1)))) {
+                    const mask sa = __builtin_convertvector(ra, mask);
+                    const mask sb = __builtin_convertvector(rb, mask);
+#define PERMUTED(P, out)                                                          \
+    do {                                                                          \
+        vec lo_, hi_;                                                             \
+        __builtin_memcpy(&lo_, (P) + base, sizeof lo_);                           \
+        __builtin_memcpy(&hi_, (P) + base + VW, sizeof hi_);                      \
+        const vec a_ = (vec)SHUFFLE2(lo_, hi_, sa);                               \
+        const vec b_ = (vec)SHUFFLE2(lo_, hi_, sb);                               \
+        out = a_ + f * (b_ - a_);                                                 \
+    } while (0)
+                    PERMUTED(p0, v0);
+                    PERMUTED(p1, v1);
+                    PERMUTED(p2, v2);
+                    PERMUTED(p3, v3);
+#undef PERMUTED
+                    goto fetched;
+                }
+            } else {
+                /* the lanes' rows lie within one of the first lane's, as a rule: four
+                 * contiguous rows of VW columns and selects per plane instead of a gather */
+                const int32_t r0 = i0[0] - 1;
+                const ivec ra = i0 - r0, rb = i1 - r0;
+                if (!IANY((ra != 1) | (rb != 2))) { /* one row pair for all: no selects */
+                    const int64_t at1 = (i0[0] - ln->lo) * ln->pitch + (c - ln->s0);
+                    const int64_t at2 = at1 + ln->pitch;
+#define PAIR(P, out)                                                              \
+    do {                                                                          \
+        vec a_, b_;                                                               \
+        __builtin_memcpy(&a_, (P) + at1, sizeof a_);                              \
+        __builtin_memcpy(&b_, (P) + at2, sizeof b_);                              \
+        out = a_ + f * (b_ - a_);                                                 \
+    } while (0)
+                    PAIR(p0, v0);
+                    PAIR(p1, v1);
+                    PAIR(p2, v2);
+                    PAIR(p3, v3);
+#undef PAIR
+                    goto fetched;
+                }
+                if (!IANY((uivec)(ra | rb) > (uivec)(izero + 3))) {
+                    int64_t at[4];
+                    for (int k = 0; k < 4; ++k) {
+                        int64_t r = r0 + k;
+                        r = r < ln->lo ? ln->lo : (r > ln->hi ? ln->hi : r);
+                        at[k] = (r - ln->lo) * ln->pitch + (c - ln->s0);
+                    }
+                    const mask a1 = __builtin_convertvector(ra == 1, mask),
+                               a2 = __builtin_convertvector(ra == 2, mask),
+                               a3 = __builtin_convertvector(ra == 3, mask),
+                               b1 = __builtin_convertvector(rb == 1, mask),
+                               b2 = __builtin_convertvector(rb == 2, mask),
+                               b3 = __builtin_convertvector(rb == 3, mask);
+#define SELECTED(P, out)                                                          \
+    do {                                                                          \
+        vec q0_, q1_, q2_, q3_;                                                   \
+        __builtin_memcpy(&q0_, (P) + at[0], sizeof q0_);                          \
+        __builtin_memcpy(&q1_, (P) + at[1], sizeof q1_);                          \
+        __builtin_memcpy(&q2_, (P) + at[2], sizeof q2_);                          \
+        __builtin_memcpy(&q3_, (P) + at[3], sizeof q3_);                          \
+        const vec a_ = VSELECT(a1, q1_, VSELECT(a2, q2_, VSELECT(a3, q3_, q0_))); \
+        const vec b_ = VSELECT(b1, q1_, VSELECT(b2, q2_, VSELECT(b3, q3_, q0_))); \
+        out = a_ + f * (b_ - a_);                                                 \
+    } while (0)
+                    SELECTED(p0, v0);
+                    SELECTED(p1, v1);
+                    SELECTED(p2, v2);
+                    SELECTED(p3, v3);
+#undef SELECTED
+                    goto fetched;
+                }
+            }
+            {
+                vec va, vb;
+                va = (vec)GATHER_RAW(p0, ia);
+                vb = (vec)GATHER_RAW(p0, ib);
+                v0 = va + f * (vb - va);
+                va = (vec)GATHER_RAW(p1, ia);
+                vb = (vec)GATHER_RAW(p1, ib);
+                v1 = va + f * (vb - va);
+                va = (vec)GATHER_RAW(p2, ia);
+                vb = (vec)GATHER_RAW(p2, ib);
+                v2 = va + f * (vb - va);
+                va = (vec)GATHER_RAW(p3, ia);
+                vb = (vec)GATHER_RAW(p3, ib);
+                v3 = va + f * (vb - va);
+            }
+        fetched:;
+            const SCALAR *wt = j->weights4 + 4 * t;
+            vec w0 = zero + wt[0], w1 = zero + wt[1], w2 = zero + wt[2];
+            if (FOLLOW) {
+                const vec dz = (vec)((mask)(v3 - cz) & ~sign); /* |dz| */
+                const vec d0 = dz * inv0, d1 = dz * inv1, d2 = dz * inv2;
+                if (FOLLOW == 1) { /* min then max as VMIN / VMAX: a < b ? a : b */
+                    const vec s0 = VSELECT(d0 < one, d0, one), s1 = VSELECT(d1 < one, d1, one),
+                              s2 = VSELECT(d2 < one, d2, one);
+                    const vec t0 = VSELECT(s0 > zero, s0, zero),
+                              t1 = VSELECT(s1 > zero, s1, zero),
+                              t2 = VSELECT(s2 > zero, s2, zero);
+                    v0 = v0 + t0 * (c0 - v0);
+                    v1 = v1 + t1 * (c1 - v1);
+                    v2 = v2 + t2 * (c2 - v2);
+                } else {
+                    w0 = w0 * SIMDN(exp_)((SCALAR)-0.5 * d0 * d0);
+                    w1 = w1 * SIMDN(exp_)((SCALAR)-0.5 * d1 * d1);
+                    w2 = w2 * SIMDN(exp_)((SCALAR)-0.5 * d2 * d2);
+                }
+            }
+            acc0 = acc0 + w0 * v0;
+            acc1 = acc1 + w1 * v1;
+            acc2 = acc2 + w2 * v2;
+        }
+        SCALAR *o = j->dst + row * w + c;
+        if (n == VW) {
+            __builtin_memcpy(o, &acc0, sizeof acc0);
+            __builtin_memcpy(o + hw, &acc1, sizeof acc1);
+            __builtin_memcpy(o + 2 * hw, &acc2, sizeof acc2);
+        } else {
+            for (int64_t l = 0; l < n; ++l) {
+                o[l] = acc0[l];
+                o[hw + l] = acc1[l];
+                o[2 * hw + l] = acc2[l];
+            }
+        }
+    }
+}
+
+/* line_scales_ in gather_body.h, a vector of pixels at a time in double (the same operations
+ * per pixel: bitwise the same scales; the largest |scale| is a maximum, whatever the order) */
+SIMD_FN SCALAR SIMDN(scales_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX) *ln) {
+    enum { DW = VW * sizeof(SCALAR) / 8 }; /* doubles per vector */
+    typedef double vd __attribute__((vector_size(VW * sizeof(SCALAR))));
+    typedef SCALAR vsd __attribute__((vector_size(DW * sizeof(SCALAR))));
+    typedef LANE vsdm __attribute__((vector_size(DW * sizeof(SCALAR))));
+    const vd dzero = {0}, fpx = dzero + j->focal_px, corr = dzero + j->correction,
+             maxdd = dzero + j->maxdd, ws = dzero + j->width_scalar,
+             big = dzero + (double)SCALAR_MAX;
+    const vsd zero = {0};
+    const vsdm sign = (vsdm)(-zero);
+    vsd vmax = zero;
+    SCALAR max_abs = 0;
+    int64_t idx = 0;
+    for (int64_t e = 0; e < ln->count; ++e) {
+        const int64_t *sp = j->spans + 3 * ln->ids[e];
+        const int64_t c0 = sp[1] > ln->s0 ? sp[1] : ln->s0, c1 = sp[2] < ln->s1 ? sp[2] : ln->s1;
+        const int64_t base = sp[0] * j->w;
+        int64_t c = c0;
+        for (; c + DW <= c1; c += DW) {
+            vsd t;
+            __builtin_memcpy(&t, j->depth + base + c, sizeof t);
+            vd denom = __builtin_convertvector(t, vd);
+            if (j->ddepth) {
+                __builtin_memcpy(&t, j->ddepth + base + c, sizeof t);
+                const vd dd = __builtin_convertvector(t, vd);
+                denom = denom + corr * VSELECT(dd < maxdd, dd, maxdd);
+            }
+            vd sc = fpx / denom;
+            if (j->width) {
+                __builtin_memcpy(&t, j->width + base + c, sizeof t);
+                sc = sc * __builtin_convertvector(t, vd);
+            } else {
+                sc = sc * ws;
+            }
+            if (j->mask) {
+                __builtin_memcpy(&t, j->mask + base + c, sizeof t);
+                sc = sc * __builtin_convertvector(t, vd);
+            }
+            sc = VSELECT(sc <= big, sc, big); /* also NaN -> big */
+            const vsd out = __builtin_convertvector(sc, vsd);
+            __builtin_memcpy(j->scale + idx, &out, sizeof out);
+            idx += DW;
+            const vsd a = (vsd)((vsdm)out & ~sign);
+            vmax = VSELECT(a > vmax, a, vmax);
+        }
+        for (; c < c1; ++c) {
+            const SCALAR sc = CAT(scale_at_, SUFFIX)(j, base + c);
+            const SCALAR a = FABSF(sc);
+            if (!(a <= max_abs)) max_abs = a == a ? a : (SCALAR)INFINITY;
+            j->scale[idx++] = sc;
+        }
+    }
+    for (int l = 0; l < DW; ++l)
+        if (!(vmax[l] <= max_abs)) max_abs = vmax[l];
+    return max_abs;
+}
+
+/* This thread's lines, as lines_ in gather_body.h, the taps VW pixels at a time. */
+SIMD_FN void SIMDN(lines_)(const CAT(job_, SUFFIX) *j, const int AXIS_Y, const int FOLLOW) {
+    const int64_t n_axis = AXIS_Y ? j->h : j->w;
+    for (int64_t q = j->first; q < j->last; ++q) {
+        CAT(line_, SUFFIX) ln;
+        if (!CAT(line_begin_, SUFFIX)(j, q, AXIS_Y, &ln)) continue;
+        CAT(line_window_, SUFFIX)(j, q, AXIS_Y, 1, SIMDN(scales_)(j, &ln), &ln);
+        int64_t idx = 0;
+        for (int64_t e = 0; e < ln.count; ++e) {
+            const int64_t *sp = j->spans + 3 * ln.ids[e];
+            const int64_t a = sp[1] > ln.s0 ? sp[1] : ln.s0, b = sp[2] < ln.s1 ? sp[2] : ln.s1;
+            SIMDN(segment_)(j, &ln, sp[0], a, b, j->scale + idx, n_axis, AXIS_Y, FOLLOW);
+            idx += b - a;
+        }
+    }
+}
+
+__attribute__((target(ISA_TARGET))) static void *SIMDN(run_)(void *arg) {
+    const CAT(job_, SUFFIX) *j = (const CAT(job_, SUFFIX) *)arg;
+    if (!j->axis_y && j->follow == 0) SIMDN(lines_)(j, 0, 0);
+    else if (!j->axis_y && j->follow == 1) SIMDN(lines_)(j, 0, 1);
+    else if (!j->axis_y) SIMDN(lines_)(j, 0, 2);
+    else if (j->follow == 0) SIMDN(lines_)(j, 1, 0);
+    else if (j->follow == 1) SIMDN(lines_)(j, 1, 1);
+    else SIMDN(lines_)(j, 1, 2);
+    return NULL;
+}
+
+#undef SIMDN
+#undef SIMD_FN
