@@ -205,7 +205,7 @@ def gather_pass(
     per_pixel = isinstance(width, torch.Tensor)
     radius = None if rotation is None else rotation.radius * kernel.extent
     spec = pass_spec(
-        kernel, direction, h, gbuffer.fov_y, width=1.0 if per_pixel else float(width),
+        kernel, direction, width=1.0 if per_pixel else float(width),
         width_texture=per_pixel, follow_surface=follow_surface, surface_scale=surface_scale,
         stretch=stretch, rotation_radius=radius,
     )  # fmt: skip
@@ -219,6 +219,7 @@ def gather_pass(
             image[bi].detach(),
             gbuffer.depth[bi],
             ones if strength is None else strength[bi],
+            gbuffer.fov_y,
             width[bi] if per_pixel else None,
             None if rotation is None else rotation.angles[bi],
         )

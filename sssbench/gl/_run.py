@@ -29,17 +29,10 @@ class GLMethodError(ValueError):
 
 @dataclass(frozen=True)
 class PassSpec:
-    """A blur pass: its baked shader (:class:`~sssbench.gl.shaders.PassShader`) and uniforms."""
+    """A blur pass: its baked shader (:class:`~sssbench.gl.shaders.PassShader`) and axis."""
 
     shader: PassShader
     axis: int
-    width: float
-    follow_factor: tuple[float, float, float]
-    focal_px: float
-    stretch: tuple[float, float] = (0.0, 0.0)
-    rotation_radius: float = 0.0
-    lod: tuple[float, float] = (0.0, 0.0)
-    inactive_scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
     name: str = "pass"
     samples: int = 0
 
@@ -72,8 +65,6 @@ def kernel_taps(kernel: Kernel1D) -> tuple[list[tuple[float, float, float, float
 def pass_spec(
     kernel: Kernel1D,
     axis: str,
-    height: int,
-    fov_y: float,
     *,
     width: float = 1.0,
     width_texture: bool = False,
@@ -91,14 +82,13 @@ def pass_spec(
     Args:
         kernel: taps (offsets in mm per ``width``).
         axis: ``"x"`` or ``"y"``.
-        height, fov_y: the image height (px) and vertical fov (rad): the pinhole mapping.
         width: mm per offset unit (the 2012 kernel's ``width``; 1 otherwise).
         width_texture: ``width`` is multiplied by a per-pixel texture (curvature).
         follow_surface, surface_scale: as ``separable_pass``.
         stretch: a :class:`~sssbench.ops.Stretch` or ``None``.
         rotation_radius: the rotated taps' radius in offset units (``radius · extent``), or
             ``None`` for no rotation.
-        lod: ``(σ mm, threshold px)`` of the sum of Gaussians' LOD, or ``None``.
+        lod: ``(σ · ssslevel mm, threshold px)`` of the sum of Gaussians' LOD, or ``None``.
         inactive_scale: colour factor at pixels not computed.
         hardware_filter: fetch with ``texture()`` (see :mod:`sssbench.gl.shaders`).
     """
@@ -106,32 +96,21 @@ def pass_spec(
     rotated: tuple[bool, ...] = ()
     if rotation_radius is not None:
         rotated = tuple(abs(o) <= rotation_radius for o in offsets)
-    f_px = height / (2.0 * math.tan(fov_y / 2.0))
-    level = 1.0 if stretch is None else float(stretch.ssslevel)
     shader = PassShader(
         taps=tuple(tuple(t) for t in taps),
         centre_first=centred,
         rotated=rotated if any(rotated) else (),
         follow=FOLLOW_MODES[follow_surface],
-        stretch=stretch is not None,
-        width_texture=width_texture,
-        lod=lod is not None,
-        hardware_filter=hardware_filter,
-    )
-    return PassSpec(
-        shader=shader,
-        axis=0 if axis == "x" else 1,
-        width=float(width),
         follow_factor=_follow_factor(surface_scale if follow_surface else None),
-        focal_px=f_px * level,
-        stretch=(0.0, 0.0) if stretch is None else (float(stretch.correction),
-                                                    float(stretch.maxdd)),
-        rotation_radius=0.0 if rotation_radius is None else float(rotation_radius),
-        lod=(0.0, 0.0) if lod is None else (lod[0] * level * f_px, lod[1]),
+        width=float(width),
+        stretch=None if stretch is None else (float(stretch.ssslevel),
+                                              float(stretch.correction), float(stretch.maxdd)),
+        width_texture=width_texture,
+        lod=lod,
         inactive_scale=tuple(float(v) for v in inactive_scale),
-        name=name,
-        samples=len(kernel),
+        hardware_filter=hardware_filter,
     )  # fmt: skip
+    return PassSpec(shader, 0 if axis == "x" else 1, name, len(kernel))
 
 
 @dataclass
@@ -146,6 +125,7 @@ class Frame:
     diffuse: torch.Tensor  # (3, H, W)
     depth: torch.Tensor  # (1, H, W)
     strength: torch.Tensor  # (1, H, W)
+    fov_y: float = 0.5
     width_map: torch.Tensor | None = None  # (1, H, W)
     rotation: torch.Tensor | None = None  # (1, H, W) angles
     timings: list | None = None
@@ -198,21 +178,39 @@ class Frame:
 
     def blur(self, spec: PassSpec, src, dst, *, additive: bool = False) -> None:
         """One blur pass ``src`` -> ``dst`` (``additive``: summed into ``dst`` by blending)."""
-        prog = self.glc.program(spec.source())
+        self.blur_source(
+            spec.source(),
+            spec.axis,
+            src,
+            dst,
+            additive=additive,
+            name=spec.name,
+            samples=spec.samples,
+        )
+
+    def blur_source(
+        self,
+        source: str,
+        axis: int,
+        src,
+        dst,
+        *,
+        additive: bool = False,
+        name: str = "pass",
+        samples: int = 0,
+    ) -> None:
+        """One draw of the pass shader ``source`` (:func:`~sssbench.gl.shaders.pass_source`,
+        or the file ``sssbench-export-kernel --format glsl-pass`` wrote) ``src`` -> ``dst``."""
+        prog = self.glc.program(source)
         t = self.textures
         units = {"colorTex": src, "depthTex": t["depth"], "strengthTex": t["strength"]}
-        if spec.shader.width_texture:
+        if "width" in t:
             units["widthTex"] = t["width"]
-        if spec.shader.rotated:
+        if "rotation" in t:
             units["rotationTex"] = t["rotation"]
         self._bind(prog, units)
-        values = {
-            "axis": spec.axis, "focalPx": spec.focal_px, "sssWidth": spec.width,
-            "followFactor": spec.follow_factor, "stretchParams": spec.stretch,
-            "rotationRadius": spec.rotation_radius, "lodWidth": spec.lod[0],
-            "lodThreshold": spec.lod[1], "inactiveScale": spec.inactive_scale,
-        }  # fmt: skip
-        for k, v in values.items():
+        focal = self.h / (2.0 * math.tan(self.fov_y / 2.0))
+        for k, v in {"axis": int(axis), "focalPx": focal}.items():
             u = prog.get(k, None)
             if u is not None:
                 u.value = v
@@ -221,7 +219,7 @@ class Frame:
             ctx.enable(self.glc.moderngl.BLEND)
             ctx.blend_func = (self.glc.moderngl.ONE, self.glc.moderngl.ONE)
         try:
-            self._run(prog, dst, spec.name, spec.samples)
+            self._run(prog, dst, name, samples)
         finally:
             if additive:
                 ctx.disable(self.glc.moderngl.BLEND)
@@ -304,7 +302,6 @@ def _two_pass(
     frame: Frame, method, gbuffer: GBuffer, kernel: Kernel1D, name: str, width: float, wt: bool
 ) -> object:
     """000 eq. 2 with N = 1 (:func:`sssbench.ops.two_pass`): x then y."""
-    h, fov = frame.h, gbuffer.fov_y
     opts = dict(
         follow_surface=method.follow_surface,
         surface_scale=method.surface_scale,
@@ -312,8 +309,8 @@ def _two_pass(
         width_texture=wt,
         rotation_radius=_rotation_radius(method, kernel),
     )
-    sx = pass_spec(kernel, "x", h, fov, name=f"{name}.x", **opts)
-    sy = pass_spec(kernel, "y", h, fov, name=f"{name}.y", **opts)
+    sx = pass_spec(kernel, "x", name=f"{name}.x", **opts)
+    sy = pass_spec(kernel, "y", name=f"{name}.y", **opts)
     a, b = frame.target("a"), frame.target("b")
     frame.blur(sx, frame.textures["color"], a)
     frame.blur(sy, a, b)
@@ -345,7 +342,6 @@ def _jimenez2012(frame, method, gbuffer, wt):
 def _low_rank(frame, method, gbuffer, wt):
     """000 eq. 2: Σ_i (E * a_i) * a'_i; inactive pixels carry ``E · Σ a_i`` between a term's
     passes (:class:`~sssbench.ops.LowRankSSS`)."""
-    h, fov = frame.h, gbuffer.fov_y
     a, acc, out = frame.target("a"), frame.target("sum"), frame.target("b")
     frame.clear(acc)
     for i, (hk, vk) in enumerate(method.kernel.terms):
@@ -358,8 +354,6 @@ def _low_rank(frame, method, gbuffer, wt):
         sx = pass_spec(
             hk,
             "x",
-            h,
-            fov,
             name=f"low_rank{i}.x",
             inactive_scale=h_sum,
             rotation_radius=_rotation_radius(method, hk),
@@ -368,8 +362,6 @@ def _low_rank(frame, method, gbuffer, wt):
         sy = pass_spec(
             vk,
             "y",
-            h,
-            fov,
             name=f"low_rank{i}.y",
             rotation_radius=_rotation_radius(method, vk),
             **opts,
@@ -400,7 +392,8 @@ def _sum_of_gaussians(frame, method, gbuffer, wt):
         if step.kernel is None:
             continue
         sigma = math.sqrt(step.increment)
-        lod = (sigma, method.lod_threshold) if method.lod else None
+        level = 1.0 if method.stretch is None else float(method.stretch.ssslevel)
+        lod = (sigma * level, method.lod_threshold) if method.lod else None
         opts = dict(
             follow_surface=method.follow_surface,
             surface_scale=method.surface_scale,
@@ -412,8 +405,6 @@ def _sum_of_gaussians(frame, method, gbuffer, wt):
         sx = pass_spec(
             step.kernel,
             "x",
-            h,
-            fov,
             name=f"sog{i}.x",
             stretch=method.stretch if w > 1 else None,
             **opts,
@@ -421,8 +412,6 @@ def _sum_of_gaussians(frame, method, gbuffer, wt):
         sy = pass_spec(
             step.kernel,
             "y",
-            h,
-            fov,
             name=f"sog{i}.y",
             stretch=method.stretch if h > 1 else None,
             **opts,
@@ -431,7 +420,6 @@ def _sum_of_gaussians(frame, method, gbuffer, wt):
         nxt = frame.target(pong[k % 2])
         frame.blur(sx, rt1, tmp)
         frame.blur(sy, tmp, nxt)
-        level = 1.0 if method.stretch is None else float(method.stretch.ssslevel)
         lod_u = (
             None
             if lod is None
@@ -489,6 +477,7 @@ def make_frame(
         gbuffer.diffuse[bi],
         gbuffer.depth[bi],
         gbuffer.mask_or_ones()[bi],
+        gbuffer.fov_y,
         None if width_map is None else width_map[bi],
         rot,
         timings,

@@ -12,15 +12,15 @@ line:
 ``if (SSSS_STRENGTH_SOURCE == 0.0) discard``           mask 0: the pixel is copied through
 ``scale = distToProjWindow / depthM``                  ``focalPx / depthM`` (pixels per mm,
                                                        ``focalPx = H / (2 tan(fov/2))``)
-``finalStep = sssWidth * scale * dir``                 ``step = sssWidth * focalPx / depth``
+``finalStep = sssWidth * scale * dir``                 ``step = SSSS_WIDTH * focalPx / depth``
 ``finalStep *= SSSS_STRENGTH_SOURCE``                  ``step *= mask`` (003 §7.3.1 s' = s·α)
-``finalStep *= 1.0 / 3.0``                             taps in mm per ``sssWidth`` (no /3)
+``finalStep *= 1.0 / 3.0``                             taps in mm per ``SSSS_WIDTH`` (no /3)
 ``colorBlurred.rgb *= kernel[0].rgb``                  the same: centre tap first
 ``offset = texcoord + kernel[i].a * finalStep``        ``p = pixel + kernel[i].a * step``
 ``SSSSSample(colorTex, offset)`` (linear, clamp)       :func:`fetch_linear`: clamp to
                                                        ``[0, n-1]``, lerp of the two texels
-``s = saturate(300 * distToProjWindow * sssWidth *     ``s = saturate(followFactor * |Δz|)``,
-|depthM - depth|)``; ``lerp(color, colorM, s)``        ``followFactor = 1 / surface_scale``
+``s = saturate(300 * distToProjWindow * sssWidth *     ``s = saturate(SSSS_FOLLOW_SURFACE_FACTOR
+|depthM - depth|)``; ``lerp(color, colorM, s)``        * |Δz|)``, the factor ``1 / surface_scale``
 =====================================================  ========================================
 
 and the options of the gather primitive: the JG10 stretch in the step's denominator (003
@@ -76,18 +76,23 @@ def _num(x: float) -> str:
 
 @dataclass(frozen=True)
 class PassShader:
-    """What is baked into one blur pass's source (the rest are uniforms, see
-    :func:`pass_source`).
+    """Everything baked into one blur pass's source: the taps and every constant the result
+    depends on (the per-frame values ``axis`` and ``focalPx`` stay uniforms).
 
     Attributes:
         taps: ``(r, g, b, offset)`` per tap in the shader's order (centre first when
-            ``centre_first``); offset in kernel units (mm per unit: the ``sssWidth`` uniform).
+            ``centre_first``); offset in kernel units (``width`` mm each).
         centre_first: ``taps[0]`` is the offset-0 tap, weighted on the unshifted centre colour.
         rotated: per tap, whether stochastic rotation turns it (000 §6; ``()``: no rotation).
         follow: ``SSSS_FOLLOW_SURFACE``: 0 none, 1 the 2012 lerp, 2 000 eq. 7's Gaussian.
-        stretch: apply the JG10 stretch (003 §7.3.1).
-        width_texture: the width is a per-pixel texture (``widthTex``) times ``sssWidth``.
-        lod: test the sum of Gaussians' depth LOD (003 §7.3.2) besides the mask.
+        follow_factor: ``1 / surface_scale`` per channel (1/mm), ``SSSS_FOLLOW_SURFACE_FACTOR``.
+        width: mm per kernel offset unit (002's ``sssWidth`` in these units).
+        stretch: ``(ssslevel, correction px, maxdd mm/px)`` of the JG10 stretch (003 §7.3.1),
+            or ``None``.
+        width_texture: the width is a per-pixel texture (``widthTex``) times ``width``.
+        lod: ``(σ · ssslevel mm, threshold px)`` of the sum of Gaussians' depth LOD (003
+            §7.3.2), or ``None``.
+        inactive_scale: colour factor written at a pixel not computed (1: copied through).
         hardware_filter: fetch taps with ``texture()`` / ``GL_LINEAR`` (SSSSBlurPS) instead of
             the float32 lerp of two texels.
     """
@@ -96,30 +101,36 @@ class PassShader:
     centre_first: bool = True
     rotated: tuple[bool, ...] = ()
     follow: int = 0
-    stretch: bool = False
+    follow_factor: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    width: float = 1.0
+    stretch: tuple[float, float, float] | None = None
     width_texture: bool = False
-    lod: bool = False
+    lod: tuple[float, float] | None = None
+    inactive_scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
     hardware_filter: bool = False
 
 
-def pass_source(spec: PassShader, header: Sequence[str] = ()) -> str:
-    """The complete GLSL 330 fragment shader of one blur pass (one axis, one kernel).
+def _vec3(v: Sequence[float]) -> str:
+    return f"vec3({', '.join(_num(x) for x in v)})"
 
-    Uniforms (set by :mod:`sssbench.gl`; a renderer sets them the same way):
+
+def pass_source(spec: PassShader, header: Sequence[str] = ()) -> str:
+    """The complete GLSL 330 fragment shader of one blur pass (one kernel, either axis).
+
+    Uniforms (set per frame by :mod:`sssbench.gl`; a renderer sets them the same way):
 
     - ``colorTex`` RGBA32F, the image; ``depthTex`` R32F linear depth in mm; ``strengthTex``
       R32F mask (stencil and strength, 002 ``SSSS_STRENGTH_SOURCE``); ``widthTex`` R32F
       per-pixel width multiplier (``SSSS_WIDTH_TEXTURE``); ``rotationTex`` RG32F
       ``(cos, sin)`` of each pixel's rotation angle (``SSSS_ROTATION``);
-    - ``axis`` 0 horizontal, 1 vertical; ``focalPx`` = ``H / (2 tan(fov_y / 2))`` (times the
-      stretch's ``ssslevel``), pixels per mm at 1 mm depth — 002's ``distToProjWindow`` in
-      pixels; ``sssWidth`` mm per kernel offset unit;
-    - ``followFactor`` (vec3, 1/mm): ``1 / surface_scale``, the number replacing
-      ``300 * distToProjWindow * sssWidth`` (lerp) or ``1 / σ_max`` (000 eq. 7);
-    - ``stretchParams`` = ``(correction px, maxdd mm/px)`` (003 §7.3.1);
-    - ``lodWidth`` = ``σ · ssslevel · focalPx`` (mm · px/mm) and ``lodThreshold`` px (003
-      §7.3.2); ``inactiveScale`` (vec3): the colour written at a pixel not computed (1: copy
-      through; the rank-N passes write ``colorM · Σ a_i``).
+    - ``axis`` 0 horizontal, 1 vertical; ``focalPx`` = ``H / (2 tan(fov_y / 2))``, pixels per
+      mm at 1 mm depth: 002's ``distToProjWindow`` in pixels.
+
+    Baked ``#define``: ``SSSS_WIDTH`` (mm per kernel unit), ``SSSS_FOLLOW_SURFACE_FACTOR``
+    (vec3, 1/mm: ``1 / surface_scale``, the number replacing ``300 * distToProjWindow *
+    sssWidth`` in the lerp, or ``1 / σ_max`` of 000 eq. 7), the stretch's
+    ``SSSS_STRETCH_SSSLEVEL`` / ``_CORRECTION`` / ``_MAXDD``, the LOD's ``SSSS_LOD_SIGMA`` /
+    ``SSSS_LOD_THRESHOLD`` and ``SSSS_INACTIVE_SCALE``.
     """
     n = len(spec.taps)
     if n == 0:
@@ -130,19 +141,29 @@ def pass_source(spec: PassShader, header: Sequence[str] = ()) -> str:
         raise ValueError(f"rotated must have one flag per tap ({n}), got {len(rot)}")
     rot_rows = ", ".join("true" if r else "false" for r in rot)
     first = 1 if spec.centre_first else 0
+    st = spec.stretch or (1.0, 0.0, 0.0)
+    lod = spec.lod or (0.0, 0.0)
     lines = [
         "#version 330",
         *(f"// {h}" if h else "//" for h in header),
         f"#define SSSS_N_SAMPLES {n}",
         f"#define SSSS_CENTRE_FIRST {first}",
+        f"#define SSSS_WIDTH {_num(spec.width)}",
         f"#define SSSS_FOLLOW_SURFACE {spec.follow}",
-        f"#define SSSS_STRETCH {int(spec.stretch)}",
+        f"#define SSSS_FOLLOW_SURFACE_FACTOR {_vec3(spec.follow_factor)}",
+        f"#define SSSS_STRETCH {int(spec.stretch is not None)}",
+        f"#define SSSS_STRETCH_SSSLEVEL {_num(st[0])}",
+        f"#define SSSS_STRETCH_CORRECTION {_num(st[1])}",
+        f"#define SSSS_STRETCH_MAXDD {_num(st[2])}",
         f"#define SSSS_WIDTH_TEXTURE {int(spec.width_texture)}",
         f"#define SSSS_ROTATION {int(any(rot))}",
-        f"#define SSSS_LOD {int(spec.lod)}",
+        f"#define SSSS_LOD {int(spec.lod is not None)}",
+        f"#define SSSS_LOD_SIGMA {_num(lod[0])}",
+        f"#define SSSS_LOD_THRESHOLD {_num(lod[1])}",
+        f"#define SSSS_INACTIVE_SCALE {_vec3(spec.inactive_scale)}",
         f"#define SSSS_HARDWARE_FILTER {int(spec.hardware_filter)}",
         "// kernel[i] = vec4(r, g, b, offset): per-channel weights, offset in kernel units",
-        "// (sssWidth mm each); centre tap first (SeparableSSS.h order)",
+        "// (SSSS_WIDTH mm each); centre tap first (SeparableSSS.h order)",
         f"const vec4 kernel[SSSS_N_SAMPLES] = vec4[SSSS_N_SAMPLES](\n{taps}\n);",
         f"const bool rotatedTap[SSSS_N_SAMPLES] = bool[SSSS_N_SAMPLES]({rot_rows});",
         _PASS_BODY,
@@ -157,14 +178,7 @@ uniform sampler2D strengthTex;  // R32F SSSS_STRENGTH_SOURCE: stencil (0) and st
 uniform sampler2D widthTex;     // R32F per-pixel width multiplier (SSSS_WIDTH_TEXTURE)
 uniform sampler2D rotationTex;  // RG32F (cos, sin) of the rotation angle (SSSS_ROTATION)
 uniform int axis;               // 0: horizontal pass, 1: vertical pass
-uniform float focalPx;          // H / (2 tan(fov_y / 2)) [* ssslevel]: px per mm at 1 mm
-uniform float sssWidth;         // mm per kernel offset unit
-uniform vec3 followFactor;      // 1 / surface_scale, 1/mm
-uniform vec2 stretchParams;     // (correction px, maxdd mm/px), 003 §7.3.1
-uniform float rotationRadius;   // taps with |offset| <= this are rotated (000 §6)
-uniform float lodWidth;         // sigma * ssslevel * focalPx, 003 §7.3.2
-uniform float lodThreshold;     // px, 003 §7.3.2 (0.5)
-uniform vec3 inactiveScale;     // colour factor at pixels not computed
+uniform float focalPx;          // H / (2 tan(fov_y / 2)): px per mm at 1 mm depth
 out vec4 fragColor;
 
 const float FLT_BIG = 3.4028234e38;
@@ -227,12 +241,18 @@ void main() {
     float depthM = texelFetch(depthTex, pix, 0).r;
     float strength = texelFetch(strengthTex, pix, 0).r;
     bool isActive = strength > 0.0;  // 002: initStencil, discard where the strength is 0
+#if SSSS_STRETCH
+    float level = SSSS_STRETCH_SSSLEVEL;
+#else
+    float level = 1.0;
+#endif
 #if SSSS_LOD
-    // 003 §7.3.2: skip a Gaussian narrower than lodThreshold pixels here (zero derivatives)
-    isActive = isActive && lodWidth / depthM * strength >= lodThreshold;
+    // 003 §7.3.2: skip a Gaussian narrower than SSSS_LOD_THRESHOLD pixels here (camera-facing)
+    isActive = isActive
+        && SSSS_LOD_SIGMA * focalPx / depthM * strength >= SSSS_LOD_THRESHOLD;
 #endif
     if (!isActive) {
-        fragColor = vec4(colorM * inactiveScale, 1.0);
+        fragColor = vec4(colorM * SSSS_INACTIVE_SCALE, 1.0);
         return;
     }
     // pixels per kernel unit: 002 scale = distToProjWindow / depthM, in pixels; 003 §7.3.1
@@ -243,14 +263,14 @@ void main() {
     float dd = i == 0 ? texelAxis(depthTex, pix, 1).r - depthM
              : i == n - 1 ? depthM - texelAxis(depthTex, pix, n - 2).r
              : (texelAxis(depthTex, pix, i + 1).r - texelAxis(depthTex, pix, i - 1).r) / 2.0;
-    denom = depthM + stretchParams.x * min(abs(dd), stretchParams.y);
+    denom = depthM + SSSS_STRETCH_CORRECTION * min(abs(dd), SSSS_STRETCH_MAXDD);
 #endif
-    float width = sssWidth;
+    float width = SSSS_WIDTH;
 #if SSSS_WIDTH_TEXTURE
-    width = texelFetch(widthTex, pix, 0).r * sssWidth;
+    width = texelFetch(widthTex, pix, 0).r * SSSS_WIDTH;
 #endif
     // finalStep = sssWidth * scale; finalStep *= SSSS_STRENGTH_SOURCE (002 appendix)
-    float step = min(focalPx / denom * width * strength, FLT_BIG);
+    float step = min(focalPx * level / denom * width * strength, FLT_BIG);
     float pos = float(axis == 0 ? pix.x : pix.y);
 #if SSSS_ROTATION
     vec2 cs = texelFetch(rotationTex, pix, 0).rg;
@@ -275,7 +295,7 @@ void main() {
 #endif
         fetchLinear(pix, pos + o, n, color, depth);
         vec3 weight = kernel[k].rgb;
-        vec3 dz = abs(depth - depthM) * followFactor;
+        vec3 dz = abs(depth - depthM) * SSSS_FOLLOW_SURFACE_FACTOR;
 #if SSSS_FOLLOW_SURFACE == 1
         // 002: if the difference in depth is huge, we lerp color back to colorM
         color = color + clamp(dz, 0.0, 1.0) * (colorM - color);
@@ -298,7 +318,7 @@ uniform sampler2D colorTex;     // the blurred Gaussian (RT1)
 uniform sampler2D depthTex;
 uniform sampler2D strengthTex;
 uniform int useLod;
-uniform float lodWidth;
+uniform float lodWidth;         // sigma * ssslevel * focalPx
 uniform float lodThreshold;
 out vec4 fragColor;
 void main() {
@@ -306,7 +326,8 @@ void main() {
     float strength = texelFetch(strengthTex, pix, 0).r;
     bool isActive = strength > 0.0;
     if (useLod != 0)  // 003 §7.3.2, as in the pass
-        isActive = isActive && lodWidth / texelFetch(depthTex, pix, 0).r * strength >= lodThreshold;
+        isActive = isActive
+            && lodWidth / texelFetch(depthTex, pix, 0).r * strength >= lodThreshold;
     if (!isActive) discard;
     fragColor = vec4(texelFetch(colorTex, pix, 0).rgb, 1.0);
 }
