@@ -48,6 +48,7 @@ __all__ = [
     "GLRun",
     "run_method",
     "gather_pass",
+    "run_pass_sources",
     "renderer_info",
     "pass_source",
     "PassShader",
@@ -235,3 +236,44 @@ def gather_pass(
         return res, n_total
     out.copy_(res)
     return out, n_total
+
+
+def run_pass_sources(
+    passes: list[tuple[str, str]],
+    gbuffer: GBuffer,
+    *,
+    width: torch.Tensor | None = None,
+    rotation: torch.Tensor | None = None,
+) -> torch.Tensor:
+    """Run pass shaders given as source text one after the other on ``gbuffer.diffuse``: each
+    ``(source, axis)`` with ``axis`` ``"x"`` or ``"y"`` reads the previous pass's output — e.g.
+    the file ``sssbench-export-kernel --format glsl-pass`` wrote
+    (:func:`sssbench.export.split_passes`) for a two-pass method: ``[(src, "x"), (src, "y")]``.
+
+    Args:
+        passes: ``(source, axis)`` pairs (:func:`~sssbench.gl.shaders.pass_source` sources).
+        gbuffer: the G-buffer (depth, mask, fov).
+        width: per-pixel width ``(B, 1, H, W)`` for ``SSSS_WIDTH_TEXTURE`` passes.
+        rotation: per-pixel angles ``(B, 1, H, W)`` for ``SSSS_ROTATION`` passes.
+
+    Returns:
+        ``(B, 3, H, W)`` in the G-buffer's dtype.
+    """
+    glc = get_context()
+    out = []
+    for bi in range(gbuffer.diffuse.shape[0]):
+        frame = Frame(
+            glc, gbuffer.diffuse[bi], gbuffer.depth[bi], gbuffer.mask_or_ones()[bi],
+            gbuffer.fov_y, None if width is None else width[bi],
+            None if rotation is None else rotation[bi],
+        )  # fmt: skip
+        try:
+            src, names = frame.textures["color"], ("a", "b")
+            for i, (source, axis) in enumerate(passes):
+                dst = frame.target(names[i % 2])
+                frame.blur_source(source, 0 if axis == "x" else 1, src, dst)
+                src = dst
+            out.append(glc.read(src))
+        finally:
+            _release(frame)
+    return torch.stack(out).to(dtype=gbuffer.dtype, device=gbuffer.device)
