@@ -86,12 +86,15 @@ class GLRun(NamedTuple):
         renderer: :func:`renderer_info`.
         passes: one :class:`~sssbench.ops.timing.PassRecord` per pass (name, taps, pixels the
             pass computed, the median GL ms), as the CPU runs record them.
+        repeats: per timed repeat, its :class:`~sssbench.ops.timing.PassRecord` list (GL ms of
+            that repeat): what ``sssbench.runner.pass_stats`` takes for median / min / max.
     """
 
     image: torch.Tensor
     pass_times_ms: dict[str, float]
     renderer: dict[str, object]
     passes: list[PassRecord]
+    repeats: list[list[PassRecord]]
 
 
 def _pixels(method, gbuffer: GBuffer, name: str) -> int:
@@ -171,11 +174,13 @@ def run_method(
                 _release(frame)
     image = torch.stack(images).to(dtype=gbuffer.dtype, device=gbuffer.device)
     times = {name: statistics.median(v) for name, v in per_pass.items()}
-    records = [
-        PassRecord(name, samples[name], _pixels(method, gbuffer, name), ms)
-        for name, ms in times.items()
+    pixels = {name: _pixels(method, gbuffer, name) for name in times}
+    records = [PassRecord(name, samples[name], pixels[name], ms) for name, ms in times.items()]
+    per_repeat = [
+        [PassRecord(name, samples[name], pixels[name], v[r]) for name, v in per_pass.items()]
+        for r in range(repeats)
     ]
-    return GLRun(image, times, glc.info, records)
+    return GLRun(image, times, glc.info, records, per_repeat)
 
 
 def _release(frame: Frame) -> None:
