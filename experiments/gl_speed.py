@@ -18,8 +18,10 @@ counts, twice:
 
 The two images are compared too (rel RMS: the GL result must equal the CPU's to ≤ 1e-5). The
 claim checked is 002 §5 / Table 2's relative one: the separable two-pass kernel costs a third
-of the sum of Gaussians' six passes in a close-up (GTX580: 1.05 against 3.07 ms); absolute
-times compare with the paper's GPUs only when a GPU is the renderer. ``--quick``: a 48×80 crop
+of the sum of Gaussians' six passes in a close-up (GTX580: 1.05 against 3.07 ms, 2.9×):
+*reproduced* when the GL ratio (sum of Gaussians, 7 taps / 2012 kernel, 17 taps) is within
+1.5× of 2.9, *partly* when it is above 1; absolute times compare with the paper's GPUs only
+when a GPU is the renderer. ``--quick``: a 48×80 crop
 and two configurations (the test variant, not the result).
 """
 
@@ -169,11 +171,19 @@ def run(ctx: Context) -> Section:
         ratio_gl = sog["gl_ms"] / sep["gl_ms"]
         ratio_cpu = sog["cpu_ms"] / sep["cpu_ms"]
         mean_gl_cpu = statistics.median(r["gl_ms"] / r["cpu_ms"] for r in rows)
-        verdict = "reproduced" if ratio_gl >= 1.5 else "not reproduced"
+        paper = 3.07 / 1.05
+        if ratio_gl >= paper / 1.5:
+            verdict = "reproduced"
+        elif ratio_gl > 1.0:
+            verdict = "partly reproduced"
+        else:
+            verdict = "not reproduced"
         reason = (
             f"On {info['renderer']}, the sum of Gaussians' passes (skin_jg10, 7 taps, "
-            f"{sog['passes']} passes) cost {ratio_gl:.2f}× the 2012 kernel's two 17-tap passes "
-            f"(CPU loop: {ratio_cpu:.2f}×; 002 Table 2, GTX580 close-up: 3.07 / 1.05 = 2.9×). "
+            f"{sog['passes']} blur passes and their blends) cost {ratio_gl:.2f}× the 2012 "
+            f"kernel's two 17-tap passes (CPU loop: {ratio_cpu:.2f}×; 002 Table 2, GTX580 "
+            f"close-up: 3.07 / 1.05 = {paper:.1f}×; reproduced when within 1.5× of it, partly "
+            "when the separable kernel is cheaper at all). "
             f"GL time / CPU time, median over the {len(rows)} configurations: "
             f"{mean_gl_cpu:.2f}; the GL images equal the CPU images to ≤ {worst:.1e} rel RMS."
         )
@@ -185,7 +195,9 @@ def run(ctx: Context) -> Section:
         else:
             reason += " The GL times are the GPU's own (absolute ms per pass in the table)."
     body = (
-        "Per method and tap count, all passes of one frame:\n\n" + table
+        "Per method and tap count, all passes of one frame (GL: the blur draws plus the sum of "
+        "Gaussians' blend draws and the rank-N composite; `passes` counts the blur passes):"
+        "\n\n" + table
         + "\n\nPer pass:\n\n" + per_pass
     )  # fmt: skip
     return Section(

@@ -57,6 +57,8 @@ class GLContext:
         self.renderer = str(info.get("GL_RENDERER", "?"))
         self.version = str(info.get("GL_VERSION", "?"))
         self.vendor = str(info.get("GL_VENDOR", "?"))
+        #: the thread the context is current on (EGL: one thread at a time)
+        self.thread = threading.get_ident()
         self._programs: dict[tuple[str, str], object] = {}
         self._vaos: dict[int, object] = {}
 
@@ -143,8 +145,15 @@ def _create() -> GLContext:
 
 def get_context() -> GLContext:
     """The process's GL context, made on first use; :class:`GLUnavailable` (one line naming what
-    to install) when there is none."""
-    return _CONTEXT if _CONTEXT is not None else _create()
+    to install) when there is none. The context is current on the thread that made it: a call
+    from another thread raises ``RuntimeError`` (run GL work on one thread)."""
+    ctx = _CONTEXT if _CONTEXT is not None else _create()
+    if ctx.thread != threading.get_ident():
+        raise RuntimeError(
+            "the GL context is current on the thread that created it; run sssbench.gl work "
+            "(and backend('gl') blocks) on that thread"
+        )
+    return ctx
 
 
 def available() -> tuple[bool, str]:
@@ -152,6 +161,6 @@ def available() -> tuple[bool, str]:
     ``(False, reason)`` with the reason naming what to install."""
     try:
         c = get_context()
-    except GLUnavailable as exc:
+    except (GLUnavailable, RuntimeError) as exc:
         return False, str(exc)
     return True, f"{c.renderer} / {c.version}"
