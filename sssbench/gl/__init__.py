@@ -121,6 +121,7 @@ def run_method(
     width: torch.Tensor | None = None,
     repeats: int = 5,
     warmup: int = 2,
+    hardware_filter: bool = False,
 ) -> GLRun:
     """Run ``method``'s pass schedule on the GL device; image, per-pass GL times, renderer.
 
@@ -137,6 +138,10 @@ def run_method(
         width: per-pixel width multiplier ``(B, 1, H, W)`` (curvature modulation), or ``None``.
         repeats: timed runs of the whole schedule (0: one untimed run).
         warmup: untimed runs before them (program compilation, driver caches).
+        hardware_filter: fetch the taps with ``texture()`` and the texture unit's
+            ``GL_LINEAR`` filter, as ``SSSSBlurPS`` does, instead of the float32 lerp of two
+            texels (a GPU's 8-bit sub-texel weights then differ from torch by ~1e-3; llvmpipe
+            filters float textures in float).
 
     Returns:
         :class:`GLRun`. How a run records it: ``passes`` in place of the CPU pass records,
@@ -158,6 +163,7 @@ def run_method(
     with torch.no_grad():
         for bi in range(b):
             frame = make_frame(glc, gbuffer, bi, method, width, None)
+            frame.hardware_filter = hardware_filter
             try:
                 out = fn(frame, method, gbuffer, width is not None)
                 images.append(glc.read(out))

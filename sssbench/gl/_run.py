@@ -3,6 +3,7 @@ the last, each draw optionally timed with a ``GL_TIME_ELAPSED`` query."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -129,6 +130,8 @@ class Frame:
     width_map: torch.Tensor | None = None  # (1, H, W)
     rotation: torch.Tensor | None = None  # (1, H, W) angles
     timings: list | None = None
+    #: fetch taps with texture() / GL_LINEAR in every blur pass (see sssbench.gl.shaders)
+    hardware_filter: bool = False
     textures: dict[str, object] = field(default_factory=dict)
     _fbos: dict[int, object] = field(default_factory=dict)
 
@@ -178,6 +181,10 @@ class Frame:
 
     def blur(self, spec: PassSpec, src, dst, *, additive: bool = False) -> None:
         """One blur pass ``src`` -> ``dst`` (``additive``: summed into ``dst`` by blending)."""
+        if self.hardware_filter and not spec.shader.hardware_filter:
+            spec = dataclasses.replace(
+                spec, shader=dataclasses.replace(spec.shader, hardware_filter=True)
+            )
         self.blur_source(
             spec.source(),
             spec.axis,

@@ -149,3 +149,13 @@ def test_refused_options_name_themselves():
         gl.run_method(registry.build_method("identity", None), g)
     with sssbench.backend("gl"), pytest.raises(ValueError, match="sample_weight"):
         m(g)
+
+
+@pytest.mark.skipif(OK and "llvmpipe" not in WHY, reason="a GPU filters with 8-bit weights")
+@pytest.mark.parametrize("method_key", ["preintegrated", "sum_of_gaussians"])
+def test_hardware_filter_on_llvmpipe(method_key):
+    """texture() with GL_LINEAR (SSSSBlurPS's SSSSSample): llvmpipe filters float textures in
+    float, so it agrees with torch too."""
+    g, m = scene("curved"), method(method_key)
+    run = gl.run_method(m, g, repeats=0, warmup=0, hardware_filter=True)
+    assert rel_rms(run.image, reference(method_key, "curved")) <= TOL
