@@ -25,6 +25,7 @@ ORDER = [
     "sampling",
     "cost",
     "perf",
+    "gl_speed",
     "reference_speed",
     "layers",
     "extensions",

@@ -6,6 +6,9 @@ and the version. The layers, bottom to top (docs/architecture.md, checked by imp
 """
 
 from sssbench import _moved, io  # users' G-buffers
+
+# the GL backend's pass registers itself with the gather (sssbench.gl; moderngl loads lazily)
+from sssbench import gl as _gl  # noqa: F401
 from sssbench._version import __version__
 from sssbench.gbuffer import GBuffer, pixel_size_mm, view_positions
 from sssbench.ops.gather import backend, get_backend

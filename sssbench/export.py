@@ -1,5 +1,8 @@
 """``sssbench-export-kernel``: a method's 1D kernels as JSON or as HLSL / GLSL arrays.
 
+One module because every format (HLSL, GLSL, JSON, GLSL passes) writes the same kernels and
+constants in the same order; the contract a user pastes against is stated once, here.
+
 A separable method's taps (:class:`~sssbench.kernels.Kernel1D`) are what a renderer needs to
 reproduce it: this module collects every kernel a method's passes use (:func:`method_kernels`,
 each named after its passes), writes them for a shader (:func:`shader_source`) or as JSON
@@ -32,6 +35,30 @@ the shader of ``SeparableSSS.h``):
   ``w`` in mm. If the scene's world unit is not the mm, multiply ``sssWidth`` by the world
   units per mm.
 
+Everything else the measured image depends on (:func:`method_constants`, written by the
+command line next to the taps in every format):
+
+- follow-surface: ``#define SSSS_FOLLOW_SURFACE_FACTOR <x>`` (1/mm) **replaces
+  ``300.0 * distanceToProjectionWindow * sssWidth``** in ``SeparableSSS.h``'s follow-surface
+  line, for **linear depth in mm**: ``s = saturate(SSSS_FOLLOW_SURFACE_FACTOR * abs(depthM -
+  depth))``. It is ``1 / surface_scale`` (the method's depth step of full replacement); a depth
+  buffer in another unit multiplies it by the mm per depth unit. A per-channel scale (the
+  artist model) writes a ``float3`` / ``vec3`` and the lerp becomes per channel. With
+  ``SSSS_FOLLOW_SURFACE 2`` (000 eq. 7, the artist model's default) the factor is ``1 /
+  σ_max`` and the tap weight is multiplied by ``exp(-0.5 · (factor · |Δz|)²)`` instead;
+- the mask: ``SSSS_STRENGTH_SOURCE`` is the G-buffer mask, 0 = not computed (the stencil,
+  002's ``initStencil`` ``discard``), otherwise it multiplies ``finalStep``;
+- the JG10 stretch (003 §7.3.1): ``SSSS_STRETCH_SSSLEVEL``, ``_CORRECTION`` (px), ``_MAXDD``
+  (mm/px), the step divided by ``depth + correction · min(|∂depth/∂axis|, maxdd)``;
+- stochastic rotation (000 §6): ``SSSS_ROTATION_RADIUS``;
+- the sum of Gaussians: its pass schedule, the blend factors ``w'`` (``kernel_sog<i>_blend``)
+  and the LOD (``SSSS_LOD_THRESHOLD`` px, each step's ``σ``); the SVD rank-N terms' schedule.
+
+``--format glsl-pass`` writes complete GLSL 330 fragment shaders, one per kernel (the pass with
+the kernel and these constants baked in, :func:`sssbench.gl.shaders.pass_source`): the very
+source the GL backend (:mod:`sssbench.gl`) compiles and runs for the method; several passes are
+separated by ``// ==== sssbench pass <name> ====`` lines (:func:`split_passes`).
+
 The JSON file keeps each :class:`Kernel1D` exactly (offsets in the kernel's own unit, and
 ``unit_mm``, the mm per offset unit: 1 for every method but the 2012 one, whose offsets are in
 widths); :func:`load_kernels` reads it back bit for bit.
@@ -41,6 +68,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import re
 import sys
 from collections.abc import Sequence
@@ -53,6 +81,7 @@ from torch import nn
 
 from sssbench import _json
 from sssbench._checks import check_choice, check_magnitude
+from sssbench.gl.shaders import shader_order
 from sssbench.kernels.kernel1d import Kernel1D
 
 __all__ = [
@@ -64,11 +93,17 @@ __all__ = [
     "kernels_json",
     "load_kernels",
     "build_from_overrides",
+    "method_constants",
+    "Constant",
+    "pass_sources",
+    "split_passes",
     "main",
 ]
 
 #: output formats of the console script
-FORMATS = ("hlsl", "glsl", "json")
+FORMATS = ("hlsl", "glsl", "json", "glsl-pass")
+#: the line before each pass of a ``glsl-pass`` file
+PASS_MARK = "// ==== sssbench pass {name} ===="
 #: printf format of every number in the shader arrays: 9 significant digits round-trip a
 #: float32 exactly (and leave a float64 within 5e-9 relative)
 NUMBER = "%.9g"
@@ -77,8 +112,6 @@ SHADER_RANGE = 3.0
 #: world units per unit of ``w · sssWidth`` (see the module doc: ``/3`` in texture
 #: coordinates, which span 2 half-heights of the projection window)
 _WORLD_PER_W = 2.0 / 3.0
-#: an offset within this fraction of the kernel's extent counts as the centre tap
-_CENTRE_TOL = 1e-9
 _JSON_FORMAT = "sssbench-kernels/1"
 
 
@@ -173,20 +206,6 @@ def default_sss_width(kernels: Sequence[NamedKernel], method: nn.Module | None =
     return 1.5 * extent / SHADER_RANGE if extent > 0 else 1.5  # |w| = 1.5 · extent / sssWidth
 
 
-def shader_order(kernel: Kernel1D) -> tuple[list[int], bool]:
-    """Tap indices in the shader's order and whether the first is the centre tap.
-
-    The tap with offset 0 (to ``1e-9`` of the extent: placement rules may leave a rounding
-    residue like 5.6e-16 mm) comes first, the others follow ascending (002 appendix,
-    ``SeparableSSS.h``'s kernel builder); without a centre tap the order stays ascending."""
-    offsets = kernel.offsets.double()
-    k = len(kernel)
-    i = int(offsets.abs().argmin())
-    if float(offsets[i].abs()) <= _CENTRE_TOL * kernel.extent:
-        return [i, *[j for j in range(k) if j != i]], True
-    return list(range(k)), False
-
-
 # ----------------------------------------------------------------------------- writing
 def _identifier(name: str, single: bool) -> str:
     return "kernel" if single else "kernel_" + re.sub(r"[^0-9A-Za-z_]", "_", name)
@@ -202,13 +221,16 @@ def shader_source(
     sss_width_mm: float,
     *,
     header: str = "",
+    constants: Sequence[Constant] = (),
 ) -> str:
     """HLSL or GLSL source: per kernel, ``<N>`` taps as ``float4(r, g, b, w)`` (HLSL
     ``float4 kernel[] = {...};``, as in ``SeparableSSS.h``) or ``vec4`` (GLSL
     ``const vec4 kernel[N] = vec4[N](...);``), centre tap first (:func:`shader_order`), ``w``
     the offset in the shader's units for ``sssWidth = sss_width_mm`` (module doc). One
     kernel is named ``kernel``; several ``kernel_<name>``, each with its ``*_N_SAMPLES``
-    define and its extras (``float3`` / ``vec3`` constants)."""
+    define and its extras (``float3`` / ``vec3`` constants). ``constants``
+    (:func:`method_constants`) are written after the header as ``#define`` lines with their
+    comments."""
     language = str(check_choice("language", language, ("hlsl", "glsl")))
     sss_width_mm = check_magnitude("sss_width_mm", sss_width_mm, "length")
     if not kernels:
@@ -230,6 +252,8 @@ def shader_source(
         ),
         "",
     ]
+    if constants:
+        lines += _constant_lines(constants, vec3) + [""]
     single = len(kernels) == 1
     for nk in kernels:
         ident = _identifier(nk.name, single)
@@ -253,6 +277,204 @@ def shader_source(
             lines.append(f"const vec4 {ident}[{n}] = vec4[{n}](\n{body}\n);")
         lines.append("")
     return "\n".join(lines)
+
+
+@dataclass(frozen=True)
+class Constant:
+    """A constant the measured result used, written next to the taps.
+
+    Attributes:
+        name: the ``#define`` name (``SSSS_FOLLOW_SURFACE_FACTOR``) or, with ``value`` ``None``,
+            a comment-only entry.
+        value: a number, three per-channel numbers, or ``None``.
+        comment: what it means (one or more lines).
+    """
+
+    name: str
+    value: float | int | tuple[float, float, float] | None
+    comment: str = ""
+
+    def as_json(self) -> dict[str, Any]:
+        v = list(self.value) if isinstance(self.value, tuple) else self.value
+        return {"name": self.name, "value": v, "comment": self.comment}
+
+
+def _constant_lines(constants: Sequence[Constant], vec3: str) -> list[str]:
+    lines = ["// constants the measured result used (sssbench docs/gl.md, 'the export contract'):"]
+    for c in constants:
+        lines += [f"// {line}" for line in c.comment.splitlines()]
+        if c.value is None:
+            continue
+        if isinstance(c.value, tuple):
+            value = f"{vec3}({', '.join(_num(v) for v in c.value)})"
+        elif isinstance(c.value, int) and not isinstance(c.value, bool):
+            value = str(c.value)
+        else:
+            value = _num(float(c.value))
+        lines.append(f"#define {c.name} {value}")
+    return lines
+
+
+def _f32(x: float) -> float:
+    """``x`` as the float32 the passes compute with."""
+    return float(torch.tensor(x, dtype=torch.float64).to(torch.float32))
+
+
+def method_constants(method: nn.Module) -> list[Constant]:
+    """Every constant besides the taps that ``method``'s measured image depends on (module doc):
+    the follow-surface mode and factor, the mask semantics, the stretch, the rotation, the sum
+    of Gaussians' schedule, blend factors and LOD, the rank-N schedule."""
+    from sssbench.gl._run import _follow_factor
+    from sssbench.ops import LowRankSSS, SeparableMethod, SumOfGaussiansSSS
+
+    out: list[Constant] = []
+    if not isinstance(method, SeparableMethod):
+        return out
+    mode = {None: 0, "lerp": 1, "gaussian": 2}[method.follow_surface]
+    out.append(
+        Constant(
+            "SSSS_FOLLOW_SURFACE",
+            mode,
+            "follow-surface: 0 off; 1 SeparableSSS.h's lerp back to colorM (002 appendix);\n"
+            "2 000 eq. 7: tap weight *= exp(-0.5 * (SSSS_FOLLOW_SURFACE_FACTOR * |dz|)^2)",
+        )
+    )
+    if mode:
+        factor = _follow_factor(method.surface_scale)
+        value: float | tuple[float, float, float] = factor[0]
+        if len(set(factor)) > 1:
+            value = factor
+        out.append(
+            Constant(
+                "SSSS_FOLLOW_SURFACE_FACTOR",
+                value,
+                "1/mm: replaces `300.0 * distanceToProjectionWindow * sssWidth` in SSSSBlurPS's\n"
+                "follow-surface line, for LINEAR depth in mm: s = saturate(FACTOR * abs(depthM -\n"
+                "depth)); = 1 / surface_scale (depth in another unit: times mm per unit)",
+            )
+        )
+    out.append(
+        Constant(
+            "SSSS_STRENGTH_SOURCE_IS_MASK",
+            1,
+            "SSSS_STRENGTH_SOURCE = the G-buffer mask: 0 = pixel not computed (stencil,\n"
+            "initStencil discard: the input is kept), else finalStep *= mask (003 s' = s * alpha)",
+        )
+    )
+    if method.rotation is not None:
+        out.append(
+            Constant(
+                "SSSS_ROTATION_RADIUS",
+                _f32(method.rotation),
+                "000 §6: taps with |offset| <= radius * (largest |offset|) are turned by a\n"
+                f"per-pixel angle in [0, pi) (seed {method.seed}), fetched bilinearly",
+            )
+        )
+    if isinstance(method, SumOfGaussiansSSS):
+        st = method.stretch
+        out.append(
+            Constant(
+                "SSSS_STRETCH",
+                int(st is not None),
+                "JG10 stretch (003 §7.3.1): step *= ssslevel * depth / (depth +\n"
+                "correction * min(|d depth / d axis|, maxdd)) (central difference)",
+            )
+        )
+        if st is not None:
+            out += [
+                Constant("SSSS_STRETCH_SSSLEVEL", _f32(st.ssslevel), "ssslevel (1 = physical)"),
+                Constant("SSSS_STRETCH_CORRECTION", _f32(st.correction), "correction, px"),
+                Constant("SSSS_STRETCH_MAXDD", _f32(st.maxdd), "maxdd, mm of depth per px"),
+            ]
+        out.append(
+            Constant(
+                "SSSS_LOD",
+                int(method.lod),
+                "003 §7.3.2: a step's passes skip pixels where sigma * ssslevel *\n"
+                "focalPx / depth * mask < SSSS_LOD_THRESHOLD (focalPx = H / (2 tan(fov/2)))",
+            )
+        )
+        out.append(Constant("SSSS_LOD_THRESHOLD", _f32(method.lod_threshold), "px"))
+        steps = [] if method.steps is None else method.steps
+        sched = [
+            "pass schedule (003 §7.3.3, Fig. 7.6): RTF = RT1 = the input; for each step in",
+            "order: x pass RT1 -> RT2, y pass RT2 -> RT1, then RTF = RT1 * w' + RTF * (1 - w')",
+            "(blend factor w' = kernel_<step>_blend, Listing 7.2) where the step's pass ran:",
+        ]
+        for i, step in enumerate(steps):
+            if step.kernel is None:
+                sched.append(f"  sog{i}: unblurred first Gaussian (w' = 1): no pass")
+            else:
+                sched.append(
+                    f"  sog{i}: sigma {_num(step.increment**0.5)} mm (LOD), taps kernel_sog{i}"
+                )
+        out.append(Constant("SSSS_SCHEDULE", None, "\n".join(sched)))
+    if isinstance(method, LowRankSSS):
+        out.append(
+            Constant(
+                "SSSS_SCHEDULE",
+                None,
+                "pass schedule (000 eq. 2): result = sum over terms i of the y pass\n"
+                "(kernel_low_rank<i>_y) of the x pass (kernel_low_rank<i>_x); the x\n"
+                "pass writes input * sum(x weights) at pixels with mask 0; pixels\n"
+                "with mask 0 keep the input in the result",
+            )
+        )
+    return out
+
+
+def pass_sources(method: nn.Module, kernels: Sequence[NamedKernel]) -> dict[str, str]:
+    """Complete GLSL 330 fragment shaders, one per kernel: the sources the GL backend compiles
+    for ``method`` (:func:`sssbench.gl.shaders.pass_source`), keyed by kernel name."""
+    from sssbench.gl._run import pass_spec
+    from sssbench.ops import LowRankSSS, SumOfGaussiansSSS
+
+    out: dict[str, str] = {}
+    for nk in kernels:
+        opts: dict[str, Any] = dict(
+            follow_surface=method.follow_surface, surface_scale=method.surface_scale,
+            width=nk.unit_mm,
+            rotation_radius=None if method.rotation is None
+            else float(method.rotation) * nk.kernel.extent,
+        )  # fmt: skip
+        if isinstance(method, SumOfGaussiansSSS):
+            step = method.steps[int(nk.name[3:])]
+            level = 1.0 if method.stretch is None else float(method.stretch.ssslevel)
+            opts["stretch"] = method.stretch
+            if method.lod:
+                opts["lod"] = (math.sqrt(step.increment) * level, method.lod_threshold)
+        if isinstance(method, LowRankSSS) and nk.name.endswith(".x"):
+            opts["inactive_scale"] = tuple(
+                float(v) for v in nk.kernel.sum().to(torch.float32).tolist()
+            )
+        axis = "y" if nk.name.endswith(".y") else "x"
+        header = [f"sssbench pass {nk.name}: {len(nk.kernel)} taps"]
+        if "blend" in nk.extras:
+            header.append(
+                "then blend into the result with w' = "
+                + ", ".join(_num(v) for v in nk.extras["blend"])
+                + " (003 Listing 7.2)"
+            )
+        if isinstance(method, LowRankSSS):
+            header.append(f"the {axis} pass of a rank-N term (000 eq. 2): terms are summed")
+        out[nk.name] = pass_spec(nk.kernel, axis, **opts).source(tuple(header))
+    return out
+
+
+def split_passes(text: str) -> dict[str, str]:
+    """The pass sources of a ``glsl-pass`` file, keyed by kernel name (one pass: its kernel's
+    name; each starts at ``#version``, the header comments before it dropped)."""
+    marks = list(re.finditer(r"^// ==== sssbench pass (\S+) ====$", text, re.M))
+    if not marks:
+        raise ValueError("text has no '// ==== sssbench pass <name> ====' line")
+    out = {}
+    for m, nxt in zip(marks, [*marks[1:], None], strict=True):
+        body = text[m.end() : None if nxt is None else nxt.start()]
+        start = body.find("#version")
+        if start < 0:
+            raise ValueError(f"pass {m.group(1)} has no #version line")
+        out[m.group(1)] = body[start:].rstrip() + "\n"
+    return out
 
 
 def _dtype_name(t: torch.Tensor) -> str:
@@ -364,13 +586,24 @@ def main(argv: list[str] | None = None) -> int:
             "sampling": spec.sampling,
             "method_params": spec.method_params,
         }
+        constants = method_constants(method)
+        header = "sssbench-export-kernel " + " ".join(
+            f"{k}={json.dumps(v)}" for k, v in meta.items()
+        )
         if fmt == "json":
+            meta["constants"] = [c.as_json() for c in constants]
             text = kernels_json(kernels, width, meta=meta)
+        elif fmt == "glsl-pass":
+            parts = [f"// {header}",
+                     "// complete GLSL 330 fragment shaders, one per kernel, as sssbench's GL",
+                     "// backend compiles them (docs/gl.md): uniforms colorTex (RGBA32F), depthTex",
+                     "// (R32F linear depth, mm), strengthTex (R32F mask), axis (0 x, 1 y),",
+                     "// focalPx = H / (2 tan(fov_y / 2))", ""]  # fmt: skip
+            for name, src in pass_sources(method, kernels).items():
+                parts += [PASS_MARK.format(name=name), src]
+            text = "\n".join(parts)
         else:
-            header = "sssbench-export-kernel " + " ".join(
-                f"{k}={json.dumps(v)}" for k, v in meta.items()
-            )
-            text = shader_source(kernels, fmt, width, header=header)
+            text = shader_source(kernels, fmt, width, header=header, constants=constants)
     except (ValueError, TypeError) as exc:
         print(f"sssbench-export-kernel: {exc}", file=sys.stderr)
         return 2

@@ -187,7 +187,10 @@ def test_json_file_from_the_command_line(tmp_path):
         (["method=identity"], "method identity has no separable kernel"),
         (["method=nope"], "unknown method 'nope'"),
         (["methd=preintegrated"], "unknown key 'methd'"),
-        (["--format", "xml"], "--format must be one of ['hlsl', 'glsl', 'json'], got 'xml'"),
+        (
+            ["--format", "xml"],
+            "--format must be one of ['hlsl', 'glsl', 'json', 'glsl-pass'], got 'xml'",
+        ),
         (["--sss-width", "0"], "--sss-width must be in"),
         (["samples=0"], "samples"),
         (["sampling=optimised"], "+method.params.pixel_mm"),

@@ -36,6 +36,11 @@ Backends (:data:`BACKENDS`, chosen per block with :func:`backend`, default ``"na
 - ``"torch"``: the eager torch loop.
 - ``"compile"``: the torch loop through ``torch.compile`` (inductor; the first call per dtype,
   direction and follow-surface mode compiles for tens of seconds).
+- ``"gl"``: the pass as a GLSL fragment shader with ``SeparableSSS.h`` semantics on a headless
+  OpenGL context (:mod:`sssbench.gl`, the ``gl`` extra; float32 textures, upload and read-back
+  per pass; rotation included; no gradients, no ``sample_weight``: both refused with a
+  ``ValueError``). Entering the block without a GL context raises
+  :class:`sssbench.gl.GLUnavailable` naming what to install: never a silent fall-back.
 
 Threads: the C loop splits its lines over ``torch.get_num_threads()`` threads, so
 ``torch.set_num_threads`` governs both, but gives each thread at least 16384 pixels of work
@@ -72,6 +77,7 @@ from sssbench.ops._gather_native import run_pass, weights_overflow  # registers 
 from sssbench.ops._gather_torch import SampleWeight, compiled_accumulate, gather_torch
 from sssbench.ops._overlap import has_internal_overlap, shares_memory
 from sssbench.ops._stencil import image_spans, image_stencils
+from sssbench.ops.pass_backends import PASS_BACKENDS_ABOVE, _pass_backend
 from sssbench.ops.timing import PassRecord, add_record
 
 __all__ = [
@@ -89,7 +95,7 @@ __all__ = [
 ]
 
 FOLLOW_SURFACE = (None, "lerp", "gaussian")
-BACKENDS = ("native", "torch", "compile")
+BACKENDS = ("native", "torch", "compile", "gl")
 
 #: How the native loop's results relate to the torch loop's (tested in
 #: ``tests/reliability/test_gather_safety.py``; the fallback warning says it).
@@ -119,6 +125,13 @@ def backend(name: str) -> Iterator[None]:
         'torch'
     """
     token = _BACKEND.set(check_choice("backend", name, BACKENDS))
+    if name in PASS_BACKENDS_ABOVE:
+        try:
+            # e.g. the GL context: GLUnavailable (one line: what to install) before any pass
+            _pass_backend(name)[0]()
+        except BaseException:
+            _BACKEND.reset(token)
+            raise
     try:
         yield
     finally:
@@ -469,6 +482,11 @@ def separable_pass(
     )  # fmt: skip
     inplace = inplace and not grads and image.is_contiguous()
     name_ = _backend_for(image, rotation, sample_weight)
+    if name_ == "gl" and grads:
+        raise ValueError(
+            "the gl backend computes no gradients: run passes that autograd records (fits, "
+            "sampling='optimised' fitting) on backend 'native' or 'torch'"
+        )
     direct = name_ == "native" and not (grads or torch.compiler.is_compiling())
     if direct:  # the C loop converts the kernel's taps itself, as _pass_constants does
         taps = (kernel.offsets, kernel.weights, _reciprocal(surface_scale))
@@ -479,7 +497,14 @@ def separable_pass(
 
     start = time.perf_counter()
     with memo_scope():  # the stencil is built once per call (see sssbench._memo)
-        if name_ == "native" and not direct:
+        if name_ in PASS_BACKENDS_ABOVE:
+            out, n_total = _pass_backend(name_)[1](
+                image, kernel, direction, gbuffer, strength=strength,
+                width=per_pixel if per_pixel is not None else width_scalar,
+                follow_surface=follow_surface, surface_scale=surface_scale, stretch=stretch,
+                rotation=rotation, out=image if inplace else None,
+            )  # fmt: skip
+        elif name_ == "native" and not direct:
             # through the dispatcher: autograd records the operator (its backward is the
             # torch loop's), a compiled graph traces it
             if inplace:
@@ -515,6 +540,13 @@ def _backend_for(
 ) -> str:
     """The backend this pass runs on (see :func:`backend`)."""
     name = get_backend()
+    if name == "gl":
+        if sample_weight is not None:
+            raise ValueError(
+                "the gl backend has no shader for sample_weight (halo reduction's bilateral "
+                "weight is a Python function): run it on backend 'native' or 'torch'"
+            )
+        return "gl"
     if rotation is not None or sample_weight is not None:
         return "torch"  # rotated taps and bilateral weights: torch loop only
     if name != "native":

@@ -1,0 +1,230 @@
+"""Pass times on the GL device beside the CPU times, per method and tap count (issue 26).
+
+    python -m experiments.run gl_speed [--quick] [--threads N]
+    python -m experiments.gl_speed [--quick]
+
+Every separable method that :mod:`sssbench.gl` covers runs on the 1080p extreme close-up
+(``face_close``: ``make_scene("face", (1080, 1920), pixel_mm=0.07, aim="cheek")``) at a few tap
+counts, twice:
+
+- **CPU**: the method under the default gather backend (``native``, the C loop; ``torch``
+  where it falls back) with ``--threads`` torch threads, per-pass wall times from
+  :func:`sssbench.ops.record_passes`, median of :data:`REPEATS` calls after a warm-up — the
+  times every other table of the project shows;
+- **GL**: :func:`sssbench.gl.run_method`: the pass shaders on the headless GL context, each
+  draw timed by a ``GL_TIME_ELAPSED`` query, median of :data:`REPEATS` after warm-up, the
+  renderer (``GL_RENDERER`` / ``GL_VERSION``) recorded. On Mesa's llvmpipe these are a
+  software rasteriser's times on the same CPU cores (``LP_NUM_THREADS``, default all cores).
+
+The two images are compared too (rel RMS: the GL result must equal the CPU's to ≤ 1e-5). The
+claim checked is 002 §5 / Table 2's relative one: the separable two-pass kernel costs a third
+of the sum of Gaussians' six passes in a close-up (GTX580: 1.05 against 3.07 ms, 2.9×):
+*reproduced* when the GL ratio (sum of Gaussians, 7 taps / 2012 kernel, 17 taps) is within
+1.5× of 2.9, *partly* when it is above 1; absolute times compare with the paper's GPUs only
+when a GPU is the renderer. ``--quick``: a 48×80 crop
+and two configurations (the test variant, not the result).
+"""
+
+from __future__ import annotations
+
+import os
+import statistics
+import sys
+
+import torch
+
+from experiments.common import Context, Section, main, md_table
+
+SIZE = (1080, 1920)
+QUICK_SIZE = (48, 80)
+SCENE = {"pixel_mm": 0.07, "aim": "cheek"}
+REPEATS = 3
+#: (label, method, profile, build kwargs)
+CONFIGS = [
+    ("preintegrated", "preintegrated", "skin_deon6", dict(samples=7)),
+    ("preintegrated", "preintegrated", "skin_deon6", dict(samples=13)),
+    ("preintegrated", "preintegrated", "skin_deon6", dict(samples=25)),
+    ("jimenez2012", "jimenez2012", None,
+     dict(samples=9, params={"preset": "shader_default", "width": 3.0})),
+    ("jimenez2012", "jimenez2012", None,
+     dict(samples=17, params={"preset": "shader_default", "width": 3.0})),
+    ("jimenez2012", "jimenez2012", None,
+     dict(samples=33, params={"preset": "shader_default", "width": 3.0})),
+    ("artist", "artist", None, dict(samples=7, params={"preset": "production"})),
+    ("artist", "artist", None, dict(samples=13, params={"preset": "production"})),
+    ("low_rank (rank 3)", "low_rank", "skin_deon6", dict(samples=15, params={"rank": 3})),
+    ("sum_of_gaussians", "sum_of_gaussians", "skin_jg10", dict(samples=7)),
+    ("sum_of_gaussians", "sum_of_gaussians", "skin_jg10", dict(samples=13)),
+]  # fmt: skip
+QUICK_CONFIGS = [CONFIGS[0], CONFIGS[9]]
+
+
+def _build(method: str, profile: str | None, kw: dict):
+    from sssbench.run import registry
+
+    prof = registry.build_profile(profile) if profile else None
+    return registry.build_method(method, prof, **kw)
+
+
+def _cpu(m, g, repeats: int) -> tuple[torch.Tensor, dict[str, float]]:
+    from sssbench.ops import record_passes
+
+    per: dict[str, list[float]] = {}
+    with torch.inference_mode():
+        out = m(g)  # warm-up (stencils, native library)
+        for _ in range(repeats):
+            with record_passes() as recs:
+                out = m(g)
+            for r in recs:
+                per.setdefault(r.name, []).append(r.ms)
+    return out, {k: statistics.median(v) for k, v in per.items()}
+
+
+def _rel(a: torch.Tensor, b: torch.Tensor) -> float:
+    return float(((a.double() - b.double()) ** 2).mean().sqrt() / (b.double() ** 2).mean().sqrt())
+
+
+def _figure(ctx: Context, rows: list[dict]) -> str:
+    import matplotlib.pyplot as plt
+
+    labels = [f"{r['label']}\n{r['samples']} taps" for r in rows]
+    x = range(len(rows))
+    fig, ax = plt.subplots(figsize=(max(5.0, 0.75 * len(rows) + 1), 3.0))
+    ax.bar([i - 0.2 for i in x], [r["cpu_ms"] for r in rows], 0.4, label="CPU (gather loop)")
+    gl_ms = [r["gl_ms"] for r in rows]
+    if any(v == v for v in gl_ms):  # not all NaN
+        ax.bar([i + 0.2 for i in x], gl_ms, 0.4, label="GL (GL_TIME_ELAPSED)")
+    ax.set_xticks(list(x))
+    ax.set_xticklabels(labels, fontsize=6)
+    ax.set_ylabel("ms per frame (all passes)")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    return ctx.figure(fig)
+
+
+def run(ctx: Context) -> Section:
+    import data_synth
+    from sssbench import gl
+    from sssbench.run.runner import backend_used
+
+    size = QUICK_SIZE if ctx.quick else SIZE
+    configs = QUICK_CONFIGS if ctx.quick else CONFIGS
+    torch.set_num_threads(ctx.threads)
+    g = data_synth.make_scene("face", size, **SCENE)
+    skin = int((g.mask_or_ones() > 0).sum())
+    ok, why = gl.available()
+    info = gl.renderer_info() if ok else {}
+    load0 = os.getloadavg()[0]
+    rows: list[dict] = []
+    for label, name, profile, kw in configs:
+        m = _build(name, profile, kw)
+        cpu_img, cpu = _cpu(m, g, REPEATS)
+        row = {"label": label, "samples": kw["samples"], "passes": len(cpu),
+               "cpu_ms": sum(cpu.values()), "gl_ms": float("nan"), "agree": float("nan"),
+               "cpu_passes": cpu, "gl_passes": {}}  # fmt: skip
+        if ok:
+            run = gl.run_method(m, g, repeats=REPEATS, warmup=1)
+            row["gl_passes"] = run.pass_times_ms
+            row["gl_ms"] = sum(run.pass_times_ms.values())
+            row["agree"] = _rel(run.image, cpu_img)
+        rows.append(row)
+        print(f"gl_speed: {label} {kw['samples']} taps: CPU {row['cpu_ms']:.1f} ms, "
+              f"GL {row['gl_ms']:.1f} ms", file=sys.stderr)  # fmt: skip
+    backend = backend_used("native")
+    lp_threads = os.environ.get("LP_NUM_THREADS", f"all {os.cpu_count()} cores")
+    table = md_table(
+        [[r["label"], r["samples"], r["passes"], r["cpu_ms"], r["gl_ms"],
+          r["gl_ms"] / r["cpu_ms"] if ok else float("nan"), r["agree"]] for r in rows],
+        ["method", "taps", "passes", "CPU ms", "GL ms", "GL / CPU", "rel RMS GL vs CPU"],
+    )  # fmt: skip
+    per_pass = md_table(
+        [[f"{r['label']} {r['samples']}", name, ms, r["gl_passes"].get(name, float("nan"))]
+         for r in rows for name, ms in r["cpu_passes"].items()],
+        ["configuration", "pass", "CPU ms", "GL ms"],
+    )  # fmt: skip
+    where = f"face_close {size[1]}×{size[0]} ({skin} skin pixels)"
+    renderer = f"{info.get('renderer', '–')} / {info.get('version', '–')}" if ok else "none"
+    measured = (
+        f"{where}; CPU: gather backend `{backend}`, {ctx.threads} torch thread(s); GL renderer "
+        f"{renderer}"
+        + (f" (llvmpipe threads: {lp_threads})" if info.get("software") else "")
+        + f"; medians of {REPEATS} after a warm-up."
+    )
+    load = max(load0, os.getloadavg()[0])
+    cores = os.cpu_count() or 1
+    if load > cores:
+        measured += (
+            f" The machine was shared (load average up to {load:.1f} on {cores} cores): both "
+            "columns are inflated by other processes and vary from run to run, their ratios "
+            "too: re-run on an idle machine for firm numbers."
+        )
+    if info.get("note"):
+        measured += f" Note: {info['note']}."
+    reason = ""
+    if ctx.quick:
+        verdict, reason = "pending", "Quick run on a crop: not the 1080p measurement."
+    elif not ok:
+        verdict, reason = "pending", f"No GL context on this machine ({why})."
+    else:
+        worst = max(r["agree"] for r in rows)
+        sep = next(r for r in rows if r["label"] == "jimenez2012" and r["samples"] == 17)
+        sog = next(r for r in rows if r["label"] == "sum_of_gaussians" and r["samples"] == 7)
+        ratio_gl = sog["gl_ms"] / sep["gl_ms"]
+        ratio_cpu = sog["cpu_ms"] / sep["cpu_ms"]
+        mean_gl_cpu = statistics.median(r["gl_ms"] / r["cpu_ms"] for r in rows)
+        paper = 3.07 / 1.05
+        if load > 1.5 * cores:  # other processes dominate the times: no verdict on a ratio
+            verdict = "pending"
+        elif ratio_gl >= paper / 1.5:
+            verdict = "reproduced"
+        elif ratio_gl > 1.0:
+            verdict = "partly reproduced"
+        else:
+            verdict = "not reproduced"
+        reason = (
+            f"On {info['renderer']}, the sum of Gaussians' passes (skin_jg10, 7 taps, "
+            f"{sog['passes']} blur passes and their blends) cost {ratio_gl:.2f}× the 2012 "
+            f"kernel's two 17-tap passes (CPU loop: {ratio_cpu:.2f}×; 002 Table 2, GTX580 "
+            f"close-up: 3.07 / 1.05 = {paper:.1f}×; reproduced when within 1.5× of it, partly "
+            "when the separable kernel is cheaper at all). "
+            f"GL time / CPU time, median over the {len(rows)} configurations: "
+            f"{mean_gl_cpu:.2f}; the GL images equal the CPU images to ≤ {worst:.1e} rel RMS."
+        )
+        if verdict == "pending":
+            reason += (
+                f" No verdict: the load average ({load:.1f} on {cores} cores) makes the times "
+                "those of a shared machine (repeated runs here moved this ratio between 0.9 "
+                "and 2.2); re-run on an idle machine or a GPU."
+            )
+        if info.get("software"):
+            reason += (
+                " These GL times are a software rasteriser's on the CPU cores, not a GPU's: "
+                "the absolute milliseconds do not compare with the paper's GPUs."
+            )
+        else:
+            reason += " The GL times are the GPU's own (absolute ms per pass in the table)."
+    body = (
+        "Per method and tap count, all passes of one frame (GL: the blur draws plus the sum of "
+        "Gaussians' blend draws and the rank-N composite; `passes` counts the blur passes):"
+        "\n\n" + table
+        + "\n\nPer pass:\n\n" + per_pass
+    )  # fmt: skip
+    return Section(
+        title="GL pass times beside CPU times (1080p close-up)",
+        figures=[_figure(ctx, rows)],
+        claim=(
+            "002 §5, Table 2: the separable kernel's two passes cost about a third of the "
+            "sum of Gaussians' six passes in a close-up (GTX580 1.05 ms against 3.07 ms at "
+            "1080p; 17 samples). Issue 26: CPU-torch and GL times side by side per method and "
+            "tap count, GL times from GL_TIME_ELAPSED queries with the renderer named."
+        ),
+        measured=measured,
+        verdict=verdict,
+        reason=reason,
+        body=body,
+        data={"renderer": info, "load": load, "rows": rows},
+    )
+
+
+if __name__ == "__main__":
+    sys.exit(main("gl_speed", run))
