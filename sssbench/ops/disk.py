@@ -448,9 +448,7 @@ class DiskSSS(nn.Module):
         )
 
     # ------------------------------------------------------------------ per-pixel noise
-    def _phase(
-        self, ctx: _Pixels, sel: torch.Tensor, frame: int, stream: int
-    ) -> torch.Tensor:
+    def _phase(self, ctx: _Pixels, sel: torch.Tensor, frame: int, stream: int) -> torch.Tensor:
         """The rotation (turns, float64) of the active pixels ``sel`` in ``frame``: keyed on
         the pixel's position *in its image*, the seed, the frame and the stream."""
         row, col = ctx.row[sel], ctx.col[sel]
@@ -485,7 +483,9 @@ class DiskSSS(nn.Module):
         pix = ctx.index[sel]
         pos_c = ctx.pos[pix]  # (M, 3)
         z_c = pos_c[:, 2]
-        step = 1.0 / pixel_size_mm(z_c, ctx.fov_y, ctx.h)  # pixels per mm at the centre
+        # pixels per mm at the centre, float64 whatever the dtype: which pixel a sample lands
+        # in must not depend on the dtype (a sample on a pixel boundary would jump)
+        step = 1.0 / pixel_size_mm(z_c.double(), ctx.fov_y, ctx.h)
         phase = self._phase(ctx, sel, frame, stream)
         shift = (
             hash_uniform(pix % ctx.hw, self.seed, frame, 2 * stream + 1)
@@ -503,9 +503,10 @@ class DiskSSS(nn.Module):
             u = torch.frac(u0[i] + shift) if self.jitter_radius else u0[i].expand(m)
             r, inv_pdf = kernel.sampler.sample(u)
             theta = theta0[i] + 2 * math.pi * phase
-            dcol = (r * torch.cos(theta)).to(dt) * step
-            drow = -(r * torch.sin(theta)).to(dt) * step  # screen y is up, rows go down
-            rgb, dz, ok, area = ctx.fetch(pix, drow, dcol, self.fetch, accept)
+            dcol64 = r * torch.cos(theta) * step
+            drow64 = -r * torch.sin(theta) * step  # screen y is up, rows go down
+            rgb, dz, ok, area = ctx.fetch(pix, drow64, dcol64, self.fetch, accept)
+            dcol, drow = dcol64.to(dt), drow64.to(dt)
             lateral = (z_c + dz) * per_mm
             dx = pos_c[:, 0] * (dz / z_c) + dcol * lateral
             dy = pos_c[:, 1] * (dz / z_c) - drow * lateral
@@ -775,7 +776,7 @@ class _Pixels:
             area = None if self.area is None else self.area[j]
             return self.rgb[j], self.depth[j] - z_c, accept[j], area
         fr0, fc0 = torch.floor(drow), torch.floor(dcol)
-        fr, fc = drow - fr0, dcol - fc0  # exact: the fraction of the offset
+        fr, fc = (drow - fr0).to(self.dtype), (dcol - fc0).to(self.dtype)  # the offset's fraction
         r0, c0 = row + fr0.long(), col + fc0.long()
         rows = (r0.clamp(0, self.h - 1), (r0 + 1).clamp(0, self.h - 1))
         cols = (c0.clamp(0, self.w - 1), (c0 + 1).clamp(0, self.w - 1))
@@ -786,9 +787,9 @@ class _Pixels:
             (rows[1], cols[1], fr * fc),
         ]
         rgb = torch.zeros(drow.shape[0], 3, dtype=self.dtype)
-        dz = torch.zeros_like(drow)
-        total = torch.zeros_like(drow)
-        area = None if self.area is None else torch.zeros_like(drow)
+        dz = torch.zeros_like(fr)
+        total = torch.zeros_like(fr)
+        area = None if self.area is None else torch.zeros_like(fr)
         nearest = None
         for ri, ci, wt in corners:
             j = base + ri * self.w + ci
