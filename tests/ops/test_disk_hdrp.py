@@ -234,9 +234,23 @@ def test_hdrp_on_a_tabulated_profile_keeps_constants_constant():
 
 
 def test_app_passes_the_estimator(tmp_path):
-    from sssbench import registry
+    # `sssbench method=disk method.params.estimator=hdrp`: conf/method/disk.yaml carries the
+    # option (its jitter_radius is null: each estimator's own default)
+    from sssbench import registry, runner
+    from sssbench.app import compose_spec
 
-    op = registry.build_method(
-        "disk", BurleyNormalized(1.0, 0.5), samples=8, params={"estimator": "hdrp"}
+    spec = compose_spec(
+        "method=disk",
+        "method.params.estimator=hdrp",
+        "profile=burley_skin1",
+        "scene=step_edge",
+        "resolution=[16,16]",
+        store=tmp_path / "s.sqlite",
     )
-    assert op.estimator == "hdrp" and op.jitter_radius is False
+    assert spec.method_params["estimator"] == "hdrp"
+    profile = runner.registry.build_profile(spec.profile, spec.profile_kind, **spec.profile_params)
+    op = registry.method_from_spec(spec, profile)
+    assert op.estimator == "hdrp" and op.jitter_radius is False and op.samples == 32
+    default = compose_spec("method=disk", store=tmp_path / "t.sqlite")
+    op = registry.method_from_spec(default, profile)
+    assert op.estimator == "sssbench" and op.jitter_radius is True
