@@ -161,7 +161,7 @@ class TabulatedRadial(RadialSampler):
         self.cdf = cdf / cdf[-1]
 
     def sample(self, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        u = u.double()
+        u = u.double().contiguous()  # (an expanded u would make searchsorted copy and warn)
         k = (torch.searchsorted(self.cdf, u, right=True) - 1).clamp(0, len(self.r) - 2)
         c0, c1 = self.cdf[k], self.cdf[k + 1]
         r0, r1 = self.r[k], self.r[k + 1]
