@@ -59,9 +59,9 @@ frame ``f``, sample ``i`` of ``N``:
   ± 0.0002, 2048 samples per pixel, ``tests/ops/test_disk.py``): a point fetch reads the
   depth and area of the pixel *centre* and places the sample on the view ray at that depth,
   so on a tilted surface the sample's 3D distance is off by up to half a pixel's depth
-  change; the error vanishes as the pixel shrinks against the profile. The bilinear fetch
-  interpolates the depth and converges closer to 1 (same test). We keep the estimator as
-  it is (the engines' point fetch) and state its limit.
+  change, which shrinks with the pixel against the profile. We keep the estimator as it is
+  (the engines' point fetch) and state its limit (the bilinear fetch's limit is not
+  measured).
 - geometry in differences: the sample's screen offset from its centre pixel, its depth as
   ``z_i − z_p`` (the bilinear fetch interpolates depth differences) and ``x_i − x_p =
   x_p (z_i − z_p)/z_p + Δ pixel_size(z_i)``, never one absolute position minus another:
