@@ -5,14 +5,25 @@ Golubev 2018 ("Efficient screen-space subsurface scattering using Burley's norma
 diffusion in real-time", SIGGRAPH Advances in Real-Time Rendering) replaces the papers'
 separable passes by one gather over N samples on a disk in the screen plane: radii drawn from
 the profile's radial CDF, angles on a golden-angle spiral rotated per pixel, each sample
-weighted by ``R(d) / pdf`` with ``d`` the 3D distance between the two surface points, and the
-sum divided by the sum of the weights. :class:`DiskSSS` is that estimator on a G-buffer.
+weighted by the profile over the sampling density, and the sum divided by the sum of the
+weights. :class:`DiskSSS` has two estimators of that family on a G-buffer:
+
+- ``estimator="sssbench"`` (default, described first below): the weight ``R(d) / pdf_area``
+  with ``d`` the 3D distance between the two surface points — an importance-sampled estimate
+  of the surface integral the exact reference computes — with radial jitter, a choice of
+  patterns, fetches, adaptive counts and a surface-area element;
+- ``estimator="hdrp"``: Unity HDRP's pass exactly (last section below), whose weight is
+  ``EvalBurley(r3D) · rcpPdf(r2D)``: the profile in polar measure at the 3D distance over the
+  polar density at the disk radius, i.e. ours times ``r3D / r2D`` — across a depth step HDRP
+  weighs the far side's samples up by that factor.
 
 Per pixel ``p`` (centre view position ``x_p``, :func:`~sssbench.gbuffer.view_positions`) and
 frame ``f``, sample ``i`` of ``N``:
 
-- ``u_i`` (radial quantile) and ``θ_i`` (angle): ``pattern="fibonacci"`` (HDRP:
-  ``u_i = (i + ½)/N``, ``θ_i = i · golden angle``) or ``"r2"`` (Roberts' R2 sequence,
+- ``u_i`` (radial quantile) and ``θ_i`` (angle): ``pattern="fibonacci"`` (Vogel's spiral:
+  ``u_i = (i + ½)/N``, ``θ_i = i · golden angle``; HDRP's ``SampleDiskGolden`` turns the other
+  way, ``θ_i = 2π frac(i/φ) = −i · golden angle`` mod 2π, which ``estimator="hdrp"`` uses) or
+  ``"r2"`` (Roberts' R2 sequence,
   ``(u_i, v_i) = frac(½ + i (1/g, 1/g²))``, g the plastic number, ``θ_i = 2π v_i``);
 - ``θ_i += 2π φ(p, f)`` with ``φ`` from ``rotation`` (``"hash"``: a seeded integer hash of
   pixel, seed and frame, white noise; ``"ign"``: interleaved gradient noise, Jimenez 2014,
@@ -43,7 +54,18 @@ frame ``f``, sample ``i`` of ``N``:
   to perspective) the normalised estimator does not see the difference; on a curved surface
   it weighs the neighbours facing the camera more than the reference, which weighs each by
   its surface area — the disk's bias on curved scenes (measured on ``head_cheek``, see
-  experiments/disk.py).
+  experiments/disk.py). What it converges to on a plane tilted 45° (unnormalised, constant
+  irradiance, pixel = d/2, Burley): **1.025**, not 1, with the point fetch (measured: 1.0249
+  ± 0.0002, 2048 samples per pixel, ``tests/ops/test_disk.py``): a point fetch reads the
+  depth and area of the pixel *centre* and places the sample on the view ray at that depth,
+  so on a tilted surface the sample's 3D distance is off by up to half a pixel's depth
+  change, which shrinks with the pixel against the profile. We keep the estimator as it is
+  (the engines' point fetch) and state its limit (the bilinear fetch's limit is not
+  measured).
+- geometry in differences: the sample's screen offset from its centre pixel, its depth as
+  ``z_i − z_p`` (the bilinear fetch interpolates depth differences) and ``x_i − x_p =
+  x_p (z_i − z_p)/z_p + Δ pixel_size(z_i)``, never one absolute position minus another:
+  float32 keeps the distances to its own rounding (``docs/reliability.md``).
 
 Rules (our choices, documented because the sources leave them to the engine):
 
@@ -76,6 +98,19 @@ Rules (our choices, documented because the sources leave them to the engine):
   (``ε_max`` over channels); its count is the smallest ``n_min · 2^k ≥ n``, at most
   ``n_max``, and it draws ``count − n_min`` more samples (a pattern of that size with its own
   hash stream), pooled with the pilot's.
+- **Noise keys**: every per-pixel random number (rotation, radial shift) is a function of
+  the pixel's position *in its image*, the seed, the frame and the stream — not of the
+  image's place in a batch: an image scattered in a batch equals it scattered alone. The
+  seed is any integer in ``[0, 2⁶³ − 1]`` and every bit of it counts: it is folded into the
+  32-bit hash keys in exact integer arithmetic (:func:`_seed_key`; ``"ign"``'s frame offset
+  likewise, :func:`_ign_frame`), never through a float.
+- **Premise**: the radial sampler treats the sampled (widest) channel as a density, so a
+  profile negative anywhere in that channel on its radial grid (a fitted negative lobe; its
+  tabulated CDF is then not monotone) is refused when the operator is built, naming
+  ``profile`` (other channels are integrands and may be signed).
+- **Bounds**: ``samples`` and ``adaptive[1]`` at most :data:`MAX_DISK_SAMPLES`, ``frames``
+  at most :data:`MAX_DISK_FRAMES`, checked on entry (the pattern and the passes grow with
+  them).
 - **Per-pixel profiles**: with a list of profiles, pixel ``p`` scatters with
   ``profiles[profile_id[p]]`` (its own radial sampler and weights; ``gbuffer.profile_id``).
   A sample landing on a pixel of another profile is rejected like a stencil miss
@@ -84,6 +119,45 @@ Rules (our choices, documented because the sources leave them to the engine):
   profile's result away from the seam, and the one the engines' per-profile stencils make)
   or weighted with the centre's profile (``"accept"``: light crosses the seam with the
   receiving material's kernel).
+
+``estimator="hdrp"``: Unity HDRP's pass (Unity-Technologies/Graphics,
+``com.unity.render-pipelines.high-definition/Runtime/Material/SubsurfaceScattering/
+SubsurfaceScattering.compute``, ``EvaluateSss`` / ``EvaluateSample`` /
+``ComputeBilateralWeight``, with ``SSS_USE_TANGENT_PLANE 0``, ``SSS_BILATERAL_FILTER 1``;
+``DiffusionProfile.hlsl``; ``DiffusionProfileSettings.cs``; core ``Sampling/Fibonacci.hlsl``),
+re-implemented here from the published formulas and checked against an independent loop
+implementation of them (``tests/ops/test_disk_hdrp.py``):
+
+- profile: HDRP's is Burley's, ``S = 1 / (scatteringDistance · multiplier)`` per channel
+  with *no* albedo fit — :class:`~sssbench.profiles.BurleyNormalized` with ``d`` = the
+  scattering distance (:meth:`~sssbench.profiles.BurleyNormalized.from_scattering_distance`).
+  Radii are drawn for the widest channel with HDRP's closed-form inverse CDF
+  (:func:`~sssbench.ops._disk_radial.hdrp_burley_sample`); another profile gets the same
+  rules with its tabulated sampler (HDRP has no such profile: our extension);
+- filter radius ``R_f``: the 0.997 quantile of the sampled channel (mm);
+- per pixel: ``pixels_per_mm = 1 / max(0.1 mm, pixel_size(z_p))`` (HDRP floors the pixel
+  footprint at 0.0001 world units, 0.1 mm at its default 1 m per unit), sample count
+  ``n = min(⌊π (R_f · pixels_per_mm)² / 4⌋, samples)`` (``SSS_PIXELS_PER_SAMPLE = 4``,
+  ``samples`` the budget); ``n = 0``: the pixel keeps its irradiance (no filtering);
+- sample ``i < n``: ``u_i = (i + ½)/n`` *fixed* (no radial jitter: frames average only
+  over rotations), ``(r_i, rcpPdf_i)`` the radius and the inverse *polar* density, angle
+  ``ψ_i = 2π frac(i/φ) + 2π φ(p, f)`` (``SampleDiskGolden``; φ the golden ratio; the
+  per-pixel rotation from ``rotation`` — HDRP hashes the pixel and its device depth, we the
+  pixel, seed and frame);
+- fetch at ``(column, row) + round(r_i · pixels_per_mm · (cos ψ_i, sin ψ_i))`` (round half
+  to even; rows downward as in HDRP's pixel coordinates); a sample outside the image is
+  rejected (an out-of-bounds load returns 0, which fails HDRP's SSS tag test), as is one
+  off the stencil (or on another profile, ``cross_profile``; HDRP without SSS occlusion
+  accepts, i.e. ``"accept"``);
+- weight per channel ``w_c = EvalBurley_c(r3D) · rcpPdf_i`` with ``r3D = √(r_i² + (z_i −
+  z_p)²)`` — the nominal disk radius, not the fetched pixel's position, and the depth
+  difference in mm — and ``EvalBurley_c(r) = S_c/(8π) (e^{−S_c r/3} + e^{−S_c r})``
+  (the profile in polar measure, ``2π r R_c(r) / (2π ‖R_c‖₁)``);
+- result ``Σ w_c E_c / max(Σ w_c, FLT_MIN)`` over the accepted samples (0 if none is).
+
+Not reproduced (the G-buffer has no such inputs): HDRP's ``subsurfaceMask`` scales the
+filter radius (``distScale``), where our ``mask`` is a stencil and strength; its albedo
+multiply after the pass (texturing mode) is the pipeline's texturing stage here.
 """
 
 from __future__ import annotations
@@ -95,17 +169,17 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from sssbench._checks import check_choice, check_int, check_scalar
+from sssbench._checks import check_choice, check_int, check_scalar, check_seed
 from sssbench.gbuffer import GBuffer, pixel_size_mm, view_positions
 from sssbench.ops._disk_noise import blue_noise_mask
 from sssbench.ops._disk_radial import RadialSampler, radial_sampler
-from sssbench.ops._gather_torch import _bilinear_corners
 from sssbench.ops._repr import options_repr
 from sssbench.ops._stencil import active_pixels
 from sssbench.ops.functional import functional
 from sssbench.ops.reference import _minmod_slope
 from sssbench.ops.timing import timed_pass
 from sssbench.profiles.base import Profile
+from sssbench.profiles.burley import BurleyNormalized
 
 __all__ = [
     "DiskSSS",
@@ -114,12 +188,36 @@ __all__ = [
     "DISK_ROTATIONS",
     "DISK_FETCHES",
     "DISK_CROSS_PROFILE",
+    "DISK_ESTIMATORS",
+    "MAX_DISK_SAMPLES",
+    "MAX_DISK_FRAMES",
 ]
 
 DISK_PATTERNS = ("fibonacci", "r2")
 DISK_ROTATIONS = ("hash", "ign", "blue_noise", "none")
 DISK_FETCHES = ("point", "bilinear")
 DISK_CROSS_PROFILE = ("reject", "accept")
+#: ``"sssbench"``: the estimator of the module doc; ``"hdrp"``: Unity HDRP's pass exactly
+#: (module doc, "estimator='hdrp'")
+DISK_ESTIMATORS = ("sssbench", "hdrp")
+
+#: largest ``samples`` (and ``adaptive[1]``) per pixel per frame: the pattern allocates
+#: 16 bytes per sample and each sample is a pass over the pixels (HDRP's highest budget is
+#: 1000)
+MAX_DISK_SAMPLES = 1 << 16
+#: largest ``frames`` (each frame is a full estimate)
+MAX_DISK_FRAMES = 1 << 12
+#: HDRP's golden ratio (``Golden2dSeq``: the i-th angle is ``2π frac(i / φ)``)
+GOLDEN_RATIO = (1.0 + math.sqrt(5.0)) / 2.0
+#: HDRP: one sample per 4 pixels of the projected filter disk (``SSS_PIXELS_PER_SAMPLE``)
+HDRP_PIXELS_PER_SAMPLE = 4
+#: HDRP's filter radius: the radius holding 99.7 % of the widest channel's energy
+HDRP_FILTER_CDF = 0.997
+#: HDRP floors a pixel's footprint at 0.0001 world units (``max(0.0001f, unitsPerPixel)``):
+#: 0.1 mm at its default world scale of 1 m per unit
+HDRP_MIN_PIXEL_MM = 0.1
+#: HDRP's ``max(totalWeight, FLT_MIN)`` (the float32 smallest normal)
+_FLT_MIN = 1.1754943508222875e-38
 
 #: golden angle π (3 − √5) (Vogel's spiral; HDRP ``SampleDiskGolden``)
 GOLDEN_ANGLE = math.pi * (3.0 - math.sqrt(5.0))
@@ -138,12 +236,44 @@ def _hash32(x: torch.Tensor) -> torch.Tensor:
     return x ^ (x >> 16)
 
 
+def _hash32_int(x: int) -> int:
+    """:func:`_hash32` on one Python integer (exact: no tensor, no float)."""
+    x &= _MASK32
+    x ^= x >> 16
+    x = (x * 0x7FEB352D) & _MASK32
+    x ^= x >> 15
+    x = (x * 0x846CA68B) & _MASK32
+    return x ^ (x >> 16)
+
+
+def _seed_key(seed: int) -> int:
+    """The 32-bit key of a seed in ``[0, 2⁶³ − 1]``, in exact integer arithmetic: the low 32
+    bits hashed as they always were (seeds below 2³² keep their streams), the high bits
+    hashed into it when there are any — every bit of the seed changes the key."""
+    lo, hi = seed & _MASK32, seed >> 32
+    key = _hash32_int(lo * 0x9E3779B1 + 0x632BE5AB)
+    if hi:
+        key = _hash32_int(key ^ _hash32_int(hi * 0x27D4EB2F + 0x165667B1))
+    return key
+
+
 def hash_uniform(pixel: torch.Tensor, seed: int, frame: int, stream: int) -> torch.Tensor:
-    """Uniform ``[0, 1)`` float64 per pixel index (int64), reproducible from ``(seed, frame,
-    stream)``: a chain of :func:`_hash32` (distinct streams are independent draws)."""
-    key = _hash32(torch.tensor([seed * 0x9E3779B1 + 0x632BE5AB]))
-    key = _hash32(key ^ (frame * 0x85EBCA77 + stream * 0xC2B2AE3D))
+    """Uniform ``[0, 1)`` float64 per pixel index (int64: the pixel's index *within its
+    image*, so an image's noise does not depend on where it sits in a batch), reproducible
+    from ``(seed, frame, stream)``: a chain of :func:`_hash32` keyed in exact integer
+    arithmetic (:func:`_seed_key`; distinct streams are independent draws)."""
+    key = _hash32_int(_seed_key(seed) ^ ((frame * 0x85EBCA77 + stream * 0xC2B2AE3D) & _MASK32))
     return _hash32(pixel ^ key).double() / 2.0**32
+
+
+def _ign_frame(seed: int, frame: int, stream: int) -> int:
+    """The frame index interleaved gradient noise is evaluated at for ``(seed, frame,
+    stream)``: ``frame + 31 stream + 7919 seed`` modulo 2³² for seeds below 2³² (so small
+    seeds keep their noise), the high 32 bits of the seed hashed in; an exact integer below
+    2³³ (float64 keeps every bit of it)."""
+    lo, hi = seed & _MASK32, seed >> 32
+    offset = (7919 * lo + (_hash32_int(hi * 0x27D4EB2F + 0x165667B1) if hi else 0)) & _MASK32
+    return frame + 31 * stream + offset
 
 
 def interleaved_gradient_noise(row: torch.Tensor, col: torch.Tensor, frame: int) -> torch.Tensor:
@@ -190,13 +320,16 @@ class DiskSSS(nn.Module):
     Args:
         profile: radial diffusion profile (mm), or a list of them indexed per pixel by
             ``gbuffer.profile_id`` (then ``needs`` includes ``profile_id``); every channel's
-            total must be > 0.
-        samples: samples per pixel per frame (N).
-        pattern: ``"fibonacci"`` (HDRP) or ``"r2"``.
+            total must be > 0 and its widest channel non-negative (a density to sample).
+        samples: samples per pixel per frame (N), at most :data:`MAX_DISK_SAMPLES`; with
+            ``estimator="hdrp"`` the sample *budget* (HDRP's ``_SssSampleBudget``).
+        pattern: ``"fibonacci"`` (golden-angle spiral) or ``"r2"``.
         rotation: per-pixel rotation: ``"hash"``, ``"ign"``, ``"blue_noise"`` or ``"none"``.
-        frames: number of frames averaged (K >= 1).
+        frames: number of frames averaged (1 <= K <= :data:`MAX_DISK_FRAMES`).
         normalise: divide by the sum of weights per channel (HDRP); ``False``: plain MC.
-        jitter_radius: per-pixel Cranley–Patterson shift of the radial quantiles.
+        jitter_radius: per-pixel Cranley–Patterson shift of the radial quantiles; ``None``
+            (default): the estimator's own (``True`` for ``"sssbench"``, ``False`` for
+            ``"hdrp"``).
         fetch: ``"point"`` (HDRP) or ``"bilinear"``.
         adaptive: ``None`` or ``(n_min, n_max)`` (replaces ``samples``; see module doc).
         adaptive_target: target relative standard error of the adaptive rule.
@@ -204,7 +337,13 @@ class DiskSSS(nn.Module):
             another profile's pixels (module doc).
         surface_area: weight each sample by its pixel's surface area (module doc; the
             engines: ``False``).
-        seed: seed of the rotation hash (frame f of seed s differs from frame f of s + 1).
+        seed: seed of the rotation hash, an integer in [0, 2⁶³ − 1], every bit of which
+            changes the noise (frame f of seed s differs from frame f of s + 1).
+        estimator: ``"sssbench"`` (default: the module doc's estimator, weight ``R(d)/pdf``
+            at the 3D distance, radial jitter) or ``"hdrp"`` (Unity HDRP's pass, module doc
+            "estimator='hdrp'"; it fixes ``pattern``, ``normalise``, ``fetch``,
+            ``jitter_radius``, ``adaptive`` and ``surface_area`` at HDRP's values, and a
+            different explicit value is refused).
 
     Shape:
         - forward(gbuffer): ``(B, 3, H, W)`` in the G-buffer's dtype.
@@ -229,37 +368,43 @@ class DiskSSS(nn.Module):
         rotation: str = "hash",
         frames: int = 1,
         normalise: bool = True,
-        jitter_radius: bool = True,
+        jitter_radius: bool | None = None,
         fetch: str = "point",
         adaptive: Sequence[int] | None = None,
         adaptive_target: float = 0.05,
         cross_profile: str = "reject",
         surface_area: bool = False,
         seed: int = 0,
+        estimator: str = "sssbench",
     ) -> None:
         super().__init__()
+        self.estimator = check_choice("estimator", estimator, DISK_ESTIMATORS)
         profiles = [profile] if isinstance(profile, Profile) else profile
         if not isinstance(profiles, Sequence) or not profiles:
             raise TypeError(
                 f"profile must be a sssbench Profile or a non-empty list of them, got "
                 f"{type(profile).__name__}"
             )
-        self.kernels = [_Kernel.of(f"profile[{k}]", p) for k, p in enumerate(profiles)]
+        name = "profile" if isinstance(profile, Profile) else "profile[{}]"
+        self.kernels = [_Kernel.of(name.format(k), p) for k, p in enumerate(profiles)]
         self.profile = profile
         self.per_pixel = not isinstance(profile, Profile)
         if self.per_pixel:
             self.needs = ("mask", "profile_id")
         self.cross_profile = check_choice("cross_profile", cross_profile, DISK_CROSS_PROFILE)
-        self.samples = check_int("samples", samples, 1)
+        self.samples = check_int("samples", samples, 1, MAX_DISK_SAMPLES)
         self.pattern = check_choice("pattern", pattern, DISK_PATTERNS)
         self.rotation = check_choice("rotation", rotation, DISK_ROTATIONS)
-        self.frames = check_int("frames", frames, 1)
-        if not isinstance(normalise, bool):
-            raise TypeError(f"normalise must be a bool, got {type(normalise).__name__}")
-        if not isinstance(jitter_radius, bool):
-            raise TypeError(f"jitter_radius must be a bool, got {type(jitter_radius).__name__}")
-        if not isinstance(surface_area, bool):
-            raise TypeError(f"surface_area must be a bool, got {type(surface_area).__name__}")
+        self.frames = check_int("frames", frames, 1, MAX_DISK_FRAMES)
+        if jitter_radius is None:
+            jitter_radius = self.estimator == "sssbench"
+        for key, value in (
+            ("normalise", normalise),
+            ("jitter_radius", jitter_radius),
+            ("surface_area", surface_area),
+        ):
+            if not isinstance(value, bool):
+                raise TypeError(f"{key} must be a bool, got {type(value).__name__}")
         self.normalise = normalise
         self.jitter_radius = jitter_radius
         self.surface_area = surface_area
@@ -267,24 +412,53 @@ class DiskSSS(nn.Module):
         if adaptive is not None:
             if not isinstance(adaptive, Sequence) or len(adaptive) != 2:
                 raise ValueError(f"adaptive must be None or (n_min, n_max), got {adaptive!r}")
-            lo = check_int("adaptive[0]", adaptive[0], 1)
-            hi = check_int("adaptive[1]", adaptive[1], lo)
+            lo = check_int("adaptive[0]", adaptive[0], 1, MAX_DISK_SAMPLES)
+            hi = check_int("adaptive[1]", adaptive[1], lo, MAX_DISK_SAMPLES)
             adaptive = (lo, hi)
         self.adaptive = adaptive
         self.adaptive_target = check_scalar(
             "adaptive_target", adaptive_target, 0.0, low_inclusive=False
         )
-        self.seed = check_int("seed", seed, 0)
-        #: per active pixel, the sample count of the last call's last frame (adaptive only;
-        #: a diagnostic, overwritten by every call)
+        self.seed = check_seed("seed", seed)
+        if self.estimator == "hdrp":
+            hdrp = {
+                "pattern": (self.pattern, "fibonacci"),
+                "normalise": (self.normalise, True),
+                "fetch": (self.fetch, "point"),
+                "jitter_radius": (self.jitter_radius, False),
+                "adaptive": (self.adaptive, None),
+                "surface_area": (self.surface_area, False),
+            }
+            for key, (value, want) in hdrp.items():
+                if value != want:
+                    raise ValueError(
+                        f"{key}={value!r} is not HDRP's: estimator='hdrp' runs with "
+                        f"{key}={want!r} (leave it unset, or use estimator='sssbench')"
+                    )
+        #: per active pixel, the sample count of the last call's last frame (adaptive and
+        #: ``estimator="hdrp"``; a diagnostic, overwritten by every call)
         self.last_counts: torch.Tensor | None = None
 
     def __repr__(self) -> str:
         return (
             f"DiskSSS({self.profile!r}, samples={self.samples}, pattern={self.pattern!r}, "
             f"rotation={self.rotation!r}, frames={self.frames}, normalise={self.normalise}, "
-            f"adaptive={self.adaptive}, surface_area={self.surface_area})"
+            f"adaptive={self.adaptive}, surface_area={self.surface_area}, "
+            f"estimator={self.estimator!r})"
         )
+
+    # ------------------------------------------------------------------ per-pixel noise
+    def _phase(self, ctx: _Pixels, sel: torch.Tensor, frame: int, stream: int) -> torch.Tensor:
+        """The rotation (turns, float64) of the active pixels ``sel`` in ``frame``: keyed on
+        the pixel's position *in its image*, the seed, the frame and the stream."""
+        row, col = ctx.row[sel], ctx.col[sel]
+        if self.rotation == "hash":
+            return hash_uniform(ctx.index[sel] % ctx.hw, self.seed, frame, 2 * stream)
+        if self.rotation == "ign":
+            return interleaved_gradient_noise(row, col, _ign_frame(self.seed, frame, stream))
+        if self.rotation == "blue_noise":
+            return blue_noise_phase(row, col, self.seed, frame, stream)
+        return torch.zeros(sel.shape, dtype=torch.float64)
 
     # ------------------------------------------------------------------ one batch of samples
     def _gather(
@@ -300,44 +474,43 @@ class DiskSSS(nn.Module):
         """``Σ w E``, ``Σ w`` per channel ``(M, 3)`` and the second moments ``(M, 3, 3)``
         ``[Σ (w E)², Σ w² E, Σ w²]`` over ``n`` samples of the pattern with ``kernel`` for the
         active pixels ``sel`` (indices into ``ctx``); ``accept`` (flat, 1 / 0) says which
-        pixels a sample may land on."""
-        pix, row, col = ctx.index[sel], ctx.row[sel], ctx.col[sel]
+        pixels a sample may land on.
+
+        Geometry in differences (float32 keeps them): the sample's screen offset ``(Δr, Δc)``
+        from its centre pixel, its depth as ``Δz = z_i − z_p`` (fetched as differences of
+        depths), and ``x_i − x_p = x_p Δz / z_p + Δc · pixel_size(z_p + Δz)`` — never an
+        absolute position subtracted from another."""
+        pix = ctx.index[sel]
         pos_c = ctx.pos[pix]  # (M, 3)
         z_c = pos_c[:, 2]
-        step = 1.0 / pixel_size_mm(z_c, ctx.fov_y, ctx.h)  # pixels per mm at the centre
-        if self.rotation == "hash":
-            phase = hash_uniform(pix, self.seed, frame, 2 * stream)
-        elif self.rotation == "ign":
-            phase = interleaved_gradient_noise(row, col, frame + 7919 * self.seed + 31 * stream)
-        elif self.rotation == "blue_noise":
-            phase = blue_noise_phase(row, col, self.seed, frame, stream)
-        else:
-            phase = torch.zeros(pix.shape, dtype=torch.float64)
-        shift = hash_uniform(pix, self.seed, frame, 2 * stream + 1) if self.jitter_radius else 0.0
+        # pixels per mm at the centre, float64 whatever the dtype: which pixel a sample lands
+        # in must not depend on the dtype (a sample on a pixel boundary would jump)
+        step = 1.0 / pixel_size_mm(z_c.double(), ctx.fov_y, ctx.h)
+        phase = self._phase(ctx, sel, frame, stream)
+        shift = (
+            hash_uniform(pix % ctx.hw, self.seed, frame, 2 * stream + 1)
+            if self.jitter_radius
+            else 0.0
+        )
         u0, theta0 = pattern_points(self.pattern, n)
         dt = ctx.dtype
         m = pix.numel()
         num = torch.zeros(m, 3, dtype=dt)
         den = torch.zeros(m, 3, dtype=dt)
         mom = torch.zeros(m, 3, 3, dtype=dt)
-        base = pix - pix % ctx.hw  # the image's first flat index
+        per_mm = pixel_size_mm(torch.ones((), dtype=dt), ctx.fov_y, ctx.h)  # mm per px per mm
         for i in range(n):
             u = torch.frac(u0[i] + shift) if self.jitter_radius else u0[i].expand(m)
             r, inv_pdf = kernel.sampler.sample(u)
             theta = theta0[i] + 2 * math.pi * phase
-            dcol = (r * torch.cos(theta)).to(dt) * step
-            drow = -(r * torch.sin(theta)).to(dt) * step  # screen y is up, rows go down
-            rgb, z_s, ok, area = ctx.fetch(base, row + drow, col + dcol, self.fetch, accept)
-            lateral = pixel_size_mm(z_s, ctx.fov_y, ctx.h)
-            p_s = torch.stack(
-                [
-                    pos_c[:, 0] * z_s / z_c + dcol * lateral,
-                    pos_c[:, 1] * z_s / z_c - drow * lateral,
-                    z_s,
-                ],
-                1,
-            )
-            dist = (p_s - pos_c).norm(dim=1)
+            dcol64 = r * torch.cos(theta) * step
+            drow64 = -r * torch.sin(theta) * step  # screen y is up, rows go down
+            rgb, dz, ok, area = ctx.fetch(pix, drow64, dcol64, self.fetch, accept)
+            dcol, drow = dcol64.to(dt), drow64.to(dt)
+            lateral = (z_c + dz) * per_mm
+            dx = pos_c[:, 0] * (dz / z_c) + dcol * lateral
+            dy = pos_c[:, 1] * (dz / z_c) - drow * lateral
+            dist = torch.sqrt(dx * dx + dy * dy + dz * dz)
             w = kernel.profile.evaluate(dist.double()) * inv_pdf[:, None] / kernel.total
             if area is not None:  # surface area over the disk plane's pixel area
                 w = w * (area / pixel_size_mm(z_c, ctx.fov_y, ctx.h) ** 2).double()[:, None]
@@ -372,6 +545,8 @@ class DiskSSS(nn.Module):
         self, ctx: _Pixels, kernel: _Kernel, accept: torch.Tensor, sel: torch.Tensor, frame: int
     ) -> torch.Tensor:
         """One frame's scattered irradiance ``(M, 3)`` at the active pixels ``sel``."""
+        if self.estimator == "hdrp":
+            return self._frame_hdrp(ctx, kernel, accept, sel, frame)
         centre = ctx.rgb[ctx.index[sel]]
         if self.adaptive is None:
             with timed_pass("disk", self.samples, sel.numel()):
@@ -396,6 +571,66 @@ class DiskSSS(nn.Module):
             den[part] += d2
         self.last_counts[sel] = count_i
         return self._estimate(num, den, count.to(num.dtype)[:, None], centre)
+
+    # ------------------------------------------------------------------ estimator="hdrp"
+    def hdrp_counts(self, gbuffer: GBuffer, kernel: int = 0) -> torch.Tensor:
+        """HDRP's per-pixel sample count ``(B, 1, H, W)`` (int64) with profile ``kernel``:
+        ``min(⌊π (R_f · pixels per mm)² / 4⌋, samples)`` (module doc)."""
+        z = gbuffer.depth.double()
+        return _hdrp_counts(self.kernels[kernel], z, gbuffer.fov_y, gbuffer.shape[1], self.samples)
+
+    def _frame_hdrp(
+        self, ctx: _Pixels, kernel: _Kernel, accept: torch.Tensor, sel: torch.Tensor, frame: int
+    ) -> torch.Tensor:
+        """One frame of HDRP's pass at the active pixels ``sel`` (module doc): the pixels
+        are grouped by their sample count, each group one recorded pass."""
+        out = ctx.rgb[ctx.index[sel]].clone()  # fewer than one sample: no filtering
+        z_c = ctx.depth[ctx.index[sel]].double()
+        counts = _hdrp_counts(kernel, z_c, ctx.fov_y, ctx.h, self.samples)
+        self.last_counts[sel] = counts
+        for n in sorted(set(counts.tolist()) - {0}):
+            part = torch.nonzero(counts == n).squeeze(1)
+            with timed_pass("disk", n, part.numel()):
+                num, den = self._gather_hdrp(ctx, kernel, accept, sel[part], n, frame)
+            out[part] = (num / den.clamp_min(_FLT_MIN)).to(out.dtype)
+        return out
+
+    def _gather_hdrp(
+        self,
+        ctx: _Pixels,
+        kernel: _Kernel,
+        accept: torch.Tensor,
+        sel: torch.Tensor,
+        n: int,
+        frame: int,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """``Σ w E`` and ``Σ w`` ``(M, 3)`` over HDRP's ``n`` samples for the pixels ``sel``."""
+        pix = ctx.index[sel]
+        base = pix - pix % ctx.hw
+        row, col = ctx.row[sel].long(), ctx.col[sel].long()
+        z_c = ctx.depth[pix]
+        ppm = 1.0 / pixel_size_mm(z_c.double(), ctx.fov_y, ctx.h).clamp_min(HDRP_MIN_PIXEL_MM)
+        turn = 2 * math.pi * self._phase(ctx, sel, frame, 0)
+        i = torch.arange(n, dtype=torch.float64)
+        r, rcp_pdf = kernel.sampler.sample_polar((i + 0.5) / n)  # fixed: no radial jitter
+        phi = 2 * math.pi * torch.frac(i / GOLDEN_RATIO)
+        dt = ctx.dtype
+        m = pix.numel()
+        num = torch.zeros(m, 3, dtype=dt)
+        den = torch.zeros(m, 3, dtype=dt)
+        for k in range(n):
+            psi = phi[k] + turn
+            rs = row + torch.round(ppm * r[k] * torch.sin(psi)).long()
+            cs = col + torch.round(ppm * r[k] * torch.cos(psi)).long()
+            inside = (rs >= 0) & (rs < ctx.h) & (cs >= 0) & (cs < ctx.w)
+            j = base + rs.clamp(0, ctx.h - 1) * ctx.w + cs.clamp(0, ctx.w - 1)
+            dz = (ctx.depth[j] - z_c).double()
+            r3 = torch.sqrt(r[k] * r[k] + dz * dz)
+            w = kernel.polar(r3) * rcp_pdf[k]
+            w = w.to(dt) * (inside.to(dt) * accept[j])[:, None]
+            num += w * ctx.rgb[j]
+            den += w
+        return num, den
 
     def _groups(self, g: GBuffer, ctx: _Pixels):
         """``(kernel, accept, sel)`` per profile: its kernel, the pixels its samples may land
@@ -425,7 +660,8 @@ class DiskSSS(nn.Module):
         ctx = _Pixels(gbuffer, surface_area=self.surface_area)
         m = ctx.index.numel()
         acc = torch.zeros(m, 3, dtype=gbuffer.dtype)
-        self.last_counts = None if self.adaptive is None else torch.zeros(m, dtype=torch.long)
+        counted = self.adaptive is not None or self.estimator == "hdrp"
+        self.last_counts = torch.zeros(m, dtype=torch.long) if counted else None
         for kernel, accept, sel in self._groups(gbuffer, ctx):
             for frame in range(self.frames):
                 acc[sel] += self._frame(ctx, kernel, accept, sel, frame)
@@ -439,6 +675,16 @@ class DiskSSS(nn.Module):
         if inplace:
             return gbuffer.diffuse.copy_(out)
         return out
+
+
+def _hdrp_counts(
+    kernel: _Kernel, depth: torch.Tensor, fov_y: float, height: int, budget: int
+) -> torch.Tensor:
+    """HDRP's sample count at linear depths ``depth`` (mm, float64): the filter disk's area
+    in pixels over :data:`HDRP_PIXELS_PER_SAMPLE`, truncated, capped at ``budget``."""
+    ppm = 1.0 / pixel_size_mm(depth, fov_y, height).clamp_min(HDRP_MIN_PIXEL_MM)
+    area = math.pi * (kernel.filter_radius * ppm) ** 2
+    return torch.floor(area / HDRP_PIXELS_PER_SAMPLE).clamp_max(budget).long()
 
 
 @dataclass(frozen=True)
@@ -456,7 +702,27 @@ class _Kernel:
         total = profile.total()
         if bool((total <= 0).any()):
             raise ValueError(f"{name} total must be > 0 in every channel, got {total.tolist()}")
-        return cls(profile, radial_sampler(profile), total)
+        try:
+            sampler = radial_sampler(profile)
+        except ValueError as exc:  # not a density (module doc, "Premise")
+            raise ValueError(f"{name} {exc}") from None
+        return cls(profile, sampler, total)
+
+    @property
+    def filter_radius(self) -> float:
+        """HDRP's filter radius (mm): the :data:`HDRP_FILTER_CDF` quantile of the sampled
+        channel."""
+        return self.sampler.quantile_radius(HDRP_FILTER_CDF)
+
+    def polar(self, r: torch.Tensor) -> torch.Tensor:
+        """``2π r R_c(r) / ‖R_c‖₁ / 2π`` per channel ``(M, 3)``, float64: the profile in
+        polar measure, normalised — HDRP's ``EvalBurleyDiffusionProfile`` (``S/(8π)
+        (e^{−Sr/3} + e^{−Sr})``, ``S = 1/d``) for Burley, in that closed form."""
+        if type(self.profile) is BurleyNormalized:
+            d = self.profile.d.double()
+            rr = r.double()[:, None]
+            return (torch.exp(-rr / (3 * d)) + torch.exp(-rr / d)) / (8 * math.pi * d)
+        return r.double()[:, None] * self.profile.evaluate(r.double()) / self.total
 
 
 class _Pixels:
@@ -487,41 +753,59 @@ class _Pixels:
 
     def fetch(
         self,
-        base: torch.Tensor,
-        row: torch.Tensor,
-        col: torch.Tensor,
+        pix: torch.Tensor,
+        drow: torch.Tensor,
+        dcol: torch.Tensor,
         mode: str,
         accept: torch.Tensor,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None]:
-        """Irradiance ``(M, 3)``, depth ``(M,)``, acceptance (1 / 0, from the flat
-        ``accept``) and surface area (``(M,)`` mm², ``None`` unless built with
-        ``surface_area``) at fractional ``(row, col)`` in the images starting at flat index
-        ``base``, clamped to the edge."""
+        """Irradiance ``(M, 3)``, depth *difference* to the centre ``(M,)``, acceptance (1 /
+        0, from the flat ``accept``) and surface area (``(M,)`` mm², ``None`` unless built
+        with ``surface_area``) at the offset ``(drow, dcol)`` pixels from the centre pixels
+        ``pix`` (flat indices), clamped to the edge of their image. The offset's integer and
+        fractional parts are taken from the offset itself (not from the rounded absolute
+        position) and depths are interpolated as differences to the centre's."""
+        base = pix - pix % self.hw  # the image's first flat index
+        rem = pix % self.hw
+        row, col = rem // self.w, rem % self.w
+        z_c = self.depth[pix]
         if mode == "point":
-            ri = torch.floor(row + 0.5).clamp(0, self.h - 1).long()
-            ci = torch.floor(col + 0.5).clamp(0, self.w - 1).long()
+            ri = (row + torch.floor(drow + 0.5).long()).clamp(0, self.h - 1)
+            ci = (col + torch.floor(dcol + 0.5).long()).clamp(0, self.w - 1)
             j = base + ri * self.w + ci
             area = None if self.area is None else self.area[j]
-            return self.rgb[j], self.depth[j], accept[j], area
-        idx, wts = _bilinear_corners(row, col, self.h, self.w)  # the gather's rotated taps
-        rgb = torch.zeros(row.shape[0], 3, dtype=self.dtype)
-        z = torch.zeros_like(row)
-        total = torch.zeros_like(row)
-        area = None if self.area is None else torch.zeros_like(row)
-        for i, wt in zip(idx, wts, strict=True):
-            j = base + i
+            return self.rgb[j], self.depth[j] - z_c, accept[j], area
+        fr0, fc0 = torch.floor(drow), torch.floor(dcol)
+        fr, fc = (drow - fr0).to(self.dtype), (dcol - fc0).to(self.dtype)  # the offset's fraction
+        r0, c0 = row + fr0.long(), col + fc0.long()
+        rows = (r0.clamp(0, self.h - 1), (r0 + 1).clamp(0, self.h - 1))
+        cols = (c0.clamp(0, self.w - 1), (c0 + 1).clamp(0, self.w - 1))
+        corners = [
+            (rows[0], cols[0], (1 - fr) * (1 - fc)),
+            (rows[0], cols[1], (1 - fr) * fc),
+            (rows[1], cols[0], fr * (1 - fc)),
+            (rows[1], cols[1], fr * fc),
+        ]
+        rgb = torch.zeros(drow.shape[0], 3, dtype=self.dtype)
+        dz = torch.zeros_like(fr)
+        total = torch.zeros_like(fr)
+        area = None if self.area is None else torch.zeros_like(fr)
+        nearest = None
+        for ri, ci, wt in corners:
+            j = base + ri * self.w + ci
+            nearest = j if nearest is None else nearest
             wt = wt * accept[j]
             rgb += wt[:, None] * self.rgb[j]
-            z += wt * self.depth[j]
+            dz += wt * (self.depth[j] - z_c)
             if area is not None:
                 area += wt * self.area[j]
             total += wt
         ok = (total > 0).to(self.dtype)
         safe = torch.where(total > 0, total, 1.0)
-        # all corners off the stencil: the sample is rejected; its depth is the nearest corner's
-        z = torch.where(total > 0, z / safe, self.depth[base + idx[0]])
+        # all corners off the stencil: the sample is rejected; its depth is the first corner's
+        dz = torch.where(total > 0, dz / safe, self.depth[nearest] - z_c)
         area = None if area is None else area / safe
-        return rgb / safe[:, None], z, ok, area
+        return rgb / safe[:, None], dz, ok, area
 
 
 #: the functional twin: every argument of :class:`DiskSSS`, kernels reused

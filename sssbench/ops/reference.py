@@ -18,7 +18,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from sssbench._checks import check_choice, check_scalar
+from sssbench._checks import check_choice, check_int, check_scalar
 from sssbench._console import bar as progress_bar
 from sssbench.gbuffer import GBuffer, pixel_size_mm
 from sssbench.ops._reference_far import Surface, gather, map_threads, with_border
@@ -263,7 +263,10 @@ def reference_sss(
         gbuffer: needs ``diffuse``, ``depth``, ``fov_y``; uses ``mask`` if present.
         profile: the radial profile (mm).
         tol: energy / peak tolerance of the support radius, in (0, 1).
-        radius_px: override the window half-size in pixels.
+        radius_px: override the window half-size in pixels, an integer in ``[0, max(H, W)]``
+            (the automatic window is capped there too: beyond the image a window reaches only
+            clamp-to-edge copies of the border, and its padding costs ``(H + 2k)(W + 2k)``
+            cells, so an unbounded ``k`` could ask for any amount of memory).
         method: ``"auto"``, ``"gather"``, ``"fft"`` or ``"multipole"`` (see above).
         reconstruction: ``"box"`` or ``"bilinear"`` (see above).
         progress: show a progress bar (tqdm) on stderr — on a terminal only; ``None``: when
@@ -290,9 +293,10 @@ def reference_sss(
     if bool((total <= 0).any()):
         raise ValueError(f"profile total must be > 0 in every channel, got {total.tolist()}")
     _check_scale(gbuffer, profile)
-    k = reference_radius_px(gbuffer, profile, tol) if radius_px is None else int(radius_px)
-    if k < 0:
-        raise ValueError(f"radius_px must be >= 0, got {radius_px}")
+    if radius_px is None:
+        k = reference_radius_px(gbuffer, profile, tol)
+    else:  # bounded before anything is allocated: the padded image grows as (H + 2k)(W + 2k)
+        k = check_int("radius_px", radius_px, 0, max(gbuffer.shape[1:]))
 
     g = gbuffer.to(torch.float64)
     b, h, w = g.shape

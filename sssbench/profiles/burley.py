@@ -35,8 +35,10 @@ __all__ = ["BurleyNormalized", "BURLEY_FITS", "burley_scaling", "burley_albedo_m
 #: ``mfp``: searchlight configuration with the volume mean free path ℓ,
 #: ``s = 1.85 − A + 7|A − 0.8|³``; ``mfp_transmission``: diffuse surface transmission with ℓ,
 #: ``s = 1.9 − A + 3.5 (A − 0.8)²``; ``dmfp``: searchlight configuration with the diffuse mean
-#: free path ℓ_d, ``s = 3.5 + 100 (A − 0.33)⁴`` (the "scattering distance" of the engines'
-#: Burley profiles, Golubev 2018)
+#: free path ℓ_d, ``s = 3.5 + 100 (A − 0.33)⁴``. Unity HDRP takes *no* such fit: its
+#: "scattering distance" is the shape ``d`` itself, ``S = 1 / (scatteringDistance ·
+#: multiplier)`` (Unity-Technologies/Graphics, ``DiffusionProfileSettings.cs``,
+#: ``UpdateKernel``): :meth:`BurleyNormalized.from_scattering_distance`
 BURLEY_FITS = ("dmfp", "mfp", "mfp_transmission")
 
 
@@ -118,9 +120,10 @@ class BurleyNormalized(Profile):
     ) -> BurleyNormalized:
         """The profile of surface albedo ``A`` and mean free path ``ℓ`` (mm) per channel:
         ``d = ℓ / s(A)`` with the fit ``kind`` of :func:`burley_scaling` (``"dmfp"``: ℓ is the
-        diffuse mean free path, as the engines' "scattering distance"; ``"mfp"`` /
+        diffuse mean free path, Christensen & Burley 2015's searchlight fit; ``"mfp"`` /
         ``"mfp_transmission"``: ℓ is the volume mean free path, searchlight / diffuse surface
-        transmission fit).
+        transmission fit). This is *not* HDRP's parameterisation: HDRP applies no albedo fit
+        (its scattering distance is ``d``; :meth:`from_scattering_distance`).
 
         Example:
             >>> p = BurleyNormalized.from_albedo_mfp(0.8, 1.05, kind="mfp")
@@ -142,6 +145,26 @@ class BurleyNormalized(Profile):
                 f"d={float(d[i]):g}"
             )
         return cls(d, at)
+
+    @classmethod
+    def from_scattering_distance(
+        cls,
+        scattering_distance: torch.Tensor | float | list[float],
+        multiplier: float = 1.0,
+        albedo: torch.Tensor | float | list[float] = 1.0,
+    ) -> BurleyNormalized:
+        """Unity HDRP's diffusion profile: ``d = scatteringDistance · multiplier`` (mm) per
+        channel, i.e. its shape parameter ``S = 1/d`` (``DiffusionProfileSettings.cs``,
+        ``UpdateKernel``; HDRP clamps ``S`` at 2²⁴), no albedo fit. HDRP's pass normalises
+        by the weights it gathers, so ``albedo`` (default 1) does not change its result.
+
+        Example:
+            >>> p = BurleyNormalized.from_scattering_distance([0.8, 0.4, 0.2], 2.0)
+            >>> p.d.tolist()
+            [1.6, 0.8, 0.4]
+        """
+        m = check_scalar("multiplier", multiplier, 0.0, low_inclusive=False)
+        return cls(_rgb("scattering_distance", scattering_distance) * m, albedo)
 
     def __repr__(self) -> str:
         return f"BurleyNormalized(d={self.d.tolist()}, albedo={self.albedo.tolist()})"

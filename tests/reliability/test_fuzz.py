@@ -16,7 +16,10 @@ Invariants (each in its own test function, so a failure names the class it belon
 - **in-place** — ``forward(..., inplace=True)`` equals the copying call;
 - **backends** — the native and the torch tap loops agree (1e-12 / 1e-5 per pass, numerics.md);
 - **gradients** — the torch loop's gradients are finite, and equal finite differences on tiny
-  images (every method is linear in ``diffuse``: float64 ``gradcheck`` is exact up to rounding).
+  images (every method is linear in ``diffuse``: float64 ``gradcheck`` is exact up to rounding);
+- **the disk** (``DiskSSS``, both estimators; section 9) — valid or named, float32 ≈ float64,
+  layout invariance, in-place = copy, an image in a batch equals it alone, and every bit of
+  the seed changes the noise.
 
 Profiles (``tests/reliability/conftest.py``): ``ci`` by default, ``HYPOTHESIS_PROFILE=long`` for
 a long randomised search; see ``docs/reliability.md``.
@@ -52,6 +55,7 @@ from sssbench.kernels import (
 from sssbench.ops import (
     ArtistSSS,
     CurvatureModulation,
+    DiskSSS,
     Jimenez2012SSS,
     LowRankSSS,
     PreintegratedSSS,
@@ -1137,3 +1141,140 @@ def test_profiles_are_registered(name):
     assert p.deadline is None and p.database is None
     assert p.max_examples >= settings.get_profile("ci").max_examples
     assert name != "ci" or p.derandomize
+
+
+# ----------------------------------------------------------------------------- 9. the disk
+DISK_PROFILES = ("skin_deon6", "skin_jg10", "burley", "marble", "empirical_skin1")
+
+
+def _disk(d, exact: bool = False) -> Spec:
+    """A :class:`DiskSSS` with random options; ``exact``: none whose result depends on a
+    threshold of the estimate (the adaptive count: a pixel on it flips with the dtype)."""
+    estimator = d(st.sampled_from(["sssbench", "hdrp"]))
+    names = d(st.sampled_from([[n] for n in DISK_PROFILES] + [["skin_deon6", "burley"]]))
+    kw = dict(
+        profile=PROFILES[names[0]] if len(names) == 1 else [PROFILES[n] for n in names],
+        samples=d(st.sampled_from([1, 3, 8, 17])),
+        rotation=d(st.sampled_from(["hash", "ign", "blue_noise", "none"])),
+        frames=d(st.sampled_from([1, 2])),
+        seed=d(st.sampled_from([0, 7, 2**33 + 7, 2**63 - 1])),
+        estimator=estimator,
+    )
+    if len(names) > 1:
+        kw["cross_profile"] = d(st.sampled_from(["reject", "accept"]))
+    if estimator == "sssbench":
+        kw.update(
+            pattern=d(st.sampled_from(["fibonacci", "r2"])),
+            normalise=d(st.booleans()),
+            jitter_radius=d(st.sampled_from([None, True, False])),
+            fetch=d(st.sampled_from(["point", "bilinear"])),
+            surface_area=d(st.booleans()),
+        )
+        if not exact and d(st.booleans()):
+            kw["adaptive"] = (2, 8)
+            kw["adaptive_target"] = d(st.sampled_from([0.01, 0.5]))
+    scalars = ("samples", "frames", "seed") + (("adaptive_target",) if "adaptive" in kw else ())
+    normalised = kw.get("normalise", True)
+    return Spec("disk", DiskSSS, kw, scalars, normalised=normalised, gather=False)
+
+
+def disk_scene(g: GBuffer, spec: Spec) -> GBuffer:
+    """``g`` with a ``profile_id`` when the disk has a list of profiles."""
+    if isinstance(spec.kwargs["profile"], list):
+        b, h, w = g.shape
+        ids = (torch.arange(w).view(1, 1, 1, w) >= w // 2).to(torch.int64)
+        return g.replace(profile_id=ids.expand(b, 1, h, w).contiguous())
+    return g
+
+
+@fuzz(1.5)
+@given(data=st.data(), g=scenes(max_side=13))
+def test_fuzz_disk_valid_or_named_error(data, g):
+    d = data.draw
+    spec = _disk(d)
+    g = disk_scene(g, spec)
+
+    def call(**kw):
+        return spec.factory(**kw)(g)
+
+    out = call_or_named_error(d, call, spec.kwargs, spec.scalars, spec.name)
+    if out is not None:
+        check_output(out, g, spec)
+
+
+@fuzz(1.0)
+@given(data=st.data(), g=scenes(max_side=13, dtype=torch.float32))
+def test_fuzz_disk_float32_matches_float64(data, g):
+    spec = _disk(data.draw, exact=True)
+    g = disk_scene(g, spec)
+    op = spec.build()
+    with torch.no_grad(), record_passes() as records:
+        out32 = op(g)
+    with torch.no_grad():
+        out64 = op(as_float64(g))
+    # per pass max(1e-5, K 2⁻²⁴) (docs/numerics.md); the plain Monte Carlo mean (normalise
+    # off) is not a convex combination: its error is relative to its own largest value
+    tol = sum(max(1e-5, r.samples * 2.0**-24) for r in records) / max(1, spec.kwargs["frames"])
+    scale = max(float(g.diffuse.double().abs().max()), float(out64.abs().max()), 1e-300)
+    err = float((out32.double() - out64).abs().max()) / scale
+    note(f"{spec.kwargs} passes={len(records)} err={err:.3g} tol={tol:.3g}")
+    assert err <= max(tol, 1e-5)
+
+
+@fuzz(1.0)
+@given(data=st.data(), g=scenes(max_side=13), how=LAYOUTS)
+def test_fuzz_disk_layout_invariance(data, g, how):
+    spec = _disk(data.draw)
+    moved = disk_scene(with_layout(g, how), spec)
+    base = contiguous(moved)
+    op = spec.build()
+    note(f"{spec.kwargs} layout={how}")
+    assert torch.equal(op(moved), op(base))
+
+
+@fuzz(1.0)
+@given(data=st.data(), g=scenes(max_side=13), how=st.sampled_from(["contiguous", "slice"]))
+def test_fuzz_disk_inplace_matches_copy(data, g, how):
+    spec = _disk(data.draw)
+    target = disk_scene(with_layout(contiguous(g), how), spec)
+    op = spec.build()
+    expected = op(contiguous(target))
+    out = op(target, inplace=True)
+    assert out.data_ptr() == target.diffuse.data_ptr()
+    assert torch.equal(out, expected)
+
+
+@fuzz(1.0)
+@given(data=st.data(), g=scenes(max_side=13))
+def test_fuzz_disk_image_in_a_batch_equals_it_alone(data, g):
+    spec = _disk(data.draw)
+    g = disk_scene(g, spec)
+    op = spec.build()
+    together = op(g)
+    fields = {k: getattr(g, k) for k in g.__dataclass_fields__}
+    for i in range(g.shape[0]):
+        one = {
+            k: v[i : i + 1] if isinstance(v, torch.Tensor) and k != "light_dir" else v
+            for k, v in fields.items()
+        }
+        one["light_dir"] = None if g.light_dir is None else g.light_dir[i : i + 1]
+        note(f"{spec.kwargs} image {i}")
+        alone = op(GBuffer(**one))
+        # to rounding: torch's vectorised exp / sqrt may round a tensor's tail lanes apart
+        tol = (1e-12 if g.dtype == torch.float64 else 1e-5) * max(float(alone.abs().max()), 1e-300)
+        assert float((alone - together[i : i + 1]).abs().max()) <= tol
+
+
+@fuzz(2.0)
+@given(seed=st.integers(0, 2**63 - 1), bit=st.integers(0, 62), frame=st.integers(0, 99))
+def test_fuzz_disk_every_seed_bit_counts(seed, bit, frame):
+    # the per-pixel noise of seed s and of s with one bit flipped differ (the key folding is a
+    # bijection per 32-bit half, docs/reliability.md), for the hash and for IGN's frame offset
+    from sssbench.ops.disk import _ign_frame, hash_uniform
+
+    other = seed ^ (1 << bit)
+    pixels = torch.arange(64)
+    assert not torch.equal(
+        hash_uniform(pixels, seed, frame, 0), hash_uniform(pixels, other, frame, 0)
+    )
+    assert _ign_frame(seed, frame, 0) != _ign_frame(other, frame, 0)
