@@ -68,7 +68,7 @@ GROUPS = (
 )
 #: pipeline stage groups (each option: ``enabled`` and ``params``)
 STAGE_GROUPS = tuple(registry.STAGES)
-_BACKENDS = ("native", "torch", "compile")
+_BACKENDS = ("native", "torch", "compile", "gl")
 
 
 def _version() -> str:

@@ -55,11 +55,17 @@ DECISION_COLUMNS = [
     "contribution_screen",
     "contribution_recon",
     "error_scale",
+    # with backend=gl: the device the pass times come from (sssbench.run.settings.gl_times)
+    "renderer",
+    "gl_version",
+    "timing_note",
     # stochastic methods (sssbench.run.runner.bias_noise): rel_rms is the mean over seeds
     "bias_rel_rms",
     "noise_rel_rms",
     "seeds",
 ]
+#: decision columns that hold text (the GL renderer beside the times), never numbers
+TEXT_COLUMNS = ("renderer", "gl_version", "timing_note")
 #: columns the report adds per ranking group (:func:`annotate`)
 FLAG_COLUMNS = ["pareto", "best", "worse_than_nothing", "visibly_wrong", "note"]
 SUMMARY_COLUMNS = [
@@ -184,7 +190,7 @@ def summary_table(runs: pd.DataFrame) -> pd.DataFrame:
         [None if pd.isna(v) else int(v) for v in table["samples"]], dtype="Int64"
     )
     for col in DECISION_COLUMNS:
-        if col not in ("visible", "error_visible"):
+        if col not in ("visible", "error_visible", *TEXT_COLUMNS):
             table[col] = pd.to_numeric(table[col], errors="coerce")
     table = table.sort_values(
         ["scene", "pixel_mm", "resolution", "method", "profile", "sampling", "samples"],
@@ -596,11 +602,30 @@ def summary_markdown(table: pd.DataFrame, source: str) -> str:
             parts += ["", f"**Recommendation.** {r['verdict']}"]
             if r["pareto"] != MISSING:
                 parts += ["", f"Pareto front (fastest first): {r['pareto']}."]
+    for line in device_lines(table):
+        parts += ["", line]
     failed = table[table["status"] != "ok"]
     if len(failed):
         parts += ["", "## Failed or timed-out runs", ""]
         parts.append(_markdown(failed[[*POINT_COLUMNS, "status", "error"]]))
     return "\n".join(parts) + "\n"
+
+
+def device_lines(table: pd.DataFrame) -> list[str]:
+    """One line per GL renderer the table's times come from (``backend=gl``): the renderer and
+    its version beside the times, and, on a software rasteriser, that they are its times."""
+    if "renderer" not in table.columns:
+        return []
+    out = []
+    rows = table[table["renderer"].notna() & (table["renderer"] != "")]
+    for (renderer, version, note), group in rows.groupby(
+        ["renderer", "gl_version", "timing_note"], dropna=False, sort=True
+    ):
+        line = f"GL pass times (GL_TIME_ELAPSED) of {len(group)} run(s): {renderer}, {version}"
+        if isinstance(note, str) and note:
+            line += f" — {note}"
+        out.append(line)
+    return out
 
 
 def format_console(table: pd.DataFrame) -> str:
@@ -652,6 +677,7 @@ def format_console(table: pd.DataFrame) -> str:
         "visibility bar), - worse than doing nothing, ~ SSS not visible at this scale (not "
         "ranked)",
     ]
+    lines += device_lines(table)
     for _, r in recommendations(table).iterrows():
         where = f"{r['scene']} · {r['scale']} · {r['resolution']}"
         where += f" · {r['stages']}" if r["stages"] != MISSING else ""

@@ -38,6 +38,10 @@ INFO_KEYS = (
     "error_visible",
     "error_scale",
     "mc_verdicts",
+    "renderer",
+    "gl_version",
+    "timing_note",
+    "time_source",
 )
 
 

@@ -63,6 +63,7 @@ from sssbench.run.record import (
 from sssbench.run.settings import (
     RunTimeout,
     backend_used,
+    gl_times,
     pass_stats,
     time_limit,
     time_runs,
@@ -209,6 +210,10 @@ def measure(spec: RunSpec, run_dir: Path) -> tuple[dict[str, Any], list[PassStat
         built = build(spec)  # 2. build
         t0 = time.perf_counter()
         out, stats = time_runs(built.pipeline, built.gbuffer, warmup, repeats)  # 3. time
+        device = None
+        if spec.backend == "gl":  # the method's passes timed on the GL device
+            device = gl_times(spec.method, built.pipeline, built.gbuffer, warmup, repeats)
+            stats = device[0] if device else stats
         if is_reference and not any(p.name == "reference" for p in stats):
             stats = _reference_pass(stats, (time.perf_counter() - t0) * 1e3, built.gbuffer)
         result = out.image
@@ -227,6 +232,8 @@ def measure(spec: RunSpec, run_dir: Path) -> tuple[dict[str, Any], list[PassStat
     scores = _verdicts(values, *base) | extra
     payload = _payload(spec, built, out, stats, scores, warmup, repeats, mask)
     payload |= {"reference_cache_hit": hit, "reference_ms": ref_ms, "versions": versions()}
+    if device:
+        payload |= device[1]
     if spec.previews:
         payload |= _previews(spec, run_dir, result, reference)
     return payload, stats

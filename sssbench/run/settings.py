@@ -24,6 +24,7 @@ __all__ = [
     "pass_stats",
     "time_limit",
     "time_runs",
+    "gl_times",
     "torch_settings",
     "versions",
 ]
@@ -148,3 +149,33 @@ def versions() -> dict[str, str]:
         except metadata.PackageNotFoundError:
             out[pkg] = "not installed"
     return out
+
+
+#: the methods with no pass on any device (nothing to time on GL)
+_NO_PASSES = ("identity", "reference")
+
+
+def gl_times(
+    method_name: str, pipeline: Any, gbuffer: Any, warmup: int, repeats: int
+) -> tuple[list[PassStats], dict[str, Any]] | None:
+    """With ``backend=gl``: the method's passes timed on the GL device (``GL_TIME_ELAPSED``
+    queries, ``warmup`` untimed runs, median / min / max over ``repeats``;
+    :func:`sssbench.gl.run_method`) and the renderer (``GL_RENDERER``, ``GL_VERSION`` and,
+    on llvmpipe, the note that these are a software rasteriser's times). ``None`` for the
+    baseline and the reference, which run no pass. A method without a GL schedule (the disk,
+    halo reduction) raises :class:`sssbench.gl.GLMethodError` naming it: the run fails, it is
+    never timed on the CPU instead. The run's passes and ``time_ms`` are then the method's
+    passes on the device (its blend passes included); the pipeline's other stages (specular,
+    translucency, ...) compute on the CPU and are not in the time."""
+    if method_name in _NO_PASSES:
+        return None
+    from sssbench import gl
+
+    run = gl.run_method(pipeline.method, gbuffer, repeats=max(repeats, 1), warmup=warmup)
+    info = run.renderer
+    return pass_stats(run.repeats), {
+        "renderer": str(info.get("renderer", "")),
+        "gl_version": str(info.get("version", "")),
+        "timing_note": str(info.get("note", "") or ""),
+        "time_source": "GL_TIME_ELAPSED",
+    }
