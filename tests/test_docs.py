@@ -133,7 +133,9 @@ def test_documented_commands_run(block, tmp_path):
             import data_synth
             from sssbench.io import write_gbuffer
 
-            write_gbuffer(tmp_path / "my_frame.exr", data_synth.make_scene("head_closeup", (16, 16)))
+            write_gbuffer(
+                tmp_path / "my_frame.exr", data_synth.make_scene("head_closeup", (16, 16))
+            )
         if program == "sssbench-report":
             sweeps = sorted((tmp_path / "multirun").glob("*/*"), key=lambda p: p.stat().st_mtime)
             args = [str(sweeps[-1]) if a.startswith("multirun/") else a for a in args]
