@@ -348,6 +348,7 @@ def test_html_page_embeds_thumbnails_and_links_full_resolution_files(tmp_path):
             {
                 "scene": "s",
                 "scale": "1 mm/px",
+                "pixel_mm": 1.0,
                 "resolution": "512x512",
                 "profile": "p",
                 "stages": "–",

@@ -494,7 +494,7 @@ def test_a_stochastic_run_at_the_largest_seed_keeps_its_further_seeds_valid(tmp_
 
     monkeypatch.setattr(stochastic, "is_stochastic", lambda *a: True)
     monkeypatch.setattr(registry, "method_from_spec", method_from_spec)
-    monkeypatch.setattr(registry, "build_pipeline", lambda *a: Pipeline())
+    monkeypatch.setattr(registry, "build_pipeline", lambda *a, **k: Pipeline())
     monkeypatch.setattr(stochastic, "bias_noise", lambda *a: {})
     spec = small_spec(tmp_path, seed=checks.MAX_SEED, seeds=3)
     stochastic.seed_split(spec, object(), None, None, torch.zeros(1), torch.zeros(1), None)
