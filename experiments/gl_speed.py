@@ -193,8 +193,8 @@ def run(ctx: Context) -> Section:
         if verdict == "pending":
             reason += (
                 f" No verdict: the load average ({load:.1f} on {cores} cores) makes the times "
-                "those of a shared machine (repeated runs here moved this ratio between 0.9 "
-                "and 2.2); re-run on an idle machine or a GPU."
+                "those of a shared machine (other processes inflate both columns and move "
+                "their ratios from run to run); re-run on an idle machine or a GPU."
             )
         if info.get("software"):
             reason += (
