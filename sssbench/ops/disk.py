@@ -169,7 +169,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from sssbench._checks import check_choice, check_int, check_scalar, check_seed
+from sssbench._checks import check_choice, check_int, check_scalar
 from sssbench.gbuffer import GBuffer, pixel_size_mm, view_positions
 from sssbench.ops._disk_noise import blue_noise_mask
 from sssbench.ops._disk_radial import RadialSampler, radial_sampler
@@ -244,6 +244,11 @@ def _hash32_int(x: int) -> int:
     x ^= x >> 15
     x = (x * 0x846CA68B) & _MASK32
     return x ^ (x >> 16)
+
+
+#: the disk's seeds: its hash folds every bit of a 63-bit seed into its keys in exact integer
+#: arithmetic (the APIs seeding a ``torch.Generator`` keep 32 bits: ``_checks.MAX_SEED``)
+DISK_MAX_SEED = 2**63 - 1
 
 
 def _seed_key(seed: int) -> int:
@@ -419,7 +424,7 @@ class DiskSSS(nn.Module):
         self.adaptive_target = check_scalar(
             "adaptive_target", adaptive_target, 0.0, low_inclusive=False
         )
-        self.seed = check_seed("seed", seed)
+        self.seed = check_int("seed", seed, 0, DISK_MAX_SEED)  # every bit hashed (_seed_key)
         if self.estimator == "hdrp":
             hdrp = {
                 "pattern": (self.pattern, "fibonacci"),
