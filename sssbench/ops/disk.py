@@ -1,6 +1,9 @@
 """Importance-sampled 2D disk SSS: the engines' method (Unity HDRP, Unreal Engine 5's
 screen-space Burley pass, Blender EEVEE).
 
+One module because the estimators share one loop (positions, fetch, weights, normalisation)
+and differ in a few formulas each cites; HDRP's rules sit beside the ones they replace.
+
 Golubev 2018 ("Efficient screen-space subsurface scattering using Burley's normalized
 diffusion in real-time", SIGGRAPH Advances in Real-Time Rendering) replaces the papers'
 separable passes by one gather over N samples on a disk in the screen plane: radii drawn from

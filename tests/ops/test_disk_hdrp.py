@@ -236,7 +236,7 @@ def test_hdrp_on_a_tabulated_profile_keeps_constants_constant():
 def test_app_passes_the_estimator(tmp_path):
     # `sssbench method=disk method.params.estimator=hdrp`: conf/method/disk.yaml carries the
     # option (its jitter_radius is null: each estimator's own default)
-    from sssbench import registry, runner
+    from sssbench.run import registry
     from sssbench.app import compose_spec
 
     spec = compose_spec(
@@ -248,7 +248,7 @@ def test_app_passes_the_estimator(tmp_path):
         store=tmp_path / "s.sqlite",
     )
     assert spec.method_params["estimator"] == "hdrp"
-    profile = runner.registry.build_profile(spec.profile, spec.profile_kind, **spec.profile_params)
+    profile = registry.build_profile(spec.profile, spec.profile_kind, **spec.profile_params)
     op = registry.method_from_spec(spec, profile)
     assert op.estimator == "hdrp" and op.jitter_radius is False and op.samples == 32
     default = compose_spec("method=disk", store=tmp_path / "t.sqlite")
