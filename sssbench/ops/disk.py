@@ -219,6 +219,11 @@ HDRP_FILTER_CDF = 0.997
 #: HDRP floors a pixel's footprint at 0.0001 world units (``max(0.0001f, unitsPerPixel)``):
 #: 0.1 mm at its default world scale of 1 m per unit
 HDRP_MIN_PIXEL_MM = 0.1
+#: the sssbench estimator's "no weight": a normalised pixel whose total sample weight (``R/pdf``,
+#: of order 1 for a sample inside the profile) is at or below it keeps its own irradiance, in
+#: float32 and float64 alike (issue 29 class 3: a sample 20 mm away in depth has a weight that
+#: float32 flushes to 0 and float64 keeps at 1e-100; the pixel must not flip on the dtype)
+_NO_WEIGHT = 1e-30
 #: HDRP's ``max(totalWeight, FLT_MIN)`` (the float32 smallest normal)
 _FLT_MIN = 1.1754943508222875e-38
 
@@ -531,7 +536,10 @@ class DiskSSS(nn.Module):
 
     def _estimate(self, num: torch.Tensor, den: torch.Tensor, n: torch.Tensor | int, centre):
         if self.normalise:
-            safe = den > 0
+            # a total weight at or below _NO_WEIGHT is no weight, in every dtype: the samples
+            # lie many profile widths away, where float32 cannot form Σ w E / Σ w (w and w E
+            # underflow) and float64 would hand the pixel to a sample of weight 1e-100
+            safe = den > _NO_WEIGHT
             return torch.where(safe, num / torch.where(safe, den, 1.0), centre)
         return num / n
 
@@ -542,8 +550,9 @@ class DiskSSS(nn.Module):
         doc, adaptive rule), ``(M, 3)``."""
         ff, wf, ww = mom.unbind(2)
         if self.normalise:  # delta method for the ratio Σ w E / Σ w
-            m = num / torch.where(den > 0, den, 1.0)
-            var = (ff - 2 * m * wf + m * m * ww).clamp_min(0) / torch.where(den > 0, den, 1.0) ** 2
+            safe = den > _NO_WEIGHT
+            m = torch.where(safe, num / torch.where(safe, den, 1.0), 0.0)
+            var = (ff - 2 * m * wf + m * m * ww).clamp_min(0) / torch.where(safe, den, 1.0) ** 2
         else:  # the mean of f = w E
             m = num / n
             var = (ff / n - m * m).clamp_min(0) / n

@@ -154,3 +154,20 @@ def test_reference_window_up_to_the_image_size_still_runs():
     g = image(6, 6)
     out = reference_sss(g, BURLEY, radius_px=6, method="gather")
     assert bool(torch.isfinite(out).all())
+
+
+def test_a_weight_float32_flushes_to_zero_does_not_flip_the_pixel():
+    """Found by the long fuzz profile: one sample landing 20 mm away in depth has a weight
+    float32 flushes to 0 and float64 keeps at ~1e-100; the normalised estimate must not hand
+    the pixel to that sample in one dtype and keep it in the other (a total weight at or
+    below the estimator's "no weight" keeps the pixel's own irradiance in both)."""
+    from sssbench.profiles import SumOfGaussians
+
+    diffuse = torch.tensor(
+        [[[[5.8451e-08, 2.1374e-07, 3.5087e-07]], [[1.4817e-07, 4.0009e-07, 2.5815e-07]],
+          [[3.2155e-07, 9.9325e-07, 4.2326e-07]]]]
+    )  # fmt: skip
+    g = GBuffer(diffuse=diffuse, depth=torch.tensor([[[[40.0, 40.0, 60.0]]]]), fov_y=0.001)
+    op = DiskSSS(SumOfGaussians.from_table("skin_deon6"), samples=1, seed=0, fetch="point")
+    out32, out64 = op(g), op(g.to(torch.float64))
+    assert float((out32.double() - out64).abs().max() / out64.abs().max()) <= 1e-5
