@@ -345,7 +345,7 @@ class DiskSSS(nn.Module):
             ``"hdrp"``).
         fetch: ``"point"`` (HDRP) or ``"bilinear"``.
         adaptive: ``None`` or ``(n_min, n_max)`` (replaces ``samples``; see module doc).
-        adaptive_target: target relative standard error of the adaptive rule.
+        adaptive_target: target relative standard error of the adaptive rule, in (0, 1e3].
         cross_profile: with a list of profiles: ``"reject"`` or ``"accept"`` samples on
             another profile's pixels (module doc).
         surface_area: weight each sample by its pixel's surface area (module doc; the
@@ -429,8 +429,9 @@ class DiskSSS(nn.Module):
             hi = check_int("adaptive[1]", adaptive[1], lo, MAX_DISK_SAMPLES)
             adaptive = (lo, hi)
         self.adaptive = adaptive
+        # a relative standard error: above 1e3 it means nothing (and its square overflows)
         self.adaptive_target = check_scalar(
-            "adaptive_target", adaptive_target, 0.0, low_inclusive=False
+            "adaptive_target", adaptive_target, 0.0, 1e3, low_inclusive=False
         )
         self.seed = check_int("seed", seed, 0, DISK_MAX_SEED)  # every bit hashed (_seed_key)
         if self.estimator == "hdrp":

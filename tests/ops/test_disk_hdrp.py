@@ -236,8 +236,8 @@ def test_hdrp_on_a_tabulated_profile_keeps_constants_constant():
 def test_app_passes_the_estimator(tmp_path):
     # `sssbench method=disk method.params.estimator=hdrp`: conf/method/disk.yaml carries the
     # option (its jitter_radius is null: each estimator's own default)
-    from sssbench.run import registry
     from sssbench.app import compose_spec
+    from sssbench.run import registry
 
     spec = compose_spec(
         "method=disk",

@@ -171,3 +171,10 @@ def test_a_weight_float32_flushes_to_zero_does_not_flip_the_pixel():
     op = DiskSSS(SumOfGaussians.from_table("skin_deon6"), samples=1, seed=0, fetch="point")
     out32, out64 = op(g), op(g.to(torch.float64))
     assert float((out32.double() - out64).abs().max() / out64.abs().max()) <= 1e-5
+
+
+def test_an_adaptive_target_whose_square_overflows_is_refused_by_name():
+    """Found by the long fuzz profile: ``adaptive_target=1e200`` overflowed (``target**2``)
+    inside the pass with a bare OverflowError; the constructor refuses it naming the option."""
+    with pytest.raises(ValueError, match="adaptive_target"):
+        DiskSSS(BURLEY, adaptive=(4, 16), adaptive_target=1e200)
