@@ -13,9 +13,10 @@ import pytest
 import torch
 
 import data_synth
-from sssbench import gl, registry
+from sssbench import gl
 from sssbench.export import main, split_passes
 from sssbench.ops import backend
+from sssbench.run import registry
 
 OK, WHY = gl.available()
 pytestmark = pytest.mark.skipif(not OK, reason=f"no headless GL: {WHY}")
