@@ -512,7 +512,11 @@ class DiskSSS(nn.Module):
         num = torch.zeros(m, 3, dtype=dt)
         den = torch.zeros(m, 3, dtype=dt)
         mom = torch.zeros(m, 3, 3, dtype=dt)
-        per_mm = pixel_size_mm(torch.ones((), dtype=dt), ctx.fov_y, ctx.h)  # mm per px per mm
+        # the sample's geometry in float64 whatever the dtype (issue 29 class 3): a weight is
+        # R(d) at a distance formed from a sub-pixel offset and interpolated depths, which the
+        # long fuzz profile showed off by 6e-5 in float32 at 1 km depth; only colours stay in dt
+        per_mm = pixel_size_mm(torch.ones((), dtype=torch.float64), ctx.fov_y, ctx.h)
+        z_c64, pos_c64 = z_c.double(), pos_c.double()
         for i in range(n):
             u = torch.frac(u0[i] + shift) if self.jitter_radius else u0[i].expand(m)
             r, inv_pdf = kernel.sampler.sample(u)
@@ -520,14 +524,14 @@ class DiskSSS(nn.Module):
             dcol64 = r * torch.cos(theta) * step
             drow64 = -r * torch.sin(theta) * step  # screen y is up, rows go down
             rgb, dz, ok, area = ctx.fetch(pix, drow64, dcol64, self.fetch, accept)
-            dcol, drow = dcol64.to(dt), drow64.to(dt)
-            lateral = (z_c + dz) * per_mm
-            dx = pos_c[:, 0] * (dz / z_c) + dcol * lateral
-            dy = pos_c[:, 1] * (dz / z_c) - drow * lateral
+            dz = dz.double()
+            lateral = (z_c64 + dz) * per_mm
+            dx = pos_c64[:, 0] * (dz / z_c64) + dcol64 * lateral
+            dy = pos_c64[:, 1] * (dz / z_c64) - drow64 * lateral
             dist = torch.sqrt(dx * dx + dy * dy + dz * dz)
-            w = kernel.profile.evaluate(dist.double()) * inv_pdf[:, None] / kernel.total
+            w = kernel.profile.evaluate(dist) * inv_pdf[:, None] / kernel.total
             if area is not None:  # surface area over the disk plane's pixel area
-                w = w * (area / pixel_size_mm(z_c, ctx.fov_y, ctx.h) ** 2).double()[:, None]
+                w = w * (area.double() / pixel_size_mm(z_c64, ctx.fov_y, ctx.h) ** 2)[:, None]
             w = w.to(dt) * ok[:, None]
             f = w * rgb
             num += f
@@ -794,7 +798,7 @@ class _Pixels:
             area = None if self.area is None else self.area[j]
             return self.rgb[j], self.depth[j] - z_c, accept[j], area
         fr0, fc0 = torch.floor(drow), torch.floor(dcol)
-        fr, fc = (drow - fr0).to(self.dtype), (dcol - fc0).to(self.dtype)  # the offset's fraction
+        fr, fc = (drow - fr0).double(), (dcol - fc0).double()  # the offset's fraction, float64
         r0, c0 = row + fr0.long(), col + fc0.long()
         rows = (r0.clamp(0, self.h - 1), (r0 + 1).clamp(0, self.h - 1))
         cols = (c0.clamp(0, self.w - 1), (c0 + 1).clamp(0, self.w - 1))
@@ -812,18 +816,18 @@ class _Pixels:
         for ri, ci, wt in corners:
             j = base + ri * self.w + ci
             nearest = j if nearest is None else nearest
-            wt = wt * accept[j]
-            rgb += wt[:, None] * self.rgb[j]
-            dz += wt * (self.depth[j] - z_c)
+            wt = wt * accept[j].double()
+            rgb += (wt[:, None] * self.rgb[j].double()).to(self.dtype)
+            dz += wt * (self.depth[j] - z_c).double()  # a difference of two depths, then float64
             if area is not None:
-                area += wt * self.area[j]
+                area += wt * self.area[j].double()
             total += wt
         ok = (total > 0).to(self.dtype)
         safe = torch.where(total > 0, total, 1.0)
         # all corners off the stencil: the sample is rejected; its depth is the first corner's
-        dz = torch.where(total > 0, dz / safe, self.depth[nearest] - z_c)
+        dz = torch.where(total > 0, dz / safe, (self.depth[nearest] - z_c).double())
         area = None if area is None else area / safe
-        return rgb / safe[:, None], dz, ok, area
+        return (rgb / safe[:, None].to(self.dtype)), dz, ok, area
 
 
 #: the functional twin: every argument of :class:`DiskSSS`, kernels reused
