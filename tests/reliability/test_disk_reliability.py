@@ -178,3 +178,21 @@ def test_an_adaptive_target_whose_square_overflows_is_refused_by_name():
     inside the pass with a bare OverflowError; the constructor refuses it naming the option."""
     with pytest.raises(ValueError, match="adaptive_target"):
         DiskSSS(BURLEY, adaptive=(4, 16), adaptive_target=1e200)
+
+
+def test_float32_geometry_at_a_kilometre_matches_float64():
+    """Found by the long fuzz profile: at 1 km depth a bilinear sample's sub-pixel fraction and
+    interpolated depth difference, rounded to float32 before R(d), put the weight 6e-5 off
+    float64; the geometry is float64 in every dtype (docs/reliability.md, class 3)."""
+    from sssbench.profiles import SumOfGaussians
+
+    diffuse = torch.tensor(
+        [[[[9.2075e-07, 6.4502e-07]], [[7.9115e-07, 1.7861e-07]], [[3.5111e-07, 5.8134e-07]]]]
+    )
+    g = GBuffer(diffuse=diffuse, depth=torch.tensor([[[[1e6, 1016666.6875]]]]), fov_y=0.001)
+    op = DiskSSS(
+        SumOfGaussians.from_table("skin_deon6"),
+        samples=1, seed=0, pattern="r2", normalise=False, fetch="bilinear",
+    )  # fmt: skip
+    out32, out64 = op(g), op(g.to(torch.float64))
+    assert float((out32.double() - out64).abs().max() / out64.abs().max()) <= 1e-5
