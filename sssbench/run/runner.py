@@ -67,6 +67,7 @@ from sssbench.run.settings import (
     pass_stats,
     time_limit,
     time_runs,
+    times_on_device,
     torch_settings,
     versions,
 )
@@ -209,9 +210,11 @@ def measure(spec: RunSpec, run_dir: Path) -> tuple[dict[str, Any], list[PassStat
     with torch_settings(spec.threads, spec.backend):
         built = build(spec)  # 2. build
         t0 = time.perf_counter()
-        out, stats = time_runs(built.pipeline, built.gbuffer, warmup, repeats)  # 3. time
+        on_device = times_on_device(spec.backend, spec.method)  # GL: timed by the device
+        cpu_runs = (0, 1) if on_device else (warmup, repeats)  # the image once, not timed twice
+        out, stats = time_runs(built.pipeline, built.gbuffer, *cpu_runs)  # 3. time
         device = None
-        if spec.backend == "gl":  # the method's passes timed on the GL device
+        if on_device:
             device = gl_times(spec.method, built.pipeline, built.gbuffer, warmup, repeats)
             stats = device[0] if device else stats
         if is_reference and not any(p.name == "reference" for p in stats):

@@ -25,6 +25,7 @@ __all__ = [
     "time_limit",
     "time_runs",
     "gl_times",
+    "times_on_device",
     "torch_settings",
     "versions",
 ]
@@ -153,6 +154,13 @@ def versions() -> dict[str, str]:
 
 #: the methods with no pass on any device (nothing to time on GL)
 _NO_PASSES = ("identity", "reference")
+
+
+def times_on_device(backend: str, method_name: str) -> bool:
+    """Whether the run's passes are timed on the GL device (``backend=gl``, a method with
+    passes): its CPU-side pipeline then runs once, for the image, not ``warmup + repeats``
+    times."""
+    return backend == "gl" and method_name not in _NO_PASSES
 
 
 def gl_times(
