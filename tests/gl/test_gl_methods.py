@@ -14,8 +14,9 @@ import torch
 
 import data_synth
 import sssbench
-from sssbench import gl, registry
+from sssbench import gl
 from sssbench.ops import Stretch, SumOfGaussiansSSS, backend
+from sssbench.run import registry
 
 OK, WHY = gl.available()
 pytestmark = pytest.mark.skipif(not OK, reason=f"no headless GL: {WHY}")
