@@ -121,3 +121,22 @@ def test_curvature_and_halo_reach_the_method():
     assert float((res.image - plain).abs().max()) > 1e-4
     with pytest.raises(TypeError, match="width"):
         Pipeline(ReferenceSSS(PROFILE), curvature=CurvatureModulation())
+
+
+def test_a_caller_timing_a_pipeline_sees_its_passes():
+    """A pipeline keeps its own records for its result; a caller's ``record_passes`` around it
+    must see the same passes (it used to see none, which experiments read as 0 ms), and the
+    operator's own passes run alone must be the pipeline's SSS passes (conservation: nothing
+    counted twice, nothing lost)."""
+    from sssbench.ops import record_passes
+
+    g = make_scene("backlit_ear", (16, 16), dtype=torch.float64)
+    with record_passes() as outer:
+        res = _full().run(g)
+    assert [r.name for r in outer] == [r.name for r in res.records]
+    assert len(outer) == len(res.records) > 0
+    with record_passes() as outer, record_passes() as inner:
+        _method()(g)
+    assert (
+        [r.name for r in outer] == [r.name for r in inner] == ["preintegrated.x", "preintegrated.y"]
+    )

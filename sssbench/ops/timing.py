@@ -2,8 +2,11 @@
 
 Passes record themselves: :func:`sssbench.ops.separable_pass` and the other primitive
 operators call :func:`timed_pass`, which appends a :class:`PassRecord` to the innermost active
-:func:`record_passes` context (a context variable, so nested pipelines and threads stay
-separate). Outside such a context recording costs one ``perf_counter`` call.
+:func:`record_passes` context (a context variable, so threads stay separate). A context sees
+every pass run inside its block: when a nested context closes (e.g. the one
+:meth:`sssbench.ops.Pipeline.run` keeps for its result), its records are appended to the
+enclosing one too — a caller timing a pipeline with ``record_passes`` gets its passes, not an
+empty list read as 0 ms. Outside such a context recording costs one ``perf_counter`` call.
 """
 
 from __future__ import annotations
@@ -44,13 +47,17 @@ _ACTIVE: contextvars.ContextVar[list[PassRecord] | None] = contextvars.ContextVa
 
 @contextlib.contextmanager
 def record_passes() -> Iterator[list[PassRecord]]:
-    """Collect the :class:`PassRecord` of every pass run inside the ``with`` block."""
+    """Collect the :class:`PassRecord` of every pass run inside the ``with`` block, nested
+    contexts' passes included (they are handed to the enclosing context when they close)."""
     records: list[PassRecord] = []
+    outer = _ACTIVE.get()
     token = _ACTIVE.set(records)
     try:
         yield records
     finally:
         _ACTIVE.reset(token)
+        if outer is not None:
+            outer.extend(records)
 
 
 def add_record(record: PassRecord) -> None:
