@@ -174,6 +174,7 @@ from torch import nn
 
 from sssbench._checks import check_choice, check_int, check_scalar
 from sssbench.gbuffer import GBuffer, pixel_size_mm, view_positions
+from sssbench.ops import _disk_native
 from sssbench.ops._disk_noise import blue_noise_mask
 from sssbench.ops._disk_radial import RadialSampler, radial_sampler
 from sssbench.ops._repr import options_repr
@@ -507,6 +508,13 @@ class DiskSSS(nn.Module):
             else 0.0
         )
         u0, theta0 = pattern_points(self.pattern, n)
+        if _disk_native.usable(ctx, kernel):  # the same loop in C (module _disk_native)
+            jitter = shift if self.jitter_radius else None
+            turn = 2 * math.pi * phase
+            bilinear = self.fetch == "bilinear"
+            return _disk_native.gather(
+                ctx, kernel, accept, pix, turn, jitter, step, u0, theta0, bilinear
+            )
         dt = ctx.dtype
         m = pix.numel()
         num = torch.zeros(m, 3, dtype=dt)
@@ -636,6 +644,8 @@ class DiskSSS(nn.Module):
         i = torch.arange(n, dtype=torch.float64)
         r, rcp_pdf = kernel.sampler.sample_polar((i + 0.5) / n)  # fixed: no radial jitter
         phi = 2 * math.pi * torch.frac(i / GOLDEN_RATIO)
+        if _disk_native.usable(ctx, kernel):  # the same loop in C (module _disk_native)
+            return _disk_native.gather_hdrp(ctx, kernel, accept, pix, turn, ppm, r, rcp_pdf, phi)
         dt = ctx.dtype
         m = pix.numel()
         num = torch.zeros(m, 3, dtype=dt)

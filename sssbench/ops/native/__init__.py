@@ -43,7 +43,7 @@ __all__ = [
 ]
 
 _HERE = Path(__file__).resolve().parent
-_SOURCES = ("gather.c", "gather_body.h", "gather_simd.h", "pool.h")
+_SOURCES = ("gather.c", "gather_body.h", "gather_simd.h", "pool.h", "disk.c", "disk_body.h")
 _FLAGS = ["-O3", "-fPIC", "-shared", "-ffp-contract=off", "-fno-math-errno", "-Wno-psabi"]
 _STATE: dict[str, object] = {"lib": None, "tried": False}
 _BUILD_TIMEOUT_S = 900
@@ -88,7 +88,8 @@ def _build(cc: str, fresh: bool = False) -> Path:
     target = folder / name
     os.close(fd)
     try:
-        cmd = [cc, *_FLAGS, "-o", tmp, str(_HERE / "gather.c"), "-lm", "-lpthread"]
+        units = [str(_HERE / "gather.c"), str(_HERE / "disk.c")]  # disk.c: the disk's loop
+        cmd = [cc, *_FLAGS, "-o", tmp, *units, "-lm", "-lpthread"]
         # once per source version and user (cached): 18 s of CPU with gcc 12 (the scalar loop
         # and the AVX2 and AVX-512 loops, float32 and float64), 2.5 min of wall time measured
         # on this 2-core machine under a load of 20; the timeout leaves room for more
@@ -114,6 +115,8 @@ def _declare(lib: ctypes.CDLL) -> None:
     for fn in (lib.sss_simd_best, lib.sss_get_simd):
         fn.restype, fn.argtypes = i32, []
     lib.sss_set_simd.restype, lib.sss_set_simd.argtypes = i32, [i32]
+    for fn in (lib.sss_disk_f32, lib.sss_disk_f64, lib.sss_disk_hdrp_f32, lib.sss_disk_hdrp_f64):
+        fn.restype, fn.argtypes = None, [p]  # a disk_args * (sssbench.ops._disk_native)
 
 
 def _load(path: Path) -> ctypes.CDLL:
