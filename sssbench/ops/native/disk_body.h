@@ -140,7 +140,7 @@ static inline __attribute__((always_inline)) void DCAT(hdrp_pixels, SUFFIX)(cons
             if (a->profile_kind == 1) { /* _Kernel.polar: HDRP's EvalBurley, S/(8 pi) (...) */
                 for (int c = 0; c < 3; ++c) {
                     const double dc = a->prof_a[c];
-                    pol[c] = (exp(-r3 / (3.0 * dc)) + exp(-r3 / dc)) / (EIGHT_PI * dc);
+                    pol[c] = (exp_(-r3 / (3.0 * dc)) + exp_(-r3 / dc)) / (EIGHT_PI * dc);
                 }
             } else { /* r R_c(r) / total_c */
                 double prof[3];
