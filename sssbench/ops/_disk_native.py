@@ -65,7 +65,7 @@ class DiskArgs(ctypes.Structure):
     _fields_ = [
         (name, _P)
         for name in (
-            "rgb", "pos", "accept", "area", "pix", "turn", "shift", "step", "u0", "theta0",
+            "rgb", "pos", "accept", "area", "packed", "pix", "turn", "shift", "step", "u0", "theta0",
             "rcp", "num", "den", "mom", "tab_r", "tab_cdf", "guide", "prof_a", "prof_b",
             "total",
         )  # fmt: skip
@@ -111,6 +111,21 @@ def usable(ctx, kernel) -> bool:
     return native.library() is not None
 
 
+def _packed(ctx, accept: torch.Tensor) -> torch.Tensor:
+    """``(N, 8)`` per pixel ``(r, g, b, z, accept, area, 0, 0)`` in the image dtype (copies,
+    no arithmetic): a fetched pixel is one cache line (the loop's random reads dominated its
+    time); built once per forward and acceptance (kept on ``ctx``)."""
+    cache = ctx.__dict__.setdefault("_disk_native_packed", {})
+    key = id(accept)
+    if key not in cache:
+        n = ctx.rgb.shape[0]
+        area = ctx.area if ctx.area is not None else torch.zeros(n, dtype=ctx.dtype)
+        zeros = torch.zeros(n, 2, dtype=ctx.dtype)
+        cols = [ctx.rgb.detach(), ctx.depth.detach()[:, None], accept.detach()[:, None]]
+        cache[key] = (accept, torch.cat([*cols, area.detach()[:, None], zeros], 1))
+    return cache[key][1]
+
+
 class _Call:
     """One call's arguments, keeping every tensor they point into alive."""
 
@@ -121,6 +136,7 @@ class _Call:
         a.rgb = self.ptr(ctx.rgb, dt)
         a.pos = self.ptr(ctx.pos, dt)
         a.accept = self.ptr(accept, dt)
+        a.packed = self.ptr(_packed(ctx, accept), dt)
         a.pix = self.ptr(pix, torch.int64)
         m = pix.numel()
         a.m, a.h, a.w, a.hw = m, ctx.h, ctx.w, ctx.hw

@@ -40,6 +40,7 @@ typedef struct {
     const void *pos;       /* (N, 3) view positions (mm) */
     const void *accept;    /* (N,) 1 / 0: may a sample land here */
     const void *area;      /* (N,) surface area (mm^2), or NULL */
+    const void *packed;    /* (N, 8) the pixels' (r, g, b, z, accept, area, 0, 0): the fetch */
     const int64_t *pix;    /* (M,) the centre pixels (flat indices into the batch) */
     const double *turn;    /* (M,) 2 pi x the rotation (radians) */
     const double *shift;   /* (M,) the radial Cranley-Patterson shift, or NULL (none) */
@@ -137,6 +138,9 @@ static inline __attribute__((always_inline)) double radial_sample(const disk_arg
     *inv_pdf = TWO_PI * r / slope;
     return r;
 }
+
+/* samples positioned (and their pixels prefetched) ahead of their fetches */
+enum { DISK_CHUNK = 16 };
 
 /* the pixels [p0, p1) of one call, split over threads */
 typedef struct {

@@ -9,18 +9,20 @@
 static inline __attribute__((always_inline)) SCALAR DCAT(fetch, SUFFIX)(
     const disk_args *a, int64_t base, int64_t row, int64_t col, SCALAR z_c, double drow,
     double dcol, SCALAR rgb[3], double *dz, double *area) {
-    const SCALAR *img = (const SCALAR *)a->rgb, *pos = (const SCALAR *)a->pos;
-    const SCALAR *acc = (const SCALAR *)a->accept, *ar = (const SCALAR *)a->area;
+    /* the packed pixels (r, g, b, z, accept, area, -, -): one cache line per fetched pixel */
+    const SCALAR *px = (const SCALAR *)a->packed;
+    const int has_area = a->area != NULL;
     const int64_t h = a->h, w = a->w;
     if (!a->bilinear) { /* the pixel containing the sample, clamped to the edge */
         int64_t ri = row + (int64_t)floor(drow + 0.5), ci = col + (int64_t)floor(dcol + 0.5);
         ri = ri < 0 ? 0 : (ri > h - 1 ? h - 1 : ri);
         ci = ci < 0 ? 0 : (ci > w - 1 ? w - 1 : ci);
         const int64_t j = base + ri * w + ci;
-        rgb[0] = img[3 * j], rgb[1] = img[3 * j + 1], rgb[2] = img[3 * j + 2];
-        *dz = (double)(SCALAR)(pos[3 * j + 2] - z_c);
-        if (ar) *area = (double)ar[j];
-        return acc[j];
+        const SCALAR *q = px + 8 * j;
+        rgb[0] = q[0], rgb[1] = q[1], rgb[2] = q[2];
+        *dz = (double)(SCALAR)(q[3] - z_c);
+        if (has_area) *area = (double)q[5];
+        return q[4];
     }
     /* bilinear: the four corners, weight x acceptance, renormalised; the offset's integer and
      * fractional parts from the offset itself */
@@ -38,15 +40,16 @@ static inline __attribute__((always_inline)) SCALAR DCAT(fetch, SUFFIX)(
     for (int q = 0; q < 4; ++q) {
         const int64_t j = base + rows[q >> 1] * w + cols[q & 1];
         if (q == 0) nearest = j;
-        const double wt = wts[q] * (double)acc[j];
-        for (int c = 0; c < 3; ++c) sum[c] += (SCALAR)(wt * (double)img[3 * j + c]);
-        dzs += wt * (double)(SCALAR)(pos[3 * j + 2] - z_c);
-        if (ar) areas += wt * (double)ar[j];
+        const SCALAR *pj = px + 8 * j;
+        const double wt = wts[q] * (double)pj[4];
+        for (int c = 0; c < 3; ++c) sum[c] += (SCALAR)(wt * (double)pj[c]);
+        dzs += wt * (double)(SCALAR)(pj[3] - z_c);
+        if (has_area) areas += wt * (double)pj[5];
         total += wt;
     }
     const double safe = total > 0 ? total : 1.0;
-    *dz = total > 0 ? dzs / safe : (double)(SCALAR)(pos[3 * nearest + 2] - z_c);
-    if (ar) *area = areas / safe;
+    *dz = total > 0 ? dzs / safe : (double)(SCALAR)(px[8 * nearest + 3] - z_c);
+    if (has_area) *area = areas / safe;
     for (int c = 0; c < 3; ++c) rgb[c] = sum[c] / (SCALAR)safe;
     return total > 0 ? (SCALAR)1 : (SCALAR)0;
 }
@@ -69,17 +72,31 @@ static inline __attribute__((always_inline)) void DCAT(disk_pixels, SUFFIX)(cons
         /* the area factor's denominator: pixel_size_mm(z_c) ** 2 */
         const double psz = z_c * a->per_mm, psz2 = psz * psz;
         SCALAR s_num[3] = {0, 0, 0}, s_den[3] = {0, 0, 0}, s_mom[9] = {0};
-        for (int64_t i = 0; i < a->n; ++i) {
-            double u = a->u0[i];
-            if (a->shift) {
-                u = u + shift;
-                u = u - trunc(u); /* torch.frac */
+        /* in chunks: first every sample's position (prefetching the pixel it lands on, so
+         * that the chunk's cache misses overlap), then the fetches and weights; the same
+         * operations as one sample at a time */
+        double c_inv[DISK_CHUNK], c_dcol[DISK_CHUNK], c_drow[DISK_CHUNK];
+        const SCALAR *px = (const SCALAR *)a->packed;
+        for (int64_t i0 = 0; i0 < a->n; i0 += DISK_CHUNK) {
+            const int64_t cnt = a->n - i0 < DISK_CHUNK ? a->n - i0 : DISK_CHUNK;
+            for (int64_t t = 0; t < cnt; ++t) {
+                double u = a->u0[i0 + t];
+                if (a->shift) {
+                    u = u + shift;
+                    u = u - trunc(u); /* torch.frac */
+                }
+                const double r = radial_sample(a, u, &c_inv[t]);
+                const double theta = a->theta0[i0 + t] + turn;
+                c_dcol[t] = r * cos(theta) * step;
+                c_drow[t] = -r * sin(theta) * step; /* screen y is up, rows go down */
+                int64_t ri = row + (int64_t)floor(c_drow[t] + 0.5);
+                int64_t ci = col + (int64_t)floor(c_dcol[t] + 0.5);
+                ri = ri < 0 ? 0 : (ri > a->h - 1 ? a->h - 1 : ri);
+                ci = ci < 0 ? 0 : (ci > a->w - 1 ? a->w - 1 : ci);
+                __builtin_prefetch(px + 8 * (base + ri * a->w + ci));
             }
-            double inv_pdf;
-            const double r = radial_sample(a, u, &inv_pdf);
-            const double theta = a->theta0[i] + turn;
-            const double dcol = r * cos(theta) * step;
-            const double drow = -r * sin(theta) * step; /* screen y is up, rows go down */
+            for (int64_t t = 0; t < cnt; ++t) {
+            const double inv_pdf = c_inv[t], dcol = c_dcol[t], drow = c_drow[t];
             SCALAR rgb[3];
             double dz, area = 0.0;
             const SCALAR ok = DCAT(fetch, SUFFIX)(a, base, row, col, z_cs, drow, dcol, rgb, &dz,
@@ -104,6 +121,7 @@ static inline __attribute__((always_inline)) void DCAT(disk_pixels, SUFFIX)(cons
                     s_mom[3 * c + 2] += wc * wc;
                 }
             }
+            }
         }
         for (int c = 0; c < 3; ++c) num[3 * p + c] = s_num[c], den[3 * p + c] = s_den[c];
         if (mom)
@@ -115,8 +133,7 @@ static inline __attribute__((always_inline)) void DCAT(disk_pixels, SUFFIX)(cons
 static inline __attribute__((always_inline)) void DCAT(hdrp_pixels, SUFFIX)(const disk_args *a,
                                                                             int64_t p0,
                                                                             int64_t p1) {
-    const SCALAR *img = (const SCALAR *)a->rgb, *pos = (const SCALAR *)a->pos;
-    const SCALAR *acc = (const SCALAR *)a->accept;
+    const SCALAR *pos = (const SCALAR *)a->pos, *px = (const SCALAR *)a->packed;
     SCALAR *num = (SCALAR *)a->num, *den = (SCALAR *)a->den;
     const int64_t h = a->h, w = a->w;
     for (int64_t p = p0; p < p1; ++p) {
@@ -134,7 +151,8 @@ static inline __attribute__((always_inline)) void DCAT(hdrp_pixels, SUFFIX)(cons
             const int inside = rs >= 0 && rs < h && cs >= 0 && cs < w;
             const int64_t j = base + (rs < 0 ? 0 : (rs > h - 1 ? h - 1 : rs)) * w +
                               (cs < 0 ? 0 : (cs > w - 1 ? w - 1 : cs));
-            const double dz = (double)(SCALAR)(pos[3 * j + 2] - z_c);
+            const SCALAR *q = px + 8 * j;
+            const double dz = (double)(SCALAR)(q[3] - z_c);
             const double r3 = sqrt(rk * rk + dz * dz);
             double pol[3];
             if (a->profile_kind == 1) { /* _Kernel.polar: HDRP's EvalBurley, S/(8 pi) (...) */
@@ -147,10 +165,10 @@ static inline __attribute__((always_inline)) void DCAT(hdrp_pixels, SUFFIX)(cons
                 profile_eval(a, r3, prof);
                 for (int c = 0; c < 3; ++c) pol[c] = r3 * prof[c] / a->total[c];
             }
-            const SCALAR gate = (SCALAR)inside * acc[j];
+            const SCALAR gate = (SCALAR)inside * q[4];
             for (int c = 0; c < 3; ++c) {
                 const SCALAR wc = (SCALAR)(pol[c] * a->rcp[k]) * gate;
-                s_num[c] += wc * img[3 * j + c];
+                s_num[c] += wc * q[c];
                 s_den[c] += wc;
             }
         }
