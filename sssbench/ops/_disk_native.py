@@ -65,9 +65,9 @@ class DiskArgs(ctypes.Structure):
     _fields_ = [
         (name, _P)
         for name in (
-            "rgb", "pos", "accept", "area", "packed", "pix", "turn", "shift", "step", "u0", "theta0",
-            "rcp", "num", "den", "mom", "tab_r", "tab_cdf", "guide", "prof_a", "prof_b",
-            "total",
+            "rgb", "pos", "accept", "area", "packed", "pix", "turn", "shift", "step", "u0",
+            "theta0", "rcp", "num", "den", "mom", "tab_r", "tab_cdf", "guide", "prof_a",
+            "prof_b", "total",
         )  # fmt: skip
     ] + [
         ("sampler_d", ctypes.c_double),
