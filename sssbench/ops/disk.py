@@ -158,6 +158,14 @@ implementation of them (``tests/ops/test_disk_hdrp.py``):
   (the profile in polar measure, ``2π r R_c(r) / (2π ‖R_c‖₁)``);
 - result ``Σ w_c E_c / max(Σ w_c, FLT_MIN)`` over the accepted samples (0 if none is).
 
+**Loop**: the samples are gathered in C (:mod:`._disk_native`, ``native/disk.c``: the same
+operations in the same order, geometry in float64, noise from this module; float32 bitwise,
+float64 to 5e-14 of the torch loop, ``docs/numerics.md``); the torch loops below
+(:meth:`DiskSSS._gather`, :meth:`DiskSSS._gather_hdrp`) are its specification and run instead
+under ``gather.backend("torch")``, without the C library, for a profile other than
+:class:`~sssbench.profiles.BurleyNormalized` / :class:`~sssbench.profiles.SumOfGaussians`, or
+when autograd records the call (the torch loop is differentiable; the C loop has no backward).
+
 Not reproduced (the G-buffer has no such inputs): HDRP's ``subsurfaceMask`` scales the
 filter radius (``distScale``), where our ``mask`` is a stencil and strength; its albedo
 multiply after the pass (texturing mode) is the pipeline's texturing stage here.
