@@ -158,6 +158,14 @@ implementation of them (``tests/ops/test_disk_hdrp.py``):
   (the profile in polar measure, ``2π r R_c(r) / (2π ‖R_c‖₁)``);
 - result ``Σ w_c E_c / max(Σ w_c, FLT_MIN)`` over the accepted samples (0 if none is).
 
+**Loop**: the samples are gathered in C (:mod:`._disk_native`, ``native/disk.c``: the same
+operations in the same order, geometry in float64, noise from this module; float32 bitwise,
+float64 to 5e-14 of the torch loop, ``docs/numerics.md``); the torch loops below
+(:meth:`DiskSSS._gather`, :meth:`DiskSSS._gather_hdrp`) are its specification and run instead
+under ``gather.backend("torch")``, without the C library, for a profile other than
+:class:`~sssbench.profiles.BurleyNormalized` / :class:`~sssbench.profiles.SumOfGaussians`, or
+when autograd records the call (the torch loop is differentiable; the C loop has no backward).
+
 Not reproduced (the G-buffer has no such inputs): HDRP's ``subsurfaceMask`` scales the
 filter radius (``distScale``), where our ``mask`` is a stencil and strength; its albedo
 multiply after the pass (texturing mode) is the pipeline's texturing stage here.
@@ -174,6 +182,7 @@ from torch import nn
 
 from sssbench._checks import check_choice, check_int, check_scalar
 from sssbench.gbuffer import GBuffer, pixel_size_mm, view_positions
+from sssbench.ops import _disk_native
 from sssbench.ops._disk_noise import blue_noise_mask
 from sssbench.ops._disk_radial import RadialSampler, radial_sampler
 from sssbench.ops._repr import options_repr
@@ -507,6 +516,13 @@ class DiskSSS(nn.Module):
             else 0.0
         )
         u0, theta0 = pattern_points(self.pattern, n)
+        if _disk_native.usable(ctx, kernel):  # the same loop in C (module _disk_native)
+            jitter = shift if self.jitter_radius else None
+            turn = 2 * math.pi * phase
+            bilinear = self.fetch == "bilinear"
+            return _disk_native.gather(
+                ctx, kernel, accept, pix, turn, jitter, step, u0, theta0, bilinear
+            )
         dt = ctx.dtype
         m = pix.numel()
         num = torch.zeros(m, 3, dtype=dt)
@@ -636,6 +652,8 @@ class DiskSSS(nn.Module):
         i = torch.arange(n, dtype=torch.float64)
         r, rcp_pdf = kernel.sampler.sample_polar((i + 0.5) / n)  # fixed: no radial jitter
         phi = 2 * math.pi * torch.frac(i / GOLDEN_RATIO)
+        if _disk_native.usable(ctx, kernel):  # the same loop in C (module _disk_native)
+            return _disk_native.gather_hdrp(ctx, kernel, accept, pix, turn, ppm, r, rcp_pdf, phi)
         dt = ctx.dtype
         m = pix.numel()
         num = torch.zeros(m, 3, dtype=dt)

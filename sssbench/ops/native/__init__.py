@@ -9,6 +9,8 @@ compiler (``$CC``, else ``cc``/``gcc``) into a per-user cache
 the source and the compiler, written atomically so that parallel sweep workers may race. No
 Python package beyond the declared ones is needed; on a machine without a C compiler
 :func:`library` returns ``None`` once with a warning and the gather runs its torch loop.
+``disk.c`` (with ``disk_body.h``), the disk's sample loop (:mod:`sssbench.ops._disk_native`), is a
+second translation unit of the same command and library, at the same SIMD level.
 The torch loop (:mod:`sssbench.ops._gather_torch`) is the specification: the native loop
 performs the same float operations in the same order and is tested bitwise equal to it (but
 for ``exp``); :mod:`sssbench.ops._gather_native` registers it as a torch operator.
@@ -43,7 +45,7 @@ __all__ = [
 ]
 
 _HERE = Path(__file__).resolve().parent
-_SOURCES = ("gather.c", "gather_body.h", "gather_simd.h", "pool.h")
+_SOURCES = ("gather.c", "gather_body.h", "gather_simd.h", "pool.h", "disk.c", "disk_body.h")
 _FLAGS = ["-O3", "-fPIC", "-shared", "-ffp-contract=off", "-fno-math-errno", "-Wno-psabi"]
 _STATE: dict[str, object] = {"lib": None, "tried": False}
 _BUILD_TIMEOUT_S = 900
@@ -88,10 +90,12 @@ def _build(cc: str, fresh: bool = False) -> Path:
     target = folder / name
     os.close(fd)
     try:
-        cmd = [cc, *_FLAGS, "-o", tmp, str(_HERE / "gather.c"), "-lm", "-lpthread"]
+        units = [str(_HERE / "gather.c"), str(_HERE / "disk.c")]  # disk.c: the disk's loop
+        cmd = [cc, *_FLAGS, "-o", tmp, *units, "-lm", "-lpthread"]
         # once per source version and user (cached): 18 s of CPU with gcc 12 (the scalar loop
         # and the AVX2 and AVX-512 loops, float32 and float64), 2.5 min of wall time measured
-        # on this 2-core machine under a load of 20; the timeout leaves room for more
+        # on this 2-core machine under a load of 20 (disk.c: 1.5 s of CPU more); the timeout
+        # leaves room for more
         subprocess.run(cmd, check=True, capture_output=True, text=True, timeout=_BUILD_TIMEOUT_S)
         os.replace(tmp, target)  # atomic: a racing worker sees a whole library or none
     finally:
@@ -114,6 +118,8 @@ def _declare(lib: ctypes.CDLL) -> None:
     for fn in (lib.sss_simd_best, lib.sss_get_simd):
         fn.restype, fn.argtypes = i32, []
     lib.sss_set_simd.restype, lib.sss_set_simd.argtypes = i32, [i32]
+    for fn in (lib.sss_disk_f32, lib.sss_disk_f64, lib.sss_disk_hdrp_f32, lib.sss_disk_hdrp_f64):
+        fn.restype, fn.argtypes = None, [p]  # a disk_args * (sssbench.ops._disk_native)
 
 
 def _load(path: Path) -> ctypes.CDLL:

@@ -1,0 +1,229 @@
+"""The disk's sample loop in C (``native/disk.c``, ``native/disk_body.h``), called by
+:class:`~sssbench.ops.DiskSSS` in place of its torch loops.
+
+:meth:`DiskSSS._gather <sssbench.ops.disk.DiskSSS._gather>` and ``_gather_hdrp`` are the
+specification: the C loop runs, per centre pixel, the same samples in the same order with the
+same float operations — the sample's geometry in float64 whatever the image's dtype (the
+kilometre-depth guarantee of ``docs/reliability.md``), colours and sums in the image's dtype —
+and takes the per-pixel noise (rotation, radial shift) from the torch code, so the random
+rotation is identical by construction. What differs is libm's elementary functions against
+torch's (each within 1 ulp) and, for a sum of Gaussians, the order of the sum over the
+Gaussians (torch: a BLAS product): :data:`DISK_NATIVE_AGREEMENT`, measured by
+``tests/ops/test_disk_native.py``.
+
+When the C loop runs (:func:`usable`), else the torch loop, never a different answer:
+
+- the gather backend is ``"native"`` (the default; ``with sssbench.ops.gather.backend("torch")``
+  runs the torch loop) and the C library is available (built with the separable passes';
+  without a compiler: the torch loop, after the library's one warning);
+- the image is float32 or float64;
+- the profile is :class:`~sssbench.profiles.BurleyNormalized` or
+  :class:`~sssbench.profiles.SumOfGaussians` (their closed forms are written in C; any other
+  profile class, or a subclass, runs the torch loop: its ``evaluate`` is Python);
+- autograd does not record the call (grad mode on and the diffuse, depth or a profile tensor
+  requiring a gradient: the torch loop, which is differentiable; the C loop has no backward).
+
+Every option of :class:`~sssbench.ops.DiskSSS` is covered (both estimators, patterns,
+rotations, frames, normalise, jitter, point and bilinear fetch, adaptive counts, surface
+area, per-pixel profiles and ``cross_profile``): those are applied around the gather call.
+Threads: ``torch.get_num_threads()``, at least 65536 pixel-samples each, on the native pool
+(``native/pool.h``); the SIMD level of the separable passes (:func:`~sssbench.ops.native.simd`).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import math
+
+import torch
+
+from sssbench.ops import native
+from sssbench.ops._disk_radial import BurleyRadial, TabulatedRadial
+from sssbench.ops.gather import get_backend
+from sssbench.profiles import burley as _burley
+from sssbench.profiles.burley import BurleyNormalized
+from sssbench.profiles.sum_of_gaussians import SumOfGaussians
+
+__all__ = ["DISK_NATIVE_AGREEMENT", "usable", "usable_profile", "gather", "gather_hdrp"]
+
+#: how the C loop's results relate to the torch loop's, as a bound on the largest difference
+#: over the output's largest value (tests/ops/test_disk_native.py, every option combination of
+#: the disk tests): measured float64 at most 5e-14, float32 bitwise equal in every combination;
+#: the float32 bound allows a weight rounded to the other float32 neighbour after a 1-ulp
+#: difference of exp. Every SIMD level bitwise the same
+DISK_NATIVE_AGREEMENT = {torch.float64: 1e-11, torch.float32: 2e-6}
+
+#: buckets of the tabulated sampler's guide table (a power of two: ``u · G`` is exact)
+_GUIDE = 4096
+
+_P = ctypes.c_void_p
+
+
+class DiskArgs(ctypes.Structure):
+    """``disk_args`` of ``native/disk.c`` (same fields, same order)."""
+
+    _fields_ = [
+        (name, _P)
+        for name in (
+            "rgb", "pos", "accept", "area", "packed", "pix", "turn", "shift", "step", "u0",
+            "theta0", "rcp", "num", "den", "mom", "tab_r", "tab_cdf", "guide", "prof_a",
+            "prof_b", "total",
+        )  # fmt: skip
+    ] + [
+        ("sampler_d", ctypes.c_double),
+        ("per_mm", ctypes.c_double),
+        ("eps", ctypes.c_double),
+    ] + [
+        (name, ctypes.c_int64)
+        for name in ("m", "n", "h", "w", "hw", "nodes", "guide_n", "n_gauss")
+    ] + [
+        (name, ctypes.c_int32)
+        for name in ("sampler_kind", "profile_kind", "bilinear", "threads")
+    ]  # fmt: skip
+
+
+def _profile_tensors(profile) -> tuple[torch.Tensor, ...]:
+    if type(profile) is BurleyNormalized:
+        return profile.d, profile.albedo
+    return profile.variances, profile.weights
+
+
+def usable_profile(kernel) -> bool:
+    """Whether the C loop has the closed forms of ``kernel``'s profile and sampler (module
+    doc): :class:`~sssbench.profiles.BurleyNormalized` or
+    :class:`~sssbench.profiles.SumOfGaussians` exactly, not a subclass."""
+    return type(kernel.profile) in (BurleyNormalized, SumOfGaussians) and isinstance(
+        kernel.sampler, (BurleyRadial, TabulatedRadial)
+    )
+
+
+def usable(ctx, kernel) -> bool:
+    """Whether the C loop runs this gather (module doc): ``ctx`` the disk's ``_Pixels``,
+    ``kernel`` its ``_Kernel``."""
+    if ctx.dtype not in (torch.float32, torch.float64) or get_backend() != "native":
+        return False
+    if not usable_profile(kernel):
+        return False
+    if torch.is_grad_enabled():
+        tensors = (ctx.rgb, ctx.pos, ctx.area, kernel.total, *_profile_tensors(kernel.profile))
+        if any(t is not None and t.requires_grad for t in tensors):
+            return False
+    return native.library() is not None
+
+
+def _packed(ctx, accept: torch.Tensor) -> torch.Tensor:
+    """``(N, 8)`` per pixel ``(r, g, b, z, accept, area, 0, 0)`` in the image dtype (copies,
+    no arithmetic): a fetched pixel is one cache line (the loop's random reads dominated its
+    time); built once per forward and acceptance (kept on ``ctx``)."""
+    cache = ctx.__dict__.setdefault("_disk_native_packed", {})
+    key = id(accept)
+    if key not in cache:
+        n = ctx.rgb.shape[0]
+        area = ctx.area if ctx.area is not None else torch.zeros(n, dtype=ctx.dtype)
+        zeros = torch.zeros(n, 2, dtype=ctx.dtype)
+        cols = [ctx.rgb.detach(), ctx.depth.detach()[:, None], accept.detach()[:, None]]
+        cache[key] = (accept, torch.cat([*cols, area.detach()[:, None], zeros], 1))
+    return cache[key][1]
+
+
+class _Call:
+    """One call's arguments, keeping every tensor they point into alive."""
+
+    def __init__(self, ctx, kernel, accept: torch.Tensor, pix: torch.Tensor) -> None:
+        self.keep: list[torch.Tensor] = []
+        a = self.args = DiskArgs()
+        dt = ctx.dtype
+        a.rgb = self.ptr(ctx.rgb, dt)
+        a.pos = self.ptr(ctx.pos, dt)
+        a.accept = self.ptr(accept, dt)
+        a.packed = self.ptr(_packed(ctx, accept), dt)
+        a.pix = self.ptr(pix, torch.int64)
+        m = pix.numel()
+        a.m, a.h, a.w, a.hw = m, ctx.h, ctx.w, ctx.hw
+        a.per_mm = 2.0 * math.tan(ctx.fov_y / 2.0) / ctx.h  # gbuffer.pixel_size_mm
+        a.threads = torch.get_num_threads()
+        profile = kernel.profile
+        if type(profile) is BurleyNormalized:
+            a.profile_kind = 1
+            a.prof_a = self.ptr(profile.d)
+            a.prof_b = self.ptr(profile.albedo)
+            a.eps = _burley._EPS
+        else:
+            a.profile_kind = 0
+            a.prof_a = self.ptr(profile.variances)
+            a.prof_b = self.ptr(profile.weights)
+            a.n_gauss = profile.variances.numel()
+        a.total = self.ptr(kernel.total)
+        sampler = kernel.sampler
+        if isinstance(sampler, BurleyRadial):
+            a.sampler_kind, a.sampler_d = 1, sampler.d
+        else:
+            edges = torch.arange(_GUIDE + 1, dtype=torch.float64) / _GUIDE
+            guide = torch.searchsorted(sampler.cdf, edges, right=True) - 1
+            a.tab_r, a.tab_cdf = self.ptr(sampler.r), self.ptr(sampler.cdf)
+            a.guide, a.guide_n, a.nodes = self.ptr(guide, torch.int64), _GUIDE, sampler.r.numel()
+        self.num = torch.empty(m, 3, dtype=dt)
+        self.den = torch.empty(m, 3, dtype=dt)
+        a.num, a.den = self.num.data_ptr(), self.den.data_ptr()
+
+    def ptr(self, t: torch.Tensor, dtype: torch.dtype = torch.float64) -> int:
+        """The address of ``t`` as a contiguous ``dtype`` tensor (kept alive)."""
+        t = t.detach().to(dtype).contiguous()
+        self.keep.append(t)
+        return t.data_ptr()
+
+
+def gather(
+    ctx,
+    kernel,
+    accept: torch.Tensor,
+    pix: torch.Tensor,
+    turn: torch.Tensor,
+    shift: torch.Tensor | None,
+    step: torch.Tensor,
+    u0: torch.Tensor,
+    theta0: torch.Tensor,
+    bilinear: bool,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """:meth:`DiskSSS._gather <sssbench.ops.disk.DiskSSS._gather>` in C: ``Σ w E``, ``Σ w``
+    ``(M, 3)`` and the moments ``(M, 3, 3)`` in the image dtype. ``pix`` ``(M,)`` the centre
+    pixels (flat), ``turn`` ``(M,)`` 2π × their rotation (radians), ``shift`` ``(M,)`` their
+    radial shift or ``None`` (no jitter), ``step`` ``(M,)`` pixels per mm at the centre,
+    ``u0``/``theta0`` ``(n,)`` the pattern (float64)."""
+    call = _Call(ctx, kernel, accept, pix)
+    a = call.args
+    a.turn, a.step = call.ptr(turn), call.ptr(step)
+    a.shift = None if shift is None else call.ptr(shift)
+    a.u0, a.theta0, a.n = call.ptr(u0), call.ptr(theta0), u0.numel()
+    a.area = None if ctx.area is None else call.ptr(ctx.area, ctx.dtype)
+    a.bilinear = int(bilinear)
+    mom = torch.empty(pix.numel(), 3, 3, dtype=ctx.dtype)
+    a.mom = mom.data_ptr()
+    lib = native.library()
+    (lib.sss_disk_f32 if ctx.dtype == torch.float32 else lib.sss_disk_f64)(ctypes.byref(a))
+    return call.num, call.den, mom
+
+
+def gather_hdrp(
+    ctx,
+    kernel,
+    accept: torch.Tensor,
+    pix: torch.Tensor,
+    turn: torch.Tensor,
+    ppm: torch.Tensor,
+    r: torch.Tensor,
+    rcp_pdf: torch.Tensor,
+    phi: torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """:meth:`DiskSSS._gather_hdrp <sssbench.ops.disk.DiskSSS._gather_hdrp>` in C: ``Σ w E``
+    and ``Σ w`` ``(M, 3)``. ``ppm`` ``(M,)`` HDRP's pixels per mm, ``r``, ``rcp_pdf``, ``phi``
+    ``(n,)`` the samples' radii (mm), inverse polar densities and angles (radians)."""
+    call = _Call(ctx, kernel, accept, pix)
+    a = call.args
+    a.turn, a.step = call.ptr(turn), call.ptr(ppm)
+    a.u0, a.rcp, a.theta0, a.n = call.ptr(r), call.ptr(rcp_pdf), call.ptr(phi), r.numel()
+    lib = native.library()
+    (lib.sss_disk_hdrp_f32 if ctx.dtype == torch.float32 else lib.sss_disk_hdrp_f64)(
+        ctypes.byref(a)
+    )
+    return call.num, call.den
