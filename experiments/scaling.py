@@ -330,6 +330,8 @@ def run(ctx: Context) -> Section:
     link = _figure(ctx, data)
 
     def fmt_fit(axis: str, m: str) -> str:
+        if axis == "taps" and m not in WITH_TAPS:
+            return "no taps"
         if (axis, m) not in fits:
             return "not fitted (under 2 points)"
         k, se, n = fits[axis, m]
