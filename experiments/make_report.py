@@ -27,6 +27,7 @@ ORDER = [
     "perf",
     "gl_speed",
     "reference_speed",
+    "scaling",
     "layers",
     "extensions",
     "benchmark",

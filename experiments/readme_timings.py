@@ -10,21 +10,28 @@ fresh install):
 
 and prints, for each, the wall time, the CPU time of the child processes and the machine
 (CPU model, cores, load average before and after: on a shared machine the figure is an upper
-bound). ``--write`` records the output in ``experiments/readme_timings.json``, the file the
-README's figures are copied from (``tests/test_docs.py`` checks that they agree).
+bound). ``--write`` records the output in ``experiments/readme_timings.json`` and rewrites the
+README's timing lines from it (the block between :data:`BEGIN` and :data:`END`,
+:func:`readme_block`; ``tests/test_docs.py`` checks that they agree); ``--readme`` only rewrites
+those lines from the JSON. ``--no-benchmark`` leaves the default benchmark out (e.g. to time
+only the paper benchmark, on an idle machine, at merge time):
 
-    python -m experiments.readme_timings [--paper] [--tests] [--write]
+    python -m experiments.readme_timings [--paper] [--tests] [--no-benchmark] [--write]
+    python -m experiments.readme_timings --paper --no-benchmark --write   # the paper's cold time
+    python -m experiments.readme_timings --readme
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import platform
 import resource
 import subprocess
 import sys
 import tempfile
+import textwrap
 import time
 from datetime import UTC, datetime
 from pathlib import Path
@@ -41,6 +48,14 @@ JOBS = {
     "tests": [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", str(REPO / "tests")],
 }
 
+
+#: the README the timing lines are written into
+README = REPO / "README.md"
+#: the markers of the README's generated timing lines
+BEGIN = "<!-- readme_timings: written by experiments/readme_timings.py from readme_timings.json -->"
+END = "<!-- /readme_timings -->"
+#: a load average (1 min) below this is an idle machine; above, the wall time is an upper bound
+IDLE_LOAD = 0.5
 
 #: the jobs as the README writes them
 COMMANDS = {
@@ -88,6 +103,7 @@ def measure(name: str) -> dict[str, object]:
         print(proc.stdout[-3000:], file=sys.stderr)
     return {
         "command": COMMANDS[name],
+        "machine": machine(),
         "exit_code": proc.returncode,
         "wall_s": round(wall, 1),
         "cpu_s": round(cpu1.ru_utime + cpu1.ru_stime - cpu0.ru_utime - cpu0.ru_stime, 1),
@@ -97,14 +113,93 @@ def measure(name: str) -> dict[str, object]:
     }
 
 
+def _conditions(r: dict[str, object], mach: dict[str, object]) -> str:
+    """Where and under what load job record ``r`` was measured, and what that means."""
+    before, after = r["load_before"][0], r["load_after"][0]  # type: ignore[index]
+    where = (
+        f"on {mach['cores']} cores ({mach['cpu']}) at load average {before:.1f} before and "
+        f"{after:.1f} after"
+    )
+    if max(before, after) < IDLE_LOAD:
+        return where + " (an idle machine)"
+    return (
+        where + " — a shared machine, so the wall time is an upper bound above an idle "
+        "machine's; re-run the script on an idle machine for its figure"
+    )
+
+
+def readme_block(record: dict[str, object]) -> str:
+    """The README's timing lines from ``record`` (the JSON), between :data:`BEGIN` and
+    :data:`END`: every figure is the record's, every qualifier computed from its load."""
+    top = record.get("machine", {})
+    lines = [BEGIN]
+    bench = record.get("benchmark")
+    if isinstance(bench, dict):
+        when = str(bench["measured_at"])[:10]
+        lines.append(
+            f"The latest record ({when}): `{bench['command']}` took {bench['wall_s']:.0f} s wall, "
+            f"{bench['cpu_s']:.0f} s CPU from an empty folder and cache, "
+            f"{_conditions(bench, bench.get('machine', top))}."
+        )
+    paper = record.get("paper")
+    if isinstance(paper, dict):
+        when = str(paper["measured_at"])[:10]
+        lines.append(
+            f"The paper benchmark from cold ({when}): `{paper['command']}` took "
+            f"{paper['wall_s'] / 60:.0f} min wall, {paper['cpu_s'] / 60:.0f} min CPU, "
+            f"{_conditions(paper, paper.get('machine', top))}."
+        )
+    else:
+        lines.append(
+            "The paper benchmark's time from cold has not been measured by the script yet "
+            "(`python -m experiments.readme_timings --paper --no-benchmark --write`, on an idle "
+            "machine)."
+        )
+    wrap = functools.partial(
+        textwrap.fill, width=100, break_long_words=False, break_on_hyphens=False
+    )
+    return "\n".join([BEGIN, *map(wrap, lines[1:]), END])
+
+
+def write_readme(record: dict[str, object], path: Path = README) -> bool:
+    """Replace the README's timing block with :func:`readme_block` of ``record``; whether the
+    file changed."""
+    text = path.read_text()
+    start, end = text.find(BEGIN), text.find(END)
+    if start < 0 or end < start:
+        raise ValueError(f"{path} has no timing block ({BEGIN!r} ... {END!r})")
+    new = text[:start] + readme_block(record) + text[end + len(END) :]
+    if new != text:
+        path.write_text(new)
+    return new != text
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--paper", action="store_true", help="also the paper benchmark (long)")
     parser.add_argument("--tests", action="store_true", help="also the test suite")
-    parser.add_argument("--write", action="store_true", help=f"record into {RESULTS.name}")
+    parser.add_argument(
+        "--no-benchmark", action="store_true", help="leave the default benchmark out"
+    )
+    parser.add_argument(
+        "--write", action="store_true", help=f"record into {RESULTS.name} and the README"
+    )
+    parser.add_argument(
+        "--readme", action="store_true", help=f"only rewrite the README's lines from {RESULTS.name}"
+    )
     args = parser.parse_args(argv)
-    names = ["benchmark", *(["paper"] if args.paper else []), *(["tests"] if args.tests else [])]
-    results = {"machine": machine()}
+    if args.readme:
+        changed = write_readme(_json.loads(RESULTS.read_text()))
+        print(f"{README.name} {'rewritten' if changed else 'already up to date'}")
+        return 0
+    names = [
+        *([] if args.no_benchmark else ["benchmark"]),
+        *(["paper"] if args.paper else []),
+        *(["tests"] if args.tests else []),
+    ]
+    if not names:
+        parser.error("nothing to time (--no-benchmark without --paper or --tests)")
+    results: dict[str, object] = {"machine": machine()}
     for name in names:
         print(f"timing {name} from an empty cache ...", flush=True)
         r = measure(name)
@@ -117,8 +212,14 @@ def main(argv: list[str] | None = None) -> int:
         )
     if args.write:
         old = _json.loads(RESULTS.read_text()) if RESULTS.is_file() else {}
-        RESULTS.write_text(_json.dumps({**old, **results}, indent=2) + "\n")
-        print(f"recorded in {RESULTS}")
+        failed = [n for n in names if results[n]["exit_code"] != 0]  # type: ignore[index]
+        if failed:  # a failed job's time is not the README's figure
+            print(f"not recorded: {', '.join(failed)} failed", file=sys.stderr)
+            return 1
+        record = {**old, **results}
+        RESULTS.write_text(_json.dumps(record, indent=2) + "\n")
+        write_readme(record)
+        print(f"recorded in {RESULTS} and {README.name}")
     return 0 if all(results[n]["exit_code"] == 0 for n in names) else 1
 
 

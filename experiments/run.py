@@ -38,6 +38,7 @@ EXPERIMENTS = {
     "mc_gap": "experiments.mc_gap",
     "optimised": "experiments.optimised",
     "reference_speed": "experiments.reference_speed",
+    "scaling": "experiments.scaling",
     "gl_speed": "experiments.gl_speed",
 }
 

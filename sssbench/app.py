@@ -4,7 +4,9 @@ One module because the app is one edge: the command-line checks, the Hydra compo
 callbacks read the same config schema; splitting them would spread that schema over files.
 
 :func:`main` checks the command line (one clear line and exit 2 for an unknown key, an empty
-value, a value of the wrong type or an unknown config-group option), composes the config from
+value, a value of the wrong type or an unknown config-group option; every job's values; for
+every job of the grid, that each stage switched on can run on its scene and change its image:
+:func:`check_stages`), composes the config from
 the package's ``conf/`` (:data:`CONF_DIR`, shipped inside the package), reads it once into a
 plain :class:`~sssbench.run.spec.RunSpec` (:func:`spec_from_cfg`; DESIGN §7: nothing below the app
 sees ``cfg``) and hands it to :func:`sssbench.run.runner.execute`. A sweep always runs to the end;
@@ -46,6 +48,7 @@ __all__ = [
     "preset_hydra",
     "spec_from_cfg",
     "task",
+    "check_stages",
     "OBJECTIVES",
     "objectives",
     "ExitStatusCallback",
@@ -755,8 +758,30 @@ def check_values(argv: list[str]) -> str | None:
     the first job of the sweep, and for each swept key each of its other values with the other
     keys at their first (one composition per value, not per job). Values Hydra computes
     (``range(...)``, a search's ``interval(...)``) are checked by each run."""
-    if any(a in _INSPECT_FLAGS or a.startswith("--cfg") or a == "-c" for a in argv):
+    if _inspecting(argv):
         return None
+    axes = _axes(argv)
+    given = any(a[0].split("=", 1)[0].lstrip("+") == "store" for a in axes)
+    store = None if given else str(Path.cwd() / "sssbench.sqlite")  # the config's default
+    first = [a[0] for a in axes]
+    jobs = [first] + [
+        [*first[:i], v, *first[i + 1 :]] for i, axis in enumerate(axes) for v in axis[1:]
+    ]
+    for job in jobs:
+        try:
+            compose_spec(*job, store=store)
+        except Exception as exc:
+            return str(exc).replace("\n", " ")
+    return None
+
+
+def _inspecting(argv: list[str]) -> bool:
+    return any(a in _INSPECT_FLAGS or a.startswith("--cfg") or a == "-c" for a in argv)
+
+
+def _axes(argv: list[str]) -> list[list[str]]:
+    """The command line's overrides as sweep axes: ``key=a,b`` -> ``["key=a", "key=b"]``
+    (``glob(...)`` expanded; other Hydra functions and deletions left out)."""
     axes: list[list[str]] = []
     for arg in argv:
         if arg.startswith("-") or "=" not in arg:
@@ -773,18 +798,77 @@ def check_values(argv: list[str]) -> str | None:
             continue
         else:
             axes.append([f"{raw_key}={v}" for v in _split_items(value)])
+    return axes
+
+
+def _stage_requested(item: str) -> bool:
+    """Whether the override ``item`` switches a pipeline stage on (or sets its options)."""
+    key, _, value = item.partition("=")
+    key = key.lstrip("+~")
+    top = key.split(".", 1)[0]
+    return top in STAGE_GROUPS and (key != top or value != "off")
+
+
+def check_stages(argv: list[str]) -> tuple[str | None, list[str]]:
+    """Issue 28: ``(refusal, notes)`` for the stages the command line switches on, checked for
+    **every** job of the grid before the first run (the full product of the swept values, and
+    of a preset's own grid under ``-m``), each distinct (scene, stages, method, …) once.
+
+    A stage switched on (``translucency=on``, ``curvature=on``, ``halo=on|lab``, …) means
+    "run this stage"; every stage is off by default, and only defaults are planned away
+    (docs/architecture.md §5). So, per job (:func:`sssbench.run.inputs.check_stages`):
+
+    - a requested stage that **cannot run** on the job's scene (a field the scene lacks, no
+      back light, an empty mask, a method that does not take the stage's input) or that would
+      **add exactly nothing** (transmittance 0 in float64) is the refusal: one line naming the
+      stage, the scene and why — ``main`` prints it and exits 2, nothing is run or stored (it
+      used to fail inside the run, stored ``failed``, exit 1);
+    - a requested stage the automatic plan would leave out as **negligible** (a threshold:
+      at most 0.1 % of the back light, no silhouette, widths changed by at most 2 %) still
+      runs — refusing it would change what ``on`` means, and the stage's cost and its small
+      effect are real measurements — and gets one note line before the first run.
+
+    Returns ``(None, [])`` at once when no stage is switched on (no scene is built)."""
+    if _inspecting(argv):
+        return None, []
+    axes = _axes(argv)
     given = any(a[0].split("=", 1)[0].lstrip("+") == "store" for a in axes)
-    store = None if given else str(Path.cwd() / "sssbench.sqlite")  # the config's default
-    first = [a[0] for a in axes]
-    jobs = [first] + [
-        [*first[:i], v, *first[i + 1 :]] for i, axis in enumerate(axes) for v in axis[1:]
-    ]
-    for job in jobs:
+    store = None if given else str(Path.cwd() / "sssbench.sqlite")
+    presets = [a[0].split("=", 1)[1] for a in axes if a[0].split("=", 1)[0] == "+experiment"]
+    if presets and ("-m" in argv or "--multirun" in argv):
+        from omegaconf import OmegaConf
+
+        swept = {a[0].split("=", 1)[0].lstrip("+") for a in axes}
+        params = OmegaConf.to_container(preset_hydra(presets[0]).sweeper.get("params") or {})
+        for key, value in dict(params or {}).items():
+            if str(key).lstrip("+") not in swept:
+                axes.append([job[0] for job in expand_grid({str(key): str(value)})])
+    if not any(_stage_requested(item) for axis in axes for item in axis):
+        first = [a[0] for a in axes]
         try:
-            compose_spec(*job, store=store)
+            if not any(v is not None for v in compose_spec(*first, store=store).stages.values()):
+                return None, []
+        except Exception as exc:  # check_values reports bad values; here only the stages
+            return str(exc).replace("\n", " "), []
+    import itertools
+
+    from sssbench.run.inputs import check_stages as check_job
+
+    notes: list[str] = []
+    seen: set[str] = set()
+    for job in itertools.product(*axes):
+        try:
+            spec = compose_spec(*job, store=store)
+            timing_only = ("samples", "sampling", "seeds", "threads", "backend")
+            point = {k: v for k, v in spec.point().items() if k not in timing_only}
+            key = json.dumps(point, sort_keys=True, default=str)
+            if key in seen:
+                continue
+            seen.add(key)
+            notes += [n for n in check_job(spec) if n not in notes]
         except Exception as exc:
-            return str(exc).replace("\n", " ")
-    return None
+            return str(exc).replace("\n", " "), []
+    return None, notes
 
 
 def main() -> None:
@@ -803,9 +887,14 @@ def main() -> None:
         sys.exit(2)
     quiet_third_party()
     problem = check_overrides(args) or check_values(args)
+    notes: list[str] = []
+    if not problem:
+        problem, notes = check_stages(args)
     if problem:
         print(f"sssbench: {problem}", file=sys.stderr)
         sys.exit(2)
+    for note in notes:
+        print(f"sssbench: note: {note}", file=sys.stderr)
     _STATE.update(failed=0, done=0, total=0, start=time.time())
     hydra.main(config_path=str(CONF_DIR), config_name="config", version_base="1.3")(task)()
     if _STATE["failed"]:

@@ -253,17 +253,18 @@ def test_joblib_sweep_resume_force_and_report(tmp_path):
 
 
 def test_failing_point_recorded_and_exit_status(tmp_path):
-    # a value no run could take (samples=0) is refused before the first run (exit 2, nothing
-    # stored: test_first_hour.py); a point that fails at run time — translucency asked for on
-    # a scene without thickness — is stored failed and the other point must still succeed
-    tiny = [a for a in TINY if not a.startswith("scene=")]
-    proc = _sssbench(
-        tmp_path, *tiny, "scene=backlit_ear,step_edge", "translucency=on", multirun=True
-    )
+    # a value no run could take (samples=0, translucency=on on a scene without thickness) is
+    # refused before the first run (exit 2, nothing stored: test_first_hour.py); a point that
+    # fails at run time — here an option only the run's exact reference reads, its tolerance
+    # outside (0, 1) — is stored failed and the other point must still succeed
+    proc = _sssbench(tmp_path, *TINY, "+reference_params.tol=1e-3,2.0", multirun=True)
     assert proc.returncode == 1, proc.stdout + proc.stderr
-    rows = {r["scene"]: r for r in RunStore(tmp_path / "store.sqlite").runs()}
-    assert rows["backlit_ear"]["status"] == "ok"
-    assert rows["step_edge"]["status"] == "failed" and "thickness" in rows["step_edge"]["error"]
+    rows = {
+        r["config"]["reference_params"]["tol"]: r
+        for r in RunStore(tmp_path / "store.sqlite").runs()
+    }
+    assert rows[1e-3]["status"] == "ok"
+    assert rows[2.0]["status"] == "failed" and "tol" in rows[2.0]["error"]
     assert "Traceback" not in proc.stderr
     (err,) = (tmp_path / "sweep").glob("*/error.txt")
     assert "Traceback" in err.read_text()

@@ -20,8 +20,10 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
+import torch
 
 from sssbench import _console, _json, app, report
+from sssbench.run import inputs as runner_inputs
 from sssbench.run import runner
 from sssbench.store.tracking import PassStats, RunRecord, RunStore, config_hash
 from tests.test_app import _env, _sssbench
@@ -74,12 +76,109 @@ def test_requested_stage_that_cannot_run_fails_naming_why(tmp_path):
     assert "translucency" in out.message and "thickness" in out.message
 
 
+#: a back-lit slab 5 mm thick: skin_jg10's transmittance there is ~2e-6 (004 eq. 3.10: the
+#: widest Gaussian, v = 2.0 mm², weight 0.46 in red: 0.46 exp(-25 / 2.0) = 1.8e-6), below the
+#: automatic plan's 1e-3 but not zero
+THIN_ENOUGH = ("scene=backlit_slab", "++scene.params.thickness=5.0", "translucency=on")
+
+
 def test_requested_stage_is_never_planned_away(tmp_path):
-    # face_portrait's ears are judged "too thick to transmit" by the automatic plan: asked for,
-    # the stage runs (its cost is measured) instead of being silently left out
-    spec = _spec(tmp_path, "scene=face_portrait", "translucency=on")
+    # judged negligible by the automatic plan (T ~ 2e-6 < 1e-3), the stage asked for still
+    # runs (its cost is measured) instead of being silently left out, and it is announced
+    spec = _spec(tmp_path, *THIN_ENOUGH)
+    (note,) = runner_inputs.check_stages(spec)
+    assert "translucency" in note and "backlit_slab" in note and "too thick" in note
     payload, _ = runner.measure(spec, tmp_path / "run")
     assert {e["stage"]: e["runs"] for e in payload["plan"]}["translucency"] is True
+
+
+def _stage_images(tmp_path, *overrides: str):
+    """The run's pipeline output with the stage and without it, in float64."""
+    images = []
+    for stages in (overrides, [o for o in overrides if not o.startswith("translucency=")]):
+        spec = _spec(tmp_path, *stages, "dtype=float64")
+        built = runner_inputs.build(spec) if spec.stages["translucency"] is None else None
+        if built is None:  # asked for: run the stage whatever the app says of it
+            from sssbench.run import registry
+
+            profile = registry.build_profile(spec.profile, spec.profile_kind)
+            pipe = runner_inputs.stage_pipeline(
+                spec, registry.method_from_spec(spec, profile), profile
+            )
+            g = runner_inputs.scene_gbuffer(spec, pipe.needs)
+        else:
+            pipe, g = built.pipeline, built.gbuffer
+        images.append(pipe.run(g).image)
+    return images
+
+
+def test_a_stage_that_would_add_nothing_is_refused_and_adds_nothing(tmp_path):
+    # issue 28: face_portrait's thinnest back-lit ear is ~120 mm: T = 0 in float64, so
+    # translucency=on would store a row claiming a stage that changed no bit of the image.
+    # Refused before the run; the oracle: run anyway, the image equals the one without it
+    spec = _spec(tmp_path, "scene=face_portrait", "translucency=on")
+    with pytest.raises(ValueError, match=r"translucency=on cannot change the image on scene face"):
+        runner_inputs.check_stages(spec)
+    on, off = _stage_images(tmp_path, "scene=face_portrait", "translucency=on")
+    assert torch.equal(on, off)
+    # the thin slab's negligible stage is not refused because it does change the image
+    on, off = _stage_images(tmp_path, *THIN_ENOUGH)
+    assert not torch.equal(on, off)
+
+
+@pytest.mark.parametrize(
+    ("args", "words"),
+    [
+        # cannot run: no thickness, only in the grid's second scene (a point neither the first
+        # job nor a one-axis change of it reaches: the whole grid is checked)
+        (
+            ["-m", "scene=backlit_ear,step_edge", "translucency=off,on"],
+            ["translucency", "step_edge", "thickness"],
+        ),
+        # would add exactly nothing (T = 0)
+        (
+            ["-m", "scene=backlit_ear,face_portrait", "translucency=on"],
+            ["translucency", "face", "T = 0"],
+        ),
+        # the method does not take the stage's input
+        (["-m", "method=preintegrated,disk", "curvature=on"], ["curvature", "DiskSSS"]),
+        # a preset's own grid (the benchmark's step_edge)
+        (["-m", "+experiment=benchmark", "translucency=on"], ["translucency", "step_edge"]),
+    ],
+)
+def test_requested_stage_that_cannot_run_is_refused_for_the_whole_grid(args, words):
+    assert app.check_values(args) is None  # every value is fine on its own
+    problem, _ = app.check_stages([*args, *TINY])
+    assert problem is not None and "\n" not in problem
+    assert all(w in problem for w in words), problem
+
+
+def test_no_stage_no_scene_is_built(monkeypatch):
+    # the stage check costs nothing when no stage is switched on
+    monkeypatch.setattr(runner_inputs, "build", lambda spec: pytest.fail("built a scene"))
+    assert app.check_stages(["-m", "scene=step_edge,face", "method=preintegrated,disk"]) == (
+        None,
+        [],
+    )
+
+
+def test_requested_stage_refused_before_the_first_run(tmp_path):
+    # one line, exit 2, nothing run or stored (it used to run the sweep, store the point
+    # failed and exit 1)
+    proc = _sssbench(
+        tmp_path, *TINY, "scene=backlit_ear,step_edge", "translucency=on", multirun=True
+    )
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "translucency=on cannot run on scene step_edge" in lines[0], lines
+    assert not (tmp_path / "store.sqlite").exists()
+    assert not list((tmp_path / "sweep").glob("*/point.json"))
+    # a negligible stage runs, announced by one note before the first run
+    proc = _sssbench(tmp_path, *TINY, *THIN_ENOUGH)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "sssbench: note: translucency=on on scene backlit_slab" in proc.stderr
+    (row,) = RunStore(tmp_path / "store.sqlite").runs()
+    assert row["status"] == "ok" and "translucency" in row["config"]["stages"]
 
 
 def _rows(store: RunStore, stages_of: dict[str, dict | None]) -> None:

@@ -27,6 +27,7 @@ they are computed (and recorded) over the full frame.
 
 from __future__ import annotations
 
+import copy
 import inspect
 from dataclasses import dataclass, field
 
@@ -121,6 +122,18 @@ def _width_change(width: torch.Tensor, g: GBuffer) -> float:
     """Largest |width − 1| over the stencil (the curvature stage's effect on kernel widths)."""
     inside = g.mask_or_ones() > 0
     return float((width - 1).abs()[inside].max()) if bool(inside.any()) else 0.0
+
+
+def _widths_unchanged(width: torch.Tensor, g: GBuffer) -> str | None:
+    """The automatic plan's reason to leave curvature modulation out (no width changes by more
+    than :data:`AUTO_WIDTH_CHANGE`), or ``None`` when it changes some width enough."""
+    change = _width_change(width, g)
+    if change > AUTO_WIDTH_CHANGE:
+        return None
+    return (
+        f"auto: widths change by at most {change:.2g} <= {AUTO_WIDTH_CHANGE:g} "
+        "(computed, not applied)"
+    )
 
 
 def _gate(stage: str, configured: bool, missing: str | None, covered: bool) -> PlanEntry:
@@ -260,10 +273,9 @@ class Pipeline(nn.Module):
                 return PlanEntry("translucency", False, f"no {name} in the G-buffer")
         if not covered:
             return PlanEntry("translucency", False, _ZERO_MASK)
-        # the stage is non-zero where its cosine term is: clamp(0.3 + n·(−l)) > 0 (004 Fig.
-        # 3.11) or n·(−l) > 0 (deon)
+        # the stage is non-zero where its cosine term is
         wrap = 0.3 if self.translucency.form == "jimenez2012" else 0.0
-        lit = (back_light(g) + wrap > 0) & (g.mask_or_ones() > 0)
+        lit = self._lit(g)
         if not bool(lit.any()):
             bound = "-0.3" if wrap else "0"
             return PlanEntry(
@@ -272,15 +284,7 @@ class Pipeline(nn.Module):
                 f"no back light: n·(-l) <= {bound} at every masked pixel (light in front)",
             )
         if self.auto:
-            t = self.translucency
-            thinnest = float(g.thickness[lit].min())
-            s = thinnest  # 001 eq. 16: the distance through the material, mm
-            if t.form == "jimenez2012":  # 004 Fig. 3.11: scale = 8.25 (1 − translucency) / width
-                s = thinnest * 8.25 * (1.0 - t.translucency) / t.width
-            from sssbench.ops.translucency import transmittance
-
-            most = float(transmittance(torch.tensor([s], dtype=torch.float64), t.profile).max())
-            total = float(t.profile.weights.sum(0).max()) if hasattr(t.profile, "weights") else 1.0
+            most, total, thinnest = self._most_transmitted(g, lit)
             if most / total < AUTO_TRANSMITTANCE:
                 return PlanEntry(
                     "translucency",
@@ -289,6 +293,48 @@ class Pipeline(nn.Module):
                     f" at the thinnest back-lit pixel, {thinnest:.3g} mm)",
                 )
         return PlanEntry("translucency", True)
+
+    def _lit(self, g: GBuffer) -> torch.Tensor:
+        """Masked pixels where translucency's cosine term is non-zero: clamp(0.3 + n·(−l)) > 0
+        (004 Fig. 3.11) or n·(−l) > 0 (deon)."""
+        assert self.translucency is not None
+        wrap = 0.3 if self.translucency.form == "jimenez2012" else 0.0
+        return (back_light(g) + wrap > 0) & (g.mask_or_ones() > 0)
+
+    def _most_transmitted(self, g: GBuffer, lit: torch.Tensor) -> tuple[float, float, float]:
+        """``(T, total, thinnest)``: the largest transmittance over the back-lit pixels ``lit``
+        (at the thinnest, in float64), the profile's total weight, and that thickness (mm)."""
+        t = self.translucency
+        assert t is not None
+        thinnest = float(g.thickness[lit].min())
+        s = thinnest  # 001 eq. 16: the distance through the material, mm
+        if t.form == "jimenez2012":  # 004 Fig. 3.11: scale = 8.25 (1 − translucency) / width
+            s = thinnest * 8.25 * (1.0 - t.translucency) / t.width
+        from sssbench.ops.translucency import transmittance
+
+        most = float(transmittance(torch.tensor([s], dtype=torch.float64), t.profile).max())
+        total = float(t.profile.weights.sum(0).max()) if hasattr(t.profile, "weights") else 1.0
+        return most, total, thinnest
+
+    def inert(self, gbuffer: GBuffer) -> dict[str, str]:
+        """The configured stages that can run on ``gbuffer`` but would leave its image exactly
+        as it is, with the reason: translucency whose transmittance at the thinnest back-lit
+        pixel is 0 in float64 (001 eq. 16 underflows: every pixel adds exactly 0, in any
+        dtype). The app refuses such a stage when it is switched on (issue 28).
+
+        Returns:
+            stage -> reason; empty when every runnable stage can change the image.
+        """
+        own = {e.stage: e.runs for e in self.plan(gbuffer)}
+        out: dict[str, str] = {}
+        if own.get("translucency"):
+            most, _, thinnest = self._most_transmitted(gbuffer, self._lit(gbuffer))
+            if most == 0.0:
+                out["translucency"] = (
+                    f"too thick to transmit anything (T = 0 in float64 at the thinnest "
+                    f"back-lit pixel, {thinnest:.3g} mm: it would add exactly nothing)"
+                )
+        return out
 
     def _plan_halo(self, g: GBuffer, covered: bool) -> PlanEntry:
         no_normals = None if g.normal is not None else "no normals in the G-buffer"
@@ -350,6 +396,25 @@ class Pipeline(nn.Module):
         ]
         return entries
 
+    def negligible(self, gbuffer: GBuffer) -> dict[str, str]:
+        """The configured stages that can run on ``gbuffer`` but that the automatic plan
+        (``auto=True``) would leave out as negligible, with its reason — whether or not this
+        pipeline plans automatically. The app tells a user who switched such a stage on
+        (it still runs: ``sssbench.run.inputs.check_stages``).
+
+        Returns:
+            stage -> reason (``"auto: ..."``); empty when every runnable stage matters.
+        """
+        auto = copy.copy(self)  # shallow: the same stages, planned automatically
+        auto.auto = True
+        own = {e.stage: e.runs for e in self.plan(gbuffer)}
+        out = {e.stage: e.reason for e in auto.plan(gbuffer) if own.get(e.stage) and not e.runs}
+        if own.get("curvature") and self.curvature is not None:
+            unchanged = _widths_unchanged(self.curvature(gbuffer), gbuffer)
+            if unchanged:
+                out["curvature"] = unchanged
+        return out
+
     # ------------------------------------------------------------------ run
     def run(self, gbuffer: GBuffer) -> PipelineResult:
         """Execute the plan; every executed pass leaves a record.
@@ -380,17 +445,10 @@ class Pipeline(nn.Module):
             extras: dict[str, object] = {}
             if "curvature" in runs:
                 width = self.curvature(g)
-                change = _width_change(width, g)
-                if self.auto and change <= AUTO_WIDTH_CHANGE:
+                unchanged = _widths_unchanged(width, g)
+                if self.auto and unchanged:
                     plan = [
-                        PlanEntry(
-                            "curvature",
-                            False,
-                            f"auto: widths change by at most {change:.2g} <= "
-                            f"{AUTO_WIDTH_CHANGE:g} (computed, not applied)",
-                        )
-                        if e.stage == "curvature"
-                        else e
+                        PlanEntry("curvature", False, unchanged) if e.stage == "curvature" else e
                         for e in plan
                     ]
                 else:

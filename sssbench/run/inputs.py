@@ -20,6 +20,8 @@ __all__ = [
     "baseline",
     "build",
     "check_requested",
+    "check_stages",
+    "scene_label",
     "check_untouched",
     "error_scale",
     "metric_mask",
@@ -67,6 +69,15 @@ def stage_pipeline(spec: RunSpec, method: Any, profile: Any, *, for_reference: b
     )
 
 
+def scene_label(spec: RunSpec) -> str:
+    """The run's scene as a message names it: its name and its parameters (``face
+    (pixel_mm=0.3)``: the ``face_portrait`` option), a file scene by its path."""
+    params = {k: v for k, v in spec.scene_params.items() if k != "sha256"}
+    if not params:
+        return spec.scene
+    return f"{spec.scene} ({', '.join(f'{k}={v}' for k, v in sorted(params.items()))})"
+
+
 def check_requested(spec: RunSpec, pipeline: Any, gbuffer: Any) -> None:
     """Raise ``ValueError`` naming the stage and the reason when a stage the run switches on
     cannot run on its scene (a G-buffer field the scene does not have, no back light, an
@@ -75,9 +86,51 @@ def check_requested(spec: RunSpec, pipeline: Any, gbuffer: Any) -> None:
     for entry in pipeline.plan(gbuffer):
         if entry.stage in requested and not entry.runs:
             raise ValueError(
-                f"{entry.stage}=on cannot run on scene {spec.scene}: {entry.reason} "
+                f"{entry.stage}=on cannot run on scene {scene_label(spec)}: {entry.reason} "
                 f"(leave {entry.stage} off for this scene, or choose a scene that has it)"
             )
+
+
+def check_stages(spec: RunSpec) -> list[str]:
+    """What the app checks before the first run of a job that switches a stage on (issue 28):
+    the run's own inputs are built (:func:`build`: the profile, the pipelines, the scene's
+    G-buffer, kept in :mod:`sssbench.run.runmemo` for the run that follows) and
+
+    - a stage that **cannot run** on the scene — a G-buffer field it needs is missing, no
+      masked pixel is back-lit (translucency's cosine term is zero everywhere, so it would add
+      exactly nothing), the mask is empty, or the method does not take the stage's input —
+      raises ``ValueError`` (``TypeError`` for the method) naming the stage and why
+      (:func:`check_requested`);
+    - a stage that would **add exactly nothing** (translucency through a thickness whose
+      transmittance is 0 in float64: the image would be bit for bit the one without it,
+      :meth:`~sssbench.ops.Pipeline.inert`) raises ``ValueError`` the same way: a row stored
+      as ``translucency=on`` would claim a stage that did not take part;
+    - a stage that runs but that the automatic plan would leave out as **negligible** (too
+      thick to transmit: at most 0.1 % of the back light; no silhouette; widths changed by at
+      most 2 %) is returned as one note per stage. It is not refused: ``on`` means "run this
+      stage" (docs/architecture.md §5) — the thresholds are judgements, the stage still changes
+      the image a little and its cost is a real measurement — so the run goes ahead as asked and
+      the app prints the note before the first run.
+
+    Returns:
+        one line per requested stage judged negligible on the scene (empty for none).
+    """
+    if not any(v is not None for v in spec.stages.values()):
+        return []
+    built = build(spec)
+    requested = {k for k, v in spec.stages.items() if v is not None}
+    for stage, reason in built.pipeline.inert(built.gbuffer).items():
+        if stage in requested:
+            raise ValueError(
+                f"{stage}=on cannot change the image on scene {scene_label(spec)}: {reason} "
+                f"(leave {stage} off for this scene, or choose a scene where it can)"
+            )
+    return [
+        f"{stage}=on on scene {scene_label(spec)}: runs as asked, though the automatic plan would "
+        f"leave it out ({reason.removeprefix('auto: ')})"
+        for stage, reason in built.pipeline.negligible(built.gbuffer).items()
+        if stage in requested
+    ]
 
 
 def reference_image(
