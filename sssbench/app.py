@@ -585,17 +585,30 @@ def sweep_jobs(config: Any) -> list[list[str]]:
     return [[*fixed, *job] for job in expand_grid(params)]
 
 
+#: the launchers (class names) whose jobs run on this machine: a sweep under them is warmed
+#: first (:func:`_warm_sweep`); a cluster launcher's jobs run elsewhere and warm nothing here
+WARM_LAUNCHERS = ("BasicLauncher", "JoblibLauncher")
+
+
+def warms_under(launcher_target: str) -> bool:
+    """Whether a sweep under the launcher ``launcher_target`` (its ``_target_``, a dotted class
+    path) is warmed before its first run: the launchers of :data:`WARM_LAUNCHERS`."""
+    return launcher_target.rsplit(".", 1)[-1] in WARM_LAUNCHERS
+
+
 def _warm_sweep(config: Any) -> None:
     """Warm the sweep's reference cache in ``warm_workers`` processes before its first run
     (:func:`sssbench.run.warm.warm`, as ``experiments/benchmark.py`` does): the references and
-    error-budget limits are computed in parallel, the runs are then timed one at a time. Only
-    under the basic launcher (a parallel launcher already spreads the runs), for grids of
-    images of at least :data:`WARM_MIN_PIXELS`; points already stored ok are left out. A
-    failure here is reported and the sweep goes on (each run computes what it misses)."""
+    error-budget limits are computed in parallel, then the runs. Under the launchers that run
+    the jobs on this machine (:data:`WARM_LAUNCHERS`: the basic launcher, one run at a time,
+    and joblib's, runs side by side — without the warm-up two of its jobs on one scene would
+    both compute the scene's reference), not under a cluster's (SLURM: the jobs run on other
+    nodes); for grids of images of at least :data:`WARM_MIN_PIXELS`; points already stored ok
+    are left out. A failure here is reported and the sweep goes on (each run computes what it
+    misses)."""
     try:
         workers = int(config.get("warm_workers", 0) or 0)
-        launcher = str(config.hydra.launcher.get("_target_", ""))
-        if workers < 2 or "BasicLauncher" not in launcher:
+        if workers < 2 or not warms_under(str(config.hydra.launcher.get("_target_", ""))):
             return
         jobs = sweep_jobs(config)
         if len(jobs) < 2:
