@@ -78,7 +78,7 @@ from sssbench.run.spec import RunSpec
 from sssbench.run.stochastic import is_stochastic, seed_split
 from sssbench.score import verdict
 from sssbench.score.bias_noise import bias_noise
-from sssbench.score.metrics import METRICS, compute_all
+from sssbench.score.metrics import METRICS, compute_all, flip_map
 from sssbench.store.tracking import PassStats, RunStore, config_hash, utc_now
 
 log = logging.getLogger("sssbench")
@@ -246,8 +246,9 @@ def _measure_sealed(
         )
     mask = metric_mask(built.gbuffer, result.dtype)  # 5. score
     identity, *base = baseline(spec, built.gbuffer, built.profile, reference, mask)
-    values = compute_all(result, reference, mask)
-    _, values["error_flip_window"], _ = verdict.error_visibility(result, reference, mask)
+    fmap = flip_map(result, reference)  # one FLIP evaluation for the mean and the local
+    values = compute_all(result, reference, mask, fmap=fmap)
+    _, values["error_flip_window"], _ = verdict.error_visibility(result, reference, mask, fmap)
     extra = _budget_or_noise(spec, built, result, reference, identity, mask)  # 6.
     if "rel_rms" in extra:  # a stochastic method: its rel RMS is the mean over the seeds
         values["rel_rms"] = extra.pop("rel_rms")
