@@ -366,7 +366,11 @@ def preset_grid(preset: str, *overrides: str) -> list[list[str]]:
     params = OmegaConf.to_container(preset_hydra(preset).sweeper.params) or {}
     for o in overrides:
         key, value = o.split("=", 1)
-        params[key.lstrip("+")] = value
+        # the preset's axis of the same key, whatever its prefix (``++scene.params.pixel_mm``)
+        same = [k for k in params if k.lstrip("+~") == key.lstrip("+~")]
+        for k in same:
+            del params[k]
+        params[same[0] if same else key.lstrip("+")] = value
     return [[f"+experiment={preset}", *job] for job in expand_grid(params)]
 
 
@@ -578,6 +582,8 @@ def sweep_jobs(config: Any) -> list[list[str]]:
             continue
         if ("," in value and not value.startswith("[")) or value.startswith("glob("):
             params[key] = value
+        elif key in params:  # replaces the preset's axis (Hydra's basic sweeper: same key)
+            params[key] = value
         else:
             fixed.append(str(o))
     if any("(" in v and not v.startswith("glob(") for v in params.values()):
@@ -667,7 +673,7 @@ def _sweep_size(config: Any) -> int:
         params = {str(k): str(v) for k, v in dict(config.hydra.sweeper.get("params") or {}).items()}
         for o in config.hydra.overrides.task:
             key, _, value = str(o).partition("=")
-            if "," in value or value.startswith("glob("):
+            if "," in value or value.startswith("glob(") or key in params:
                 params[key] = value
         return len(expand_grid(params))
     except Exception:

@@ -426,3 +426,29 @@ def test_sweep_warmup_runs_under_the_local_launchers(tmp_path, monkeypatch, laun
         app._warm_sweep(cfg)
     assert app.warms_under(str(cfg.hydra.launcher._target_)) is warmed
     assert calls == ([(["sphere", "step_edge"], 4, 2)] if warmed else [])
+
+
+def test_a_fixed_override_replaces_the_presets_axis_as_hydra_does():
+    """Hydra's basic sweeper keys its axes by the override's key with its prefix: a command
+    line ``method=identity`` replaces the preset's ``method`` axis (one value), while the
+    preset's other axes stay. The warm-up and the ETA read the grid the same way; the
+    experiments' ``preset_grid`` also matches ``++scene.params.pixel_mm`` by its bare key."""
+    from omegaconf import open_dict
+
+    with initialize_config_dir(config_dir=str(app.CONF_DIR), version_base="1.3"):
+        cfg = compose(
+            config_name="config",
+            overrides=["+experiment=paper_benchmark_1080p", "store=/tmp/x.sqlite"],
+            return_hydra_config=True,
+        )
+    with open_dict(cfg):
+        cfg.hydra.overrides.task = ["+experiment=paper_benchmark_1080p", "method=identity",
+                                    "scene=face"]  # fmt: skip
+    jobs = app.sweep_jobs(cfg)
+    # 2 scenes x 2 scales x 7 methods in the preset; method and scene fixed: the 2 scales
+    assert len(jobs) == 2 and app._sweep_size(cfg) == 2
+    assert all("method=identity" in j and "scene=face" in j for j in jobs)
+    grid = app.preset_grid("paper_benchmark", "scene=face", "++scene.params.pixel_mm=0.3")
+    n_methods = len(list((app.CONF_DIR / "method").glob("*.yaml"))) - 1  # not the reference
+    assert len(grid) == n_methods * 2  # x samples 7,13
+    assert all(j.count("++scene.params.pixel_mm=0.3") == 1 for j in grid)
