@@ -14,6 +14,7 @@ sentence of the section is computed from the numbers of this run.
 
 from __future__ import annotations
 
+import os
 import sys
 import tempfile
 import time
@@ -40,7 +41,12 @@ def run_preset(preset: str, store: Path, run_root: Path, *overrides: str) -> pd.
     jobs = preset_grid(preset, *sweeps)
     specs = [compose_spec(*job, "previews=false", *fixed, store=store) for job in jobs]
     # the references and budget limits in parallel (no timing), then each run timed alone
-    print(f"warming the caches of {len(specs)} runs in {WARM_WORKERS} processes", flush=True)
+    load = os.getloadavg()
+    print(
+        f"warming the caches of {len(specs)} runs in {WARM_WORKERS} processes "
+        f"(load average {load[0]:.1f})",
+        flush=True,
+    )
     warm_s = warm(specs, WARM_WORKERS)
     hashes = []
     t0 = time.perf_counter()
@@ -56,6 +62,7 @@ def run_preset(preset: str, store: Path, run_root: Path, *overrides: str) -> pd.
     runs, _ = report.load_runs(store, hashes)
     table = report.summary_table(runs)
     table.attrs["warm_s"], table.attrs["runs_s"] = warm_s, time.perf_counter() - t0
+    table.attrs["load_start"], table.attrs["load_end"] = load[0], os.getloadavg()[0]
     return table
 
 
@@ -95,7 +102,9 @@ def measured_text(table: pd.DataFrame, recs: pd.DataFrame) -> str:
         f"{table['scene'].nunique()} scenes × {n_scales} scales, "
         f"{resolutions}), {failed} failed; the references and budget limits took "
         f"{table.attrs.get('warm_s', float('nan')):.0f} s in {WARM_WORKERS} processes, the "
-        f"timed runs {table.attrs.get('runs_s', float('nan')):.0f} s one at a time. "
+        f"timed runs {table.attrs.get('runs_s', float('nan')):.0f} s one at a time (load "
+        f"average {table.attrs.get('load_start', float('nan')):.1f} at the start, "
+        f"{table.attrs.get('load_end', float('nan')):.1f} at the end; 2 cores). "
         f"{len(hidden_groups)} of {n_groups} scene/scale "
         "groups show no visible SSS and are not ranked. Of the "
         f"{len(visible)} ranked screen-space configurations, {len(worse)} are worse than "
@@ -131,21 +140,29 @@ def measured_text(table: pd.DataFrame, recs: pd.DataFrame) -> str:
 
 
 def run(ctx: Context) -> Section:
-    import os
-
     preset = "paper_benchmark_quick" if ctx.quick else "paper_benchmark"
-    extra = tuple(o for o in os.environ.get(OVERRIDES_ENV, "").split() if o)
+    return preset_section(ctx, preset, OVERRIDES_ENV, TITLE)
+
+
+def preset_section(
+    ctx: Context, preset: str, env: str, title: str, *quick_overrides: str
+) -> Section:
+    """The section of the benchmark preset ``preset`` (every job through the runner into a
+    fresh store; extra overrides from the environment variable ``env``, and with
+    ``ctx.quick`` also ``quick_overrides``); figures named after ``ctx.name``."""
+    extra = tuple(o for o in os.environ.get(env, "").split() if o)
+    extra += quick_overrides if ctx.quick else ()
     with tempfile.TemporaryDirectory(prefix="sssbench-benchmark-") as tmp:
         table = run_preset(preset, Path(tmp) / "runs.sqlite", Path(tmp), *extra)
     ok = table[table["status"] == "ok"]
     recs = report.recommendations(table)
-    fig_path = ctx.figures / "benchmark.png"
+    fig_path = ctx.figures / f"{ctx.name}.png"
     ctx.figures.mkdir(parents=True, exist_ok=True)
     figures = []
     if plots.plot_error_vs_time(table, fig_path) is not None:
         shrink_png(fig_path)
         figures.append(f"figures/{fig_path.name}")
-    budget_path = ctx.figures / "benchmark_budget.png"
+    budget_path = ctx.figures / f"{ctx.name}_budget.png"
     if plots.plot_budget(table, budget_path) is not None:
         shrink_png(budget_path)
         figures.append(f"figures/{budget_path.name}")
@@ -175,7 +192,7 @@ def run(ctx: Context) -> Section:
         )
     )
     return Section(
-        TITLE,
+        title,
         "Not a claim of one paper: 004 (§3.1, Ch. 5) compares the methods side by side; the "
         "papers together suggest the separable two-pass kernels (pre-integrated, artist, 2012) "
         "give the best quality per cost, and the sum of Gaussians the best quality at about "

@@ -19,16 +19,41 @@ Within one operator call (:func:`memo_scope`) a value verified or built once is 
 the rest of the call, on the same tensor object at the same data pointer and version: the
 call's own writes go to its output, which the gather refuses to alias with the G-buffer
 (:func:`sssbench.ops.gather.check_writable`), and nothing else runs between its passes.
+
+**Sealed tensors: an O(1) check on the hot path.** The compare above is a cost per call
+proportional to the image. The owner of a G-buffer that will not change for a while (the
+runner, from building a run's G-buffer to recording it) can *seal* its tensors instead
+(:func:`sealed`, :meth:`sssbench.gbuffer.GBuffer.sealed`): the seal takes a content digest of
+each tensor once (SHA-256 of its bytes), and while it holds, an entry keyed on a sealed tensor
+is used on identity, data pointer, shape, strides and dtype alone — O(1), no compare, no
+snapshot. The guarantee becomes *never silently stale*, by contract and verification:
+
+- a sealed tensor is read-only by contract; a write with a version bump (any in-place torch
+  op outside inference mode) is seen at the next lookup and raises :class:`SealBroken` there;
+- a write no counter sees (``.data``, NumPy, ``inference_mode``, a C library) is seen at the
+  next *verification point*, which recomputes the digests and raises :class:`SealBroken`
+  naming the tensors: :meth:`Sealing.verify` (the runner's ``check_untouched`` after the
+  timed runs) and the end of the ``with sealed(...)`` block, always (the block cannot end
+  without a verification, except by another exception, which fails the run anyway). A value
+  the memo served between the write and that point may have been stale: the error says so,
+  and the runner records the run ``failed``, never its numbers;
+- when the seal ends (verified or broken) its entries stop matching; the tensors are then
+  compared bit for bit again, as if never sealed.
+
+A value memoised on sealed tensors only (a level-of-detail mask from a sealed depth and mask,
+a stencil's index lists) is sealed with them: it is the memo's, read-only by the same
+contract, verified at the same points. Tensors sealed by an outer block are left to it.
 """
 
 from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import hashlib
 import threading
 import weakref
 from collections import OrderedDict
-from collections.abc import Callable, Hashable, Iterator
+from collections.abc import Callable, Hashable, Iterator, Mapping
 from contextlib import contextmanager
 from contextvars import ContextVar
 from typing import TypeVar
@@ -36,7 +61,17 @@ from typing import TypeVar
 import numpy as np
 import torch
 
-__all__ = ["memoised", "memo_scope", "call_scoped", "same_bits"]
+__all__ = [
+    "memoised",
+    "memo_scope",
+    "call_scoped",
+    "same_bits",
+    "sealed",
+    "Sealing",
+    "SealBroken",
+    "seal_of",
+    "digest",
+]
 
 #: key -> (bitwise snapshots of the key tensors, value), least recently used first
 _MEMO: OrderedDict[tuple, tuple[tuple, object]] = OrderedDict()
@@ -98,11 +133,202 @@ def same_bits(snapshot: torch.Tensor | None, t: torch.Tensor | None) -> bool:
     return torch.equal(a, b)
 
 
+def digest(t: torch.Tensor) -> bytes:
+    """SHA-256 of ``t``'s bits (its elements as same-size integers, row-major; shape, strides
+    and dtype are compared separately by the seal). One read of the tensor."""
+    bits = _bits(t)
+    if bits.device.type != "cpu" or bits.dtype not in _BITS.values():
+        bits = bits.cpu().contiguous().reshape(-1).view(torch.uint8)
+    with torch.inference_mode(False):
+        data = bits.numpy() if not bits.is_inference() else bits.clone().numpy()
+    return hashlib.sha256(memoryview(data).cast("B")).digest()
+
+
+class SealBroken(RuntimeError):
+    """A sealed tensor changed while sealed: values computed from it in the meantime (memo
+    hits trusted on the seal) may be stale, so the work that read them is invalid."""
+
+
+class _Seal:
+    """One sealed tensor: which tensor (weakly), where, and the digest of its contents."""
+
+    __slots__ = ("name", "ref", "meta", "version", "digest", "twin", "active", "__weakref__")
+
+    def __init__(self, name: str, t: torch.Tensor, twin: torch.Tensor | None = None) -> None:
+        self.name = name
+        self.ref = weakref.ref(t)
+        self.meta = _meta(t)
+        self.version = None if t.is_inference() else t._version
+        self.twin = twin
+        self.digest = digest(t) if twin is None else b""
+        if twin is not None and (twin.data_ptr() == t.data_ptr() or not same_bits(twin, t)):
+            raise ValueError(
+                f"the pristine copy of {name} must be a separate tensor with the same shape, "
+                "dtype and bits (the seal compares against it)"
+            )
+        self.active = True
+
+    def holds(self, t: torch.Tensor) -> bool:
+        """O(1): whether ``t`` is this seal's tensor, where it was sealed, and still active.
+        A version bump (an in-place torch write) breaks the seal here, with an error."""
+        if not self.active or self.ref() is not t or _meta(t) != self.meta:
+            return False
+        version = None if t.is_inference() else t._version
+        if version != self.version:
+            self.active = False
+            raise SealBroken(
+                f"{self.name} was written in place while sealed (version {self.version} -> "
+                f"{version}): a sealed tensor is read-only until its seal ends"
+            )
+        return True
+
+    def intact(self) -> bool:
+        """Whether the tensor still holds the sealed bits (one read: its digest again)."""
+        t = self.ref()
+        if t is None:
+            return True  # gone: nothing can read it any more
+        return (
+            _meta(t) == self.meta
+            and (t.is_inference() or t._version == self.version)
+            and (same_bits(self.twin, t) if self.twin is not None else digest(t) == self.digest)
+        )
+
+
+#: id(tensor) -> its active seal (one per tensor: an inner block leaves an outer's alone)
+_SEALS: dict[int, _Seal] = {}
+
+
+def seal_of(t: torch.Tensor | None) -> _Seal | None:
+    """``t``'s active seal, or ``None`` (O(1)); raises :class:`SealBroken` if ``t`` was written
+    in place (version bump) since it was sealed."""
+    if t is None:
+        return None
+    s = _SEALS.get(id(t))
+    if s is not None and s.holds(t):
+        return s
+    return None
+
+
+class Sealing:
+    """The seals of one :func:`sealed` block; :meth:`verify` is a verification point."""
+
+    def __init__(self) -> None:
+        self._seals: list[_Seal] = []
+
+    def add(self, name: str, t: torch.Tensor | None, twin: torch.Tensor | None = None) -> None:
+        """Seal ``t`` in this block (not if ``None`` or already sealed by an active seal);
+        ``twin``: a pristine copy to verify against by ``memcmp`` instead of a digest (the
+        caller keeps it unwritten and to itself)."""
+        if t is None or not isinstance(t, torch.Tensor):
+            return
+        with _LOCK:
+            known = _SEALS.get(id(t))
+            if known is not None and known.active and known.ref() is t:
+                return
+        s = _Seal(name, t, twin)
+        with _LOCK:
+            _SEALS[id(t)] = s
+            _BLOCKS[s] = self
+        self._seals.append(s)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """The names of the tensors this block sealed."""
+        return tuple(s.name for s in self._seals)
+
+    def verify(self) -> None:
+        """Recompute the digests of this block's tensors; raise :class:`SealBroken` naming
+        the ones that changed (the seals of a changed tensor end: its entries stop matching)."""
+        changed = [s for s in self._seals if s.active and not s.intact()]
+        if changed:
+            self._end(changed)
+            raise SealBroken(
+                f"sealed tensor(s) changed while sealed ({', '.join(s.name for s in changed)}): "
+                "values memoised on them since the seal may be stale, so what was computed "
+                "from them is invalid; a sealed tensor is read-only until its seal ends"
+            )
+
+    def _end(self, seals: list[_Seal]) -> None:
+        with _LOCK:
+            for s in seals:
+                s.active = False
+                t = s.ref()
+                if t is not None and _SEALS.get(id(t)) is s:
+                    del _SEALS[id(t)]
+                elif t is None:
+                    for k in [k for k, v in _SEALS.items() if v is s]:
+                        del _SEALS[k]
+            ended = {id(s) for s in seals}
+            stale = [k for k, (snaps, _) in _MEMO.items() if any(id(x) in ended for x in snaps)]
+            for k in stale:
+                del _MEMO[k]
+
+    def close(self) -> None:
+        """End every seal of this block without verifying (after another error)."""
+        self._end(list(self._seals))
+
+
+@contextmanager
+def sealed(
+    tensors: Mapping[str, torch.Tensor | None],
+    pristine: Mapping[str, torch.Tensor | None] | None = None,
+) -> Iterator[Sealing]:
+    """Seal ``tensors`` (name -> tensor; ``None`` skipped) for the block: memo lookups keyed
+    on them check identity and place only, O(1) (see the module docstring). The block's end
+    verifies every tensor and raises :class:`SealBroken` if one changed; the seals end either
+    way. Tensors already sealed by an enclosing block are left to it.
+
+    Verified against a SHA-256 digest taken at the seal (one read per tensor at the seal and
+    per verification), or, given ``pristine`` (name -> a separate copy with the same bits,
+    which the caller writes nowhere), against that copy by ``memcmp`` (no hashing: the runner
+    keeps the scene's pristine G-buffer anyway for ``check_untouched``).
+
+    Example:
+        >>> t = torch.ones(4)
+        >>> with sealed({"t": t}) as seal:
+        ...     seal.verify()  # a verification point: the contents are as sealed
+    """
+    sealing = Sealing()
+    try:
+        for name, t in tensors.items():
+            sealing.add(name, t, None if pristine is None else pristine.get(name))
+        yield sealing
+    except BaseException:
+        sealing.close()
+        raise
+    try:
+        sealing.verify()
+    finally:
+        sealing.close()
+
+
+def _seal_value(value: object, seals: tuple) -> None:
+    """Seal a memoised ``value`` (a tensor, or a list / tuple of tensors) with the block of
+    its key tensors' seals, when every key tensor is sealed (it is then read-only by the
+    same contract and verified at the same points)."""
+    keys = [s for s in seals if s is not None]
+    if not keys or not all(isinstance(s, _Seal) for s in keys):
+        return
+    block = _BLOCKS.get(keys[0])
+    if block is None:
+        return
+    parts = value if isinstance(value, (list, tuple)) else (value,)
+    for k, part in enumerate(parts):
+        if isinstance(part, torch.Tensor):
+            block.add(f"a value memoised on {keys[0].name} [{k}]", part)
+
+
+#: the block each seal belongs to (for sealing the values memoised on it)
+_BLOCKS: weakref.WeakKeyDictionary[_Seal, Sealing] = weakref.WeakKeyDictionary()
+
+
 def _matches(snapshot: torch.Tensor | None, t: torch.Tensor | None, scope: dict | None) -> bool:
     """:func:`same_bits`, compared once per tensor and snapshot within a :func:`memo_scope`
     (several values memoised on one tensor share its snapshot, see :func:`_snapshot`)."""
     if snapshot is None or t is None:
         return snapshot is None and t is None
+    if isinstance(snapshot, _Seal):  # O(1): identity and place, the contents by contract
+        return snapshot.holds(t)
     key = ("bits", id(snapshot), *_ident(t))
     if scope is not None and key in scope:
         return True
@@ -117,6 +343,9 @@ def _snapshot(t: torch.Tensor | None, scope: dict | None) -> torch.Tensor | None
     (one copy per tensor, however many values are memoised on it)."""
     if t is None:
         return None
+    seal = seal_of(t)
+    if seal is not None:  # sealed: no copy, the seal stands for the contents
+        return seal  # type: ignore[return-value]
     meta = _meta(t)
     known = _SNAPS.get(meta)
     if known is not None and _matches(known, t, scope):
@@ -194,7 +423,7 @@ def call_scoped(
 
 
 def _snapshot_bytes() -> int:
-    unique = {id(s): s for snaps, _ in _MEMO.values() for s in snaps if s is not None}
+    unique = {id(s): s for snaps, _ in _MEMO.values() for s in snaps if isinstance(s, torch.Tensor)}
     return sum(s.numel() * s.element_size() for s in unique.values())
 
 
@@ -212,6 +441,11 @@ def memoised(
     for the rest of the call without a compare. The least recently used entries beyond 64, or
     beyond 256 MiB of snapshots, are dropped. ``compute`` must depend only on the contents of
     ``tensors`` and on ``tag``.
+
+    A key tensor under an active seal (:func:`sealed`) is checked in O(1) on identity and
+    place instead, with no snapshot kept; a write to it raises :class:`SealBroken` at the next
+    lookup (version bump) or verification point (any other write), never passes silently. A
+    value memoised on sealed tensors only is sealed with them.
     """
     scope = _SCOPE.get()
     ident = (tag, *(_ident(t) for t in tensors))
@@ -221,13 +455,18 @@ def memoised(
     key = (tag, *(_meta(t) for t in tensors))
     hit = _MEMO.get(key)
     if hit is not None and all(_matches(s, t, scope) for s, t in zip(hit[0], tensors, strict=True)):
+        value = hit[1]
+        seals = tuple(seal_of(t) for t in tensors)
         with _LOCK:
             if key in _MEMO:
                 _MEMO.move_to_end(key)
-        value = hit[1]
+                if any(x is not None and x is not s for x, s in zip(seals, hit[0], strict=True)):
+                    # verified by compare, now sealed: later lookups are O(1) on the seal
+                    _MEMO[key] = (tuple(x or s for x, s in zip(seals, hit[0], strict=True)), value)
     else:
         value = compute()
         snaps = tuple(_snapshot(t, scope) for t in tensors)
+        _seal_value(value, snaps)
         with _LOCK:  # other Python threads may look up and evict meanwhile
             _MEMO[key] = (snaps, value)
             _MEMO.move_to_end(key)

@@ -369,7 +369,11 @@ def preset_grid(preset: str, *overrides: str) -> list[list[str]]:
     params = OmegaConf.to_container(preset_hydra(preset).sweeper.params) or {}
     for o in overrides:
         key, value = o.split("=", 1)
-        params[key.lstrip("+")] = value
+        # the preset's axis of the same key, whatever its prefix (``++scene.params.pixel_mm``)
+        same = [k for k in params if k.lstrip("+~") == key.lstrip("+~")]
+        for k in same:
+            del params[k]
+        params[same[0] if same else key.lstrip("+")] = value
     return [[f"+experiment={preset}", *job] for job in expand_grid(params)]
 
 
@@ -581,6 +585,8 @@ def sweep_jobs(config: Any) -> list[list[str]]:
             continue
         if ("," in value and not value.startswith("[")) or value.startswith("glob("):
             params[key] = value
+        elif key in params:  # replaces the preset's axis (Hydra's basic sweeper: same key)
+            params[key] = value
         else:
             fixed.append(str(o))
     if any("(" in v and not v.startswith("glob(") for v in params.values()):
@@ -588,17 +594,30 @@ def sweep_jobs(config: Any) -> list[list[str]]:
     return [[*fixed, *job] for job in expand_grid(params)]
 
 
+#: the launchers (class names) whose jobs run on this machine: a sweep under them is warmed
+#: first (:func:`_warm_sweep`); a cluster launcher's jobs run elsewhere and warm nothing here
+WARM_LAUNCHERS = ("BasicLauncher", "JoblibLauncher")
+
+
+def warms_under(launcher_target: str) -> bool:
+    """Whether a sweep under the launcher ``launcher_target`` (its ``_target_``, a dotted class
+    path) is warmed before its first run: the launchers of :data:`WARM_LAUNCHERS`."""
+    return launcher_target.rsplit(".", 1)[-1] in WARM_LAUNCHERS
+
+
 def _warm_sweep(config: Any) -> None:
     """Warm the sweep's reference cache in ``warm_workers`` processes before its first run
     (:func:`sssbench.run.warm.warm`, as ``experiments/benchmark.py`` does): the references and
-    error-budget limits are computed in parallel, the runs are then timed one at a time. Only
-    under the basic launcher (a parallel launcher already spreads the runs), for grids of
-    images of at least :data:`WARM_MIN_PIXELS`; points already stored ok are left out. A
-    failure here is reported and the sweep goes on (each run computes what it misses)."""
+    error-budget limits are computed in parallel, then the runs. Under the launchers that run
+    the jobs on this machine (:data:`WARM_LAUNCHERS`: the basic launcher, one run at a time,
+    and joblib's, runs side by side — without the warm-up two of its jobs on one scene would
+    both compute the scene's reference), not under a cluster's (SLURM: the jobs run on other
+    nodes); for grids of images of at least :data:`WARM_MIN_PIXELS`; points already stored ok
+    are left out. A failure here is reported and the sweep goes on (each run computes what it
+    misses)."""
     try:
         workers = int(config.get("warm_workers", 0) or 0)
-        launcher = str(config.hydra.launcher.get("_target_", ""))
-        if workers < 2 or "BasicLauncher" not in launcher:
+        if workers < 2 or not warms_under(str(config.hydra.launcher.get("_target_", ""))):
             return
         jobs = sweep_jobs(config)
         if len(jobs) < 2:
@@ -657,7 +676,7 @@ def _sweep_size(config: Any) -> int:
         params = {str(k): str(v) for k, v in dict(config.hydra.sweeper.get("params") or {}).items()}
         for o in config.hydra.overrides.task:
             key, _, value = str(o).partition("=")
-            if "," in value or value.startswith("glob("):
+            if "," in value or value.startswith("glob(") or key in params:
                 params[key] = value
         return len(expand_grid(params))
     except Exception:

@@ -9,12 +9,13 @@ places that turn depth into world units.
 from __future__ import annotations
 
 import math
+from contextlib import AbstractContextManager
 from dataclasses import dataclass, fields, replace
 
 import torch
 
 from sssbench._checks import check_range, check_scalar, check_tensor
-from sssbench._memo import memoised
+from sssbench._memo import Sealing, memoised, sealed
 
 __all__ = ["GBuffer", "pixel_size_mm", "view_positions"]
 
@@ -160,6 +161,30 @@ class GBuffer:
         if self.mask is not None:
             return self.mask
         return torch.ones_like(self.depth)
+
+    def tensors(self) -> dict[str, torch.Tensor]:
+        """The tensor fields that are set, by name."""
+        out = {f.name: getattr(self, f.name) for f in fields(self)}
+        return {k: v for k, v in out.items() if isinstance(v, torch.Tensor)}
+
+    def sealed(self, pristine: GBuffer | None = None) -> AbstractContextManager[Sealing]:
+        """A block in which this G-buffer's tensors are sealed (:func:`sssbench._memo.sealed`):
+        read-only by contract, so the stencils, LOD masks and field checks memoised on them
+        are trusted in O(1) per call instead of a bitwise compare proportional to the image.
+        A write is an error (:class:`~sssbench._memo.SealBroken`): at the next memo lookup
+        if torch counted it, else at the next verification point — ``seal.verify()`` or the
+        block's end, which always verifies — never a stale value passed on silently.
+
+        Args:
+            pristine: a separate copy of this G-buffer (same bits) that nothing writes:
+                verified against by ``memcmp``; without it, by SHA-256 digests taken now.
+
+        Example:
+            >>> g = GBuffer(torch.ones(1, 3, 4, 4), torch.full((1, 1, 4, 4), 500.0), 0.5)
+            >>> with g.sealed() as seal:
+            ...     seal.verify()
+        """
+        return sealed(self.tensors(), None if pristine is None else pristine.tensors())
 
     def to(self, dtype: torch.dtype) -> GBuffer:
         """A copy with every floating-point tensor field cast to ``dtype`` (``profile_id``

@@ -385,3 +385,71 @@ def test_sweep_mirrored_into_mlflow_matches_the_store(tmp_path):
         assert r.data.tags["mlflow.parentRunId"] in parents
         assert r.data.metrics["rel_rms"] == pytest.approx(row["rel_rms"])
         assert r.data.params["samples"] == str(row["samples"])
+
+
+# ----------------------------------------------------------------------------- the warm-up
+@pytest.mark.parametrize(
+    ("launcher", "warmed"),
+    [("basic", True), ("joblib", True), ("submitit_local", False), ("submitit_slurm", False)],
+)
+def test_sweep_warmup_runs_under_the_local_launchers(tmp_path, monkeypatch, launcher, warmed):
+    """A sweep whose jobs run on this machine (basic: one at a time; joblib: side by side) is
+    warmed in ``warm_workers`` processes before its first run, one task per scene; a cluster
+    launcher's sweep (its jobs run on other nodes) is not. The launcher's ``_target_`` is
+    Hydra's own, composed from its config group."""
+    pytest.importorskip(
+        "hydra_plugins.hydra_submitit_launcher" if "submitit" in launcher else "hydra"
+    )
+    import sssbench.run.warm as warm_module
+
+    calls = []
+    monkeypatch.setattr(warm_module, "warm", lambda specs, workers, **kw: calls.append(
+        (sorted({s.scene for s in specs}), len(specs), workers)) or 0.0)  # fmt: skip
+    from omegaconf import open_dict
+
+    # inside Hydra's initialised state, as the callback runs
+    with initialize_config_dir(config_dir=str(app.CONF_DIR), version_base="1.3"):
+        cfg = compose(
+            config_name="config",
+            overrides=[
+                f"hydra/launcher={launcher}",
+                "resolution=[128,128]",
+                f"store={tmp_path / 'store.sqlite'}",
+            ],
+            return_hydra_config=True,
+        )
+        with open_dict(cfg):  # the sweep's own overrides, as Hydra records them
+            cfg.hydra.overrides.task = [
+                "scene=sphere,step_edge",
+                "method=identity,preintegrated",
+                "resolution=[128,128]",
+            ]
+        app._warm_sweep(cfg)
+    assert app.warms_under(str(cfg.hydra.launcher._target_)) is warmed
+    assert calls == ([(["sphere", "step_edge"], 4, 2)] if warmed else [])
+
+
+def test_a_fixed_override_replaces_the_presets_axis_as_hydra_does():
+    """Hydra's basic sweeper keys its axes by the override's key with its prefix: a command
+    line ``method=identity`` replaces the preset's ``method`` axis (one value), while the
+    preset's other axes stay. The warm-up and the ETA read the grid the same way; the
+    experiments' ``preset_grid`` also matches ``++scene.params.pixel_mm`` by its bare key."""
+    from omegaconf import open_dict
+
+    with initialize_config_dir(config_dir=str(app.CONF_DIR), version_base="1.3"):
+        cfg = compose(
+            config_name="config",
+            overrides=["+experiment=paper_benchmark_1080p", "store=/tmp/x.sqlite"],
+            return_hydra_config=True,
+        )
+    with open_dict(cfg):
+        cfg.hydra.overrides.task = ["+experiment=paper_benchmark_1080p", "method=identity",
+                                    "scene=face"]  # fmt: skip
+    jobs = app.sweep_jobs(cfg)
+    # 2 scenes x 2 scales x 7 methods in the preset; method and scene fixed: the 2 scales
+    assert len(jobs) == 2 and app._sweep_size(cfg) == 2
+    assert all("method=identity" in j and "scene=face" in j for j in jobs)
+    grid = app.preset_grid("paper_benchmark", "scene=face", "++scene.params.pixel_mm=0.3")
+    n_methods = len(list((app.CONF_DIR / "method").glob("*.yaml"))) - 1  # not the reference
+    assert len(grid) == n_methods * 2  # x samples 7,13
+    assert all(j.count("++scene.params.pixel_mm=0.3") == 1 for j in grid)

@@ -132,3 +132,25 @@ def test_sentences_follow_the_numbers():
     )
     assert recommendation_sentence(rec.loc["head_cheek"]).startswith("head_cheek, 128: do nothing")
     assert "not visible" in recommendation_sentence(rec.loc["head_far"])
+
+
+def test_a_shared_flip_map_gives_the_same_numbers_and_a_wrong_one_is_refused():
+    """The runner evaluates FLIP once per run and hands the map to the mean metric and to the
+    error's visibility: the numbers equal those of two separate evaluations, bit for bit; a
+    map of another shape is refused naming ``fmap``."""
+    from sssbench.score import verdict
+    from sssbench.score.metrics import compute_all, flip, flip_map
+
+    g = torch.Generator().manual_seed(3)
+    ref = torch.rand(1, 3, 20, 24, generator=g, dtype=torch.float64)
+    res = (ref + 0.2 * torch.rand(1, 3, 20, 24, generator=g, dtype=torch.float64)).clamp(0)
+    mask = (torch.rand(1, 1, 20, 24, generator=g, dtype=torch.float64) > 0.3).double()
+    fmap = flip_map(res, ref)
+    assert compute_all(res, ref, mask, fmap=fmap) == compute_all(res, ref, mask)
+    assert verdict.error_visibility(res, ref, mask, fmap) == verdict.error_visibility(
+        res, ref, mask
+    )
+    with pytest.raises(ValueError, match="fmap must be the"):
+        flip(res, ref, mask, fmap=fmap[:, :10])
+    with pytest.raises(ValueError, match="fmap must be the"):
+        verdict.visibility_stats(ref, res, mask, fmap=fmap.T)

@@ -9,7 +9,10 @@ function in the module of its job:
    (:func:`sssbench.run.inputs.build`);
 3. **time** the pipeline: ``warmup`` untimed runs, ``repeats`` timed ones (per pass: median /
    min / max; run time = sum of the pass medians; :func:`sssbench.run.settings.time_runs`),
-   then check that the method left its G-buffer as built;
+   then check that the method left its G-buffer as built (bit for bit against a pristine
+   copy). From here to the record the G-buffer is sealed (:meth:`sssbench.gbuffer.GBuffer.sealed`):
+   the memo trusts its stencils and masks in O(1) per call, and a write into it is an error
+   (at the next lookup, at this check, or at the seal's end), never a stale value;
 4. **reference**: the exact reference from the cache (:mod:`sssbench.store.refcache`) or
    computed;
 5. **score**: the metrics (:mod:`sssbench.score.metrics`) over the SSS region (mask > 0), the
@@ -75,7 +78,7 @@ from sssbench.run.spec import RunSpec
 from sssbench.run.stochastic import is_stochastic, seed_split
 from sssbench.score import verdict
 from sssbench.score.bias_noise import bias_noise
-from sssbench.score.metrics import METRICS, compute_all
+from sssbench.score.metrics import METRICS, compute_all, flip_map
 from sssbench.store.tracking import PassStats, RunStore, config_hash, utc_now
 
 log = logging.getLogger("sssbench")
@@ -209,27 +212,44 @@ def measure(spec: RunSpec, run_dir: Path) -> tuple[dict[str, Any], list[PassStat
         log.info("method=reference is timed once (warmup 0, repeats 1)")
     with torch_settings(spec.threads, spec.backend):
         built = build(spec)  # 2. build
-        t0 = time.perf_counter()
-        on_device = times_on_device(spec.backend, spec.method)  # GL: timed by the device
-        cpu_runs = (0, 1) if on_device else (warmup, repeats)  # the image once, not timed twice
-        out, stats = time_runs(built.pipeline, built.gbuffer, *cpu_runs)  # 3. time
-        device = None
-        if on_device:
-            device = gl_times(spec.method, built.pipeline, built.gbuffer, warmup, repeats)
-            stats = device[0] if device else stats
-        if is_reference and not any(p.name == "reference" for p in stats):
-            stats = _reference_pass(stats, (time.perf_counter() - t0) * 1e3, built.gbuffer)
-        result = out.image
-        check_untouched(built.gbuffer, scene_gbuffer(spec, built.fields), spec.method)
-        with torch.inference_mode():  # 4. reference
-            reference, hit, ref_ms = reference_image(
-                spec, built.gbuffer, built.profile, built.ref_pipeline, spec.reference_cache
-            )
-        mask = metric_mask(built.gbuffer, result.dtype)  # 5. score
-        identity, *base = baseline(spec, built.gbuffer, built.profile, reference, mask)
-        values = compute_all(result, reference, mask)
-        _, values["error_flip_window"], _ = verdict.error_visibility(result, reference, mask)
-        extra = _budget_or_noise(spec, built, result, reference, identity, mask)  # 6.
+        pristine = scene_gbuffer(spec, built.fields)  # the same scene, never handed out
+        with built.gbuffer.sealed(pristine):  # memo lookups O(1); verified at the end
+            return _measure_sealed(spec, run_dir, built, pristine, is_reference, warmup, repeats)
+
+
+def _measure_sealed(
+    spec: RunSpec,
+    run_dir: Path,
+    built: Built,
+    pristine: Any,
+    is_reference: bool,
+    warmup: int,
+    repeats: int,
+) -> tuple[dict[str, Any], list[PassStats]]:
+    """Steps 3.–6. of :func:`measure` on the run's sealed G-buffer (``pristine``: a separate
+    copy of the scene as built)."""
+    t0 = time.perf_counter()
+    on_device = times_on_device(spec.backend, spec.method)  # GL: timed by the device
+    cpu_runs = (0, 1) if on_device else (warmup, repeats)  # the image once, not timed twice
+    out, stats = time_runs(built.pipeline, built.gbuffer, *cpu_runs)  # 3. time
+    device = None
+    if on_device:
+        device = gl_times(spec.method, built.pipeline, built.gbuffer, warmup, repeats)
+        stats = device[0] if device else stats
+    if is_reference and not any(p.name == "reference" for p in stats):
+        stats = _reference_pass(stats, (time.perf_counter() - t0) * 1e3, built.gbuffer)
+    result = out.image
+    check_untouched(built.gbuffer, pristine, spec.method)
+    with torch.inference_mode():  # 4. reference
+        reference, hit, ref_ms = reference_image(
+            spec, built.gbuffer, built.profile, built.ref_pipeline, spec.reference_cache
+        )
+    mask = metric_mask(built.gbuffer, result.dtype)  # 5. score
+    identity, *base = baseline(spec, built.gbuffer, built.profile, reference, mask)
+    fmap = flip_map(result, reference)  # one FLIP evaluation for the mean and the local
+    values = compute_all(result, reference, mask, fmap=fmap)
+    _, values["error_flip_window"], _ = verdict.error_visibility(result, reference, mask, fmap)
+    extra = _budget_or_noise(spec, built, result, reference, identity, mask)  # 6.
     if "rel_rms" in extra:  # a stochastic method: its rel RMS is the mean over the seeds
         values["rel_rms"] = extra.pop("rel_rms")
     scores = _verdicts(values, *base) | extra

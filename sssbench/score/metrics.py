@@ -299,18 +299,39 @@ def flip(
     *,
     exposure: float = 1.0,
     ppd: float = 67.0,
+    fmap: np.ndarray | None = None,
 ) -> float:
     """Mean LDR-FLIP error: the :func:`flip_map` averaged with the mask as weights.
+
+    Args:
+        fmap: ``flip_map(result, reference, exposure=exposure, ppd=ppd)`` when the caller has
+            it already (the runner shares one map between this mean and the local statistic
+            of :func:`sssbench.score.verdict.error_visibility`: FLIP is the dearest metric);
+            its shape must be ``(B, H, W)``.
 
     Returns:
         Mean FLIP error in ``[0, 1]`` (0 for identical images), averaged over the batch.
     """
     _, _, m = _check_pair(result, reference, mask)
-    fmap = flip_map(result, reference, exposure=exposure, ppd=ppd).astype(np.float64)
+    if fmap is None:
+        fmap = flip_map(result, reference, exposure=exposure, ppd=ppd)
+    fmap = check_flip_map(fmap, result)
     if m is None:
         return float(fmap.mean())
     wgt = m[:, 0].numpy()
     return float(np.mean((fmap * wgt).sum(axis=(1, 2)) / wgt.sum(axis=(1, 2))))
+
+
+def check_flip_map(fmap: np.ndarray, image: torch.Tensor) -> np.ndarray:
+    """``fmap`` (a :func:`flip_map`) as float64, checked to be ``(B, H, W)`` for ``image``
+    ``(B, 3, H, W)``."""
+    b, _, h, w = image.shape
+    if not isinstance(fmap, np.ndarray) or fmap.shape != (b, h, w):
+        raise ValueError(
+            f"fmap must be the (B, H, W) = {(b, h, w)} FLIP map of the images, got "
+            f"{getattr(fmap, 'shape', type(fmap).__name__)}"
+        )
+    return fmap.astype(np.float64)
 
 
 #: the metrics the app computes for every run, by name
@@ -325,7 +346,14 @@ METRICS = {
 
 
 def compute_all(
-    result: torch.Tensor, reference: torch.Tensor, mask: torch.Tensor | None = None
+    result: torch.Tensor,
+    reference: torch.Tensor,
+    mask: torch.Tensor | None = None,
+    *,
+    fmap: np.ndarray | None = None,
 ) -> dict[str, float]:
-    """Every metric of :data:`METRICS` as ``{name: value}``."""
-    return {name: fn(result, reference, mask) for name, fn in METRICS.items()}
+    """Every metric of :data:`METRICS` as ``{name: value}``; ``fmap``: the images'
+    :func:`flip_map` if the caller has it (see :func:`flip`)."""
+    out = {name: fn(result, reference, mask) for name, fn in METRICS.items() if name != "flip"}
+    out["flip"] = flip(result, reference, mask, fmap=fmap)
+    return {name: out[name] for name in METRICS}

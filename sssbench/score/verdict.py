@@ -134,6 +134,7 @@ def visibility_stats(
     diffuse: torch.Tensor,
     mask: torch.Tensor | None = None,
     window: int = VISIBLE_WINDOW,
+    fmap: np.ndarray | None = None,
 ) -> tuple[float, float]:
     """The mean FLIP and the local FLIP (the largest window mean) between the reference and
     an image over the mask (:func:`sssbench.score.metrics.flip_map`, tone-mapped LDR at 67
@@ -148,16 +149,18 @@ def visibility_stats(
             ``window × window`` window that is at least half inside the mask (any window with
             a masked pixel when none is), all images of the batch pooled.
         window: side of the window in pixels (odd, >= 1).
+        fmap: ``flip_map(diffuse, reference)`` when the caller has it already (the same
+            numbers, one FLIP evaluation fewer), ``(B, H, W)``.
 
     Returns:
         ``(mean, local)``: the mean FLIP (as :func:`sssbench.score.metrics.flip`) and the
         largest window mean of the per-pixel FLIP; compare with :func:`is_visible`.
     """
-    from sssbench.score.metrics import flip_map
+    from sssbench.score.metrics import check_flip_map, flip_map
 
     if not isinstance(window, int) or window < 1 or window % 2 == 0:
         raise ValueError(f"window must be an odd int >= 1, got {window!r}")
-    fmap = flip_map(diffuse, reference).astype(np.float64)
+    fmap = check_flip_map(flip_map(diffuse, reference) if fmap is None else fmap, diffuse)
     if mask is None:
         wgt = np.ones_like(fmap)
     else:
@@ -191,13 +194,18 @@ def _local(fmap: np.ndarray, inside: np.ndarray, window: int) -> float:
 
 
 def error_visibility(
-    result: torch.Tensor, reference: torch.Tensor, mask: torch.Tensor | None = None
+    result: torch.Tensor,
+    reference: torch.Tensor,
+    mask: torch.Tensor | None = None,
+    fmap: np.ndarray | None = None,
 ) -> tuple[float, float, bool]:
     """Whether a method's error is visible: :func:`visibility_stats` of its result against
     the reference, ``(mean, local, visible)`` with ``visible`` by :func:`is_visible` — the
     same calibrated rule as for SSS itself, so a method is "visibly wrong" exactly when its
-    result differs from the reference as much as a visible SSS effect would."""
-    mean, local = visibility_stats(reference, result, mask)
+    result differs from the reference as much as a visible SSS effect would. ``fmap``:
+    ``flip_map(result, reference)`` if the caller has it (the runner: one map for this and
+    the mean FLIP metric)."""
+    mean, local = visibility_stats(reference, result, mask, fmap=fmap)
     return mean, local, is_visible(mean, local)
 
 
