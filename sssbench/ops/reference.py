@@ -659,9 +659,7 @@ def _gather_sog(
 
     def chunk(i: int) -> int:
         part = slice(i, i + _CENTRES)
-        acc[part], wsum[part] = _sog_chunk(
-            profile, v, fields, centre[part], shift, radius_mm, hat
-        )
+        acc[part], wsum[part] = _sog_chunk(profile, v, fields, centre[part], shift, radius_mm, hat)
         return shift.numel()
 
     for n in map_threads(chunk, range(0, e, _CENTRES), workers):

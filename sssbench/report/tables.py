@@ -543,6 +543,7 @@ MD_COLUMNS = [
     "err_model",
     "err_taps",
     "err_screen",
+    "err_recon",
     "bias_rel_rms",
     "noise_rel_rms",
     "status",
@@ -586,7 +587,10 @@ def summary_markdown(table: pd.DataFrame, source: str) -> str:
         "bias_rel_rms the error of the seed mean and noise_rel_rms the std across seeds "
         f"(relative to the reference RMS). {MISSING} = not applicable.",
     ]
+    from sssbench.report.budget_text import budget_verdicts
+
     recs = recommendations(table)
+    budgets = budget_verdicts(table)
     table = table.assign(flags=[_flags(r) for _, r in table.iterrows()])
     for key, group in table.groupby(group_keys(table), dropna=False, sort=True):
         info = dict(zip(group_keys(table), key, strict=True))
@@ -602,6 +606,11 @@ def summary_markdown(table: pd.DataFrame, source: str) -> str:
             parts += ["", f"**Recommendation.** {r['verdict']}"]
             if r["pareto"] != MISSING:
                 parts += ["", f"Pareto front (fastest first): {r['pareto']}."]
+        lines = _group_rows(budgets, info)["sentence"].tolist()
+        if lines:
+            head = "**Error budget** (each part's share of the error, docs/error_budget.md):"
+            parts += ["", head]
+            parts += [""] + [f"- {line}" for line in lines]
     for line in device_lines(table):
         parts += ["", line]
     failed = table[table["status"] != "ok"]
@@ -609,6 +618,14 @@ def summary_markdown(table: pd.DataFrame, source: str) -> str:
         parts += ["", "## Failed or timed-out runs", ""]
         parts.append(_markdown(failed[[*POINT_COLUMNS, "status", "error"]]))
     return "\n".join(parts) + "\n"
+
+
+def _group_rows(rows: pd.DataFrame, info: dict[str, Any]) -> pd.DataFrame:
+    """The rows of ``rows`` in the ranking group ``info`` (its group keys)."""
+    for k, v in info.items():
+        if k in rows.columns:
+            rows = rows[rows[k].isna()] if v is None or v is pd.NA else rows[rows[k] == v]
+    return rows
 
 
 def device_lines(table: pd.DataFrame) -> list[str]:
@@ -650,11 +667,16 @@ def format_console(table: pd.DataFrame) -> str:
     ]
     if table["stages"].nunique(dropna=False) > 1:  # a sweep varies a stage: show which ran
         cols.insert(cols.index("samples") + 1, "stages")
+    budget = [c for c in ("err_taps", "err_model", "err_recon", "err_screen") if c in table]
+    if budget and table[budget].notna().any().any():  # the error budget's four parts
+        cols[cols.index("status") : cols.index("status")] = budget
+    else:
+        budget = []
     shown = table[cols].copy()
     shown["samples"] = [MISSING if pd.isna(v) else str(int(v)) for v in shown["samples"]]
     shown["sampling"] = [v if isinstance(v, str) else MISSING for v in shown["sampling"]]
     shown["passes"] = [MISSING if pd.isna(v) else str(int(v)) for v in shown["passes"]]
-    for c in ("time_ms", "rel_rms", "skill", "flip"):
+    for c in ("time_ms", "rel_rms", "skill", "flip", *budget):
         shown[c] = [_fmt(None if pd.isna(v) else float(v)) for v in shown[c]]
     shown["flags"] = [
         "".join(
@@ -682,4 +704,10 @@ def format_console(table: pd.DataFrame) -> str:
         where = f"{r['scene']} · {r['scale']} · {r['resolution']}"
         where += f" · {r['stages']}" if r["stages"] != MISSING else ""
         lines.append(f"{where}: {r['verdict']}")
+    from sssbench.report.budget_text import budget_verdicts
+
+    sentences = budget_verdicts(table)["sentence"].tolist()
+    if sentences:
+        lines += ["", "error budget (each part's share of the error, docs/error_budget.md):"]
+        lines += sentences
     return "\n".join(lines)
