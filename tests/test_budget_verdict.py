@@ -119,8 +119,7 @@ def _random_table(seed: int) -> pd.DataFrame:
                         "visibility_window": 0.2,
                         "run_dir": None,
                         **{
-                            f"contribution_{p}": (v if budgeted else math.nan)
-                            for p, v in c.items()
+                            f"contribution_{p}": (v if budgeted else math.nan) for p, v in c.items()
                         },
                         **{f"err_{p}": (abs(v) if budgeted else math.nan) for p, v in c.items()},
                     }
