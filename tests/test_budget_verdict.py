@@ -155,3 +155,27 @@ def test_the_tables_budget_sentences_match_their_rows(seed):
     header = console.splitlines()[0].split()
     assert all(f"err_{p}" in header for p in PARTS)
     assert "err_recon" in md.split("\n## ", 2)[1].splitlines()[2]  # the group table's header
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_the_benchmark_sections_budget_counts_equal_its_rows(seed):
+    """experiments/benchmark.py's budget sentence (REPORT.md §9): the counts it states are
+    the counts of the sentences' dominant parts."""
+    from experiments.benchmark import budget_text
+
+    out = budget_verdicts(_random_table(seed))
+    text = budget_text(out)
+    m = re.search(r"(\d+) in all\): the largest part of the error is (.+?)[;.]", text)
+    assert m is not None and int(m.group(1)) == len(out)
+    stated = {
+        name.strip(): int(n) for name, n in re.findall(r"([a-z\- ()]+?) ×(\d+)", m.group(2))
+    }
+    named = [re.search(r": the (.+?) part is", s).group(1) for s in out["sentence"]]
+    assert stated == {n: named.count(n) for n in stated}
+    assert sum(stated.values()) == len(out)
+    recon = out["share_recon"].dropna()
+    m = re.search(r"measured on (\d+) of them \(every scene\), median share (-?\d+) %", text)
+    assert (m is not None) == (len(recon) > 0)
+    if m:
+        assert int(m.group(1)) == len(recon)
+        assert int(m.group(2)) == pytest.approx(100 * recon.median(), abs=0.51)
