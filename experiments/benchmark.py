@@ -137,19 +137,19 @@ def _pct(share: float) -> str:
 
 
 def budget_text(budgets: pd.DataFrame) -> str:
-    """Which part of the error budget dominates, counted over ``budgets`` (one row per scene,
-    scale and method: :func:`~sssbench.report.budget_text.budget_verdicts`), and the median
+    """Which part of the error budget dominates (``dominant``), counted over ``budgets`` (one
+    row per scene, scale and method: :func:`~sssbench.report.budget_text.budget_verdicts`),
+    and the median
     share of the reconstruction part (the same for every method of a group)."""
     if budgets.empty:
         return "No configuration has an error budget."
     shares = budgets[[f"share_{p}" for p in PARTS]].astype(float)
-    top = shares.idxmax(axis=1).str.removeprefix("share_")
-    counts = top.value_counts()
+    counts = budgets["dominant"].value_counts()
     listed = ", ".join(f"{PART_NAMES[p]} ×{int(counts[p])}" for p in PARTS if p in counts)
     recon = shares["share_recon"].dropna()
     text = (
         f"Error budget (each method's best configuration per scene and scale, {len(budgets)} "
-        f"in all): the largest part of the error is {listed}"
+        f"in all): the dominant part (whose removal lowers the error most) is {listed}"
     )
     if len(recon):
         text += (

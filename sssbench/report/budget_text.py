@@ -9,7 +9,7 @@ import math
 import pandas as pd
 
 from sssbench.report.tables import BASELINE, REFERENCE, group_keys, label
-from sssbench.score.budget_verdict import PARTS, budget_sentence, budget_shares
+from sssbench.score.budget_verdict import PARTS, budget_sentence, budget_shares, dominant_part
 
 __all__ = ["BUDGET_COLUMNS", "budget_verdicts"]
 
@@ -17,10 +17,11 @@ __all__ = ["BUDGET_COLUMNS", "budget_verdicts"]
 BUDGET_COLUMNS = [f"err_{p}" for p in PARTS]
 
 
-def _contributions(row: pd.Series) -> dict[str, float]:
+def _parts(row: pd.Series, prefix: str) -> dict[str, float]:
+    """``{part: row[prefix + part]}`` (NaN where missing)."""
     out = {}
     for p in PARTS:
-        v = row.get(f"contribution_{p}")
+        v = row.get(f"{prefix}{p}")
         out[p] = math.nan if v is None or pd.isna(v) else float(v)
     return out
 
@@ -29,9 +30,11 @@ def budget_verdicts(table: pd.DataFrame) -> pd.DataFrame:
     """Per ranking group (:func:`~sssbench.report.tables.group_keys`) and screen-space method:
     the method's configuration with the best skill among its runs with a budget (the most
     taps where no skill is known), its parts' shares of the error (``share_taps`` …, NaN
-    where not measured) and the sentence. Groups or methods without a budget give no row."""
+    where not measured), the dominant part (:func:`~sssbench.score.budget_verdict.dominant_part`)
+    and the sentence. Groups or methods without a budget give no row."""
     keys = group_keys(table)
-    cols = [*keys, "method", "config", "rel_rms", *(f"share_{p}" for p in PARTS), "sentence"]
+    shares = [f"share_{p}" for p in PARTS]
+    cols = [*keys, "method", "config", "rel_rms", *shares, "dominant", "sentence"]
     rows = []
     if table.empty or "contribution_model" not in table.columns:
         return pd.DataFrame(columns=cols)
@@ -45,8 +48,8 @@ def budget_verdicts(table: pd.DataFrame) -> pd.DataFrame:
         else:
             row = group.sort_values("samples", na_position="first").iloc[-1]
         subject = f"{info['scene']} · {info['scale']} · {label(row)}"
-        contrib = _contributions(row)
-        sentence = budget_sentence(subject, contrib)
+        contrib, norms = _parts(row, "contribution_"), _parts(row, "err_")
+        sentence = budget_sentence(subject, contrib, norms)
         if sentence is None:
             continue
         shares = budget_shares(contrib) or {}
@@ -56,6 +59,7 @@ def budget_verdicts(table: pd.DataFrame) -> pd.DataFrame:
                 "config": label(row),
                 "rel_rms": float(sum(contrib[p] for p in shares)),
                 **{f"share_{p}": shares.get(p, math.nan) for p in PARTS},
+                "dominant": dominant_part(contrib, norms),
                 "sentence": sentence,
             }
         )

@@ -4,8 +4,9 @@ The budget (:mod:`sssbench.score.budget`, docs/error_budget.md) splits ``M_N −
 model, reconstruction and screen images. Their *contributions* ``⟨part, M_N − R⟩ / (‖R‖
 ‖M_N − R‖)`` add up to the method's rel RMS exactly, so each part's **share** of the error is
 its contribution over their sum (the shares add up to 1; a part that cancels another has a
-negative share). The sentence names the part with the largest share and says what would
-remove it, every number from the shares it is given.
+negative share). The sentence names the part whose removal would lower the error most (the
+error left without it follows exactly from its contribution and its own norm) and says
+what would remove it, every number from the numbers it is given.
 """
 
 from __future__ import annotations
@@ -13,7 +14,14 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 
-__all__ = ["PARTS", "NO_HELP", "budget_shares", "dominant_part", "budget_sentence"]
+__all__ = [
+    "PARTS",
+    "NO_HELP",
+    "budget_shares",
+    "dominant_part",
+    "error_without",
+    "budget_sentence",
+]
 
 #: the budget's parts, in the order the sentence lists them
 PARTS = ("taps", "model", "recon", "screen")
@@ -24,7 +32,8 @@ PART_NAMES = {
     "recon": "reconstruction",
     "screen": "screen-space",
 }
-#: below this share, "more taps will not help"
+#: "more taps will not help" where converged taps would lower the error by less than this
+#: fraction of it
 NO_HELP = 0.10
 
 
@@ -49,63 +58,99 @@ def budget_shares(contributions: Mapping[str, float]) -> dict[str, float] | None
     return {k: v / total for k, v in got.items()}
 
 
-def dominant_part(shares: Mapping[str, float]) -> str:
-    """The part with the largest share (the first in :data:`PARTS` order on a tie)."""
-    return max((k for k in PARTS if k in shares), key=lambda k: shares[k])
-
-
 def _pct(share: float) -> str:
     return f"{100 * share:.0f} %"
 
 
-def budget_sentence(subject: str, contributions: Mapping[str, float]) -> str | None:
-    """One sentence for one configuration: the dominant part and its share, every part's
-    share with the total rel RMS, and the advice that follows from them; ``None`` where
-    :func:`budget_shares` is.
+def error_without(total: float, contribution: float, norm: float) -> float:
+    """The rel RMS left when one part is taken out of the error: ``‖E − P‖ / ‖R‖`` from the
+    error's ``total = ‖E‖/‖R‖``, the part's ``contribution = ⟨P, E⟩/(‖R‖ ‖E‖)`` and its
+    ``norm = ‖P‖/‖R‖`` (``‖E − P‖² = ‖E‖² − 2⟨P, E⟩ + ‖P‖²``; exact, whatever the other
+    parts do)."""
+    return math.sqrt(max(0.0, total * total - 2.0 * contribution * total + norm * norm))
 
-    E.g. ``"face · 0.3 mm/px · sum_of_gaussians 17: the screen-space part is 62 % of the
-    error (rel RMS 0.0312 = taps 5 % + model (kernel shape) 8 % + reconstruction 25 % +
-    screen-space 62 %): more taps will not help (5 %); a pass that handles this geometry
-    better (depth steps, silhouettes, curvature, borders) would address 62 %."``
 
-    The advice: where taps dominate, more taps can remove up to their share; otherwise more
-    taps "will not help" below :data:`NO_HELP` and "can remove at most" their share above it,
-    and the dominant part's remedy is named: a kernel closer to the profile (model), a pass
-    that handles the geometry better (screen); the reconstruction part is the same for every
-    method (the bilinear reads against the reference's pixel cells), so neither a kernel nor
-    taps remove it.
-    """
+def _without(
+    contributions: Mapping[str, float], norms: Mapping[str, float]
+) -> tuple[float, dict[str, float], dict[str, float]] | None:
+    """The total, the shares and the rel RMS left without each part whose norm is known."""
     shares = budget_shares(contributions)
     if shares is None:
         return None
     total = sum(float(contributions[k]) for k in shares)
-    top = dominant_part(shares)
+    left = {}
+    for k in shares:
+        n = norms.get(k)
+        if n is not None and isinstance(n, (int, float)) and math.isfinite(float(n)):
+            left[k] = error_without(total, float(contributions[k]), float(n))
+    return (total, shares, left) if left else None
+
+
+def dominant_part(contributions: Mapping[str, float], norms: Mapping[str, float]) -> str | None:
+    """The part whose removal lowers the error most (:func:`error_without`; the first in
+    :data:`PARTS` order on a tie), ``None`` where no sentence is made."""
+    got = _without(contributions, norms)
+    if got is None:
+        return None
+    left = got[2]
+    return min((k for k in PARTS if k in left), key=lambda k: left[k])
+
+
+def budget_sentence(
+    subject: str, contributions: Mapping[str, float], norms: Mapping[str, float]
+) -> str | None:
+    """One sentence for one configuration; ``None`` where :func:`budget_shares` is.
+
+    Args:
+        subject: what the sentence is about (scene · scale · configuration).
+        contributions: each part's contribution (rel RMS units, they add up to the error).
+        norms: each part's own rel RMS ``‖part‖ / ‖R‖`` (``err_taps`` …).
+
+    The **dominant** part is the one whose removal lowers the error most
+    (:func:`error_without`, a part is left out where its norm is not finite). The sentence
+    states the rel RMS without it, the shares of every part (:func:`budget_shares`), and the
+    advice that follows: more taps "will not help" where taking out the taps part lowers the
+    error by less than :data:`NO_HELP` of it, otherwise they can bring it down to the rel
+    RMS stated; the dominant part's remedy: a kernel closer to the profile (model), a pass
+    that handles the geometry better (screen); the reconstruction part is the same for every
+    method (the passes' bilinear reads against the reference's pixel cells), neither a kernel
+    nor taps remove it.
+
+    E.g. ``"face · 0.3 mm/px · sum_of_gaussians uniform 17: the screen-space part dominates:
+    without it the rel RMS would be 0.011 instead of 0.0312 (−65 %; shares of the error: taps
+    5 % + model (kernel shape) 8 % + reconstruction 25 % + screen-space 62 %); more taps will
+    not help (−3 %); a pass that handles this geometry better (depth steps, silhouettes,
+    curvature, borders) would."``
+    """
+    got = _without(contributions, norms)
+    if got is None:
+        return None
+    total, shares, left = got
+    top = dominant_part(contributions, norms)
+    assert top is not None
     listed = " + ".join(f"{PART_NAMES[k]} {_pct(shares[k])}" for k in PARTS if k in shares)
     if "recon" not in shares:
         listed += ", reconstruction not measured"
-    head = (
-        f"{subject}: the {PART_NAMES[top]} part is {_pct(shares[top])} of the error "
-        f"(rel RMS {total:.3g} = {listed})"
+    text = (
+        f"{subject}: the {PART_NAMES[top]} part dominates: without it the rel RMS would be "
+        f"{left[top]:.3g} instead of {total:.3g} ({_pct(left[top] / total - 1)}; shares of the "
+        f"error: {listed})"
     )
-    taps = shares.get("taps")
+    if "taps" not in left:
+        taps = "the taps part is not measured"
+    elif left["taps"] > (1 - NO_HELP) * total:
+        taps = f"more taps will not help ({_pct(left['taps'] / total - 1)})"
+    else:
+        taps = (
+            f"more taps can bring it down to {left['taps']:.3g} ({_pct(left['taps'] / total - 1)})"
+        )
     if top == "taps":
-        return f"{head}: more taps can remove up to {_pct(taps)} of it."
-    if taps is None:
-        advice = "the taps part is not measured"
-    elif taps < NO_HELP:
-        advice = f"more taps will not help ({_pct(taps)})"
-    else:
-        advice = f"more taps can remove at most {_pct(taps)}"
-    if top == "model":
-        advice += f"; a kernel closer to the profile would address {_pct(shares[top])}"
-    elif top == "screen":
-        advice += (
-            "; a pass that handles this geometry better (depth steps, silhouettes, curvature,"
-            f" borders) would address {_pct(shares[top])}"
-        )
-    else:
-        advice += (
-            f"; the reconstruction part ({_pct(shares[top])}) is the passes' bilinear reads "
-            "against the reference's pixel cells: neither a kernel nor taps remove it"
-        )
-    return f"{head}: {advice}."
+        return f"{text}; {taps}."
+    remedy = {
+        "model": "a kernel closer to the profile would",
+        "screen": "a pass that handles this geometry better (depth steps, silhouettes, "
+        "curvature, borders) would",
+        "recon": "the reconstruction part is the passes' bilinear reads against the "
+        "reference's pixel cells: neither a kernel nor taps remove it",
+    }[top]
+    return f"{text}; {taps}; {remedy}."
