@@ -25,7 +25,7 @@ from experiments.common import Context, Section, main, md_table, shrink_png
 from sssbench import report
 from sssbench.app import compose_spec, preset_grid
 from sssbench.report import plots
-from sssbench.report.budget_text import budget_verdicts
+from sssbench.report.tables import budget_verdicts
 from sssbench.run import runner
 from sssbench.run.warm import warm
 from sssbench.score.budget_verdict import PART_NAMES, PARTS
@@ -138,7 +138,7 @@ def _pct(share: float) -> str:
 
 def budget_text(budgets: pd.DataFrame) -> str:
     """Which part of the error budget dominates (``dominant``), counted over ``budgets`` (one
-    row per scene, scale and method: :func:`~sssbench.report.budget_text.budget_verdicts`),
+    row per scene, scale and method: :func:`~sssbench.report.tables.budget_verdicts`),
     and the median
     share of the reconstruction part (the same for every method of a group)."""
     if budgets.empty:

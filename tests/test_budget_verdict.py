@@ -1,5 +1,6 @@
-"""The error budget's sentence (sssbench.score.budget_verdict, sssbench.report.budget_text):
-over random budgets and random tables, no sentence contradicts a number it was made from."""
+"""The error budget's sentence (sssbench.score.budget_verdict and
+sssbench.report.tables.budget_verdicts): over random budgets and random tables, no sentence
+contradicts a number it was made from."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import pytest
 
 from sssbench import report
 from sssbench.report import tables
-from sssbench.report.budget_text import budget_verdicts
+from sssbench.report.tables import budget_verdicts
 from sssbench.score.budget_verdict import (
     NO_HELP,
     PART_NAMES,

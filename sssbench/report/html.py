@@ -35,13 +35,13 @@ import pandas as pd
 import torch
 
 from sssbench import _json
-from sssbench.report.budget_text import budget_verdicts
 from sssbench.report.tables import (
     BASELINE,
     MISSING,
     REFERENCE,
     _flags,
     _fmt,
+    budget_verdicts,
     config_text,
     group_keys,
     label,
