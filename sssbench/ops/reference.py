@@ -235,23 +235,26 @@ def reference_sss(
       so the sums are 2D convolutions (``torch.fft``) with the closed-form 1D factors of
       :mod:`sssbench.ops._reference_flat`, precise at any pixel / profile ratio.
     - ``"multipole"`` (sums of Gaussians): Gaussians narrower than ``WIDE_PIXELS`` times the largest
-      footprint by the cell gather within their own (small) support (box), or by graded
-      Gauss–Legendre points on the bilinear field (bilinear); wider Gaussians from the moments of
-      the reconstructed ``q dA`` (mass, dipole, quadrupole; exact for both reconstructions) of the
-      coarsest pixel blocks whose patches fit in a ball of radius ``σ / FAR_RATIO``, by the
-      second-order Taylor expansion of the Gaussian about the block centre; cells too large or steep
-      for that are split into sub-patches that fit the same ball, with exact moments
-      (:mod:`sssbench.ops._reference_far`). The expansion's error is third order in the block radius
-      over σ where the irradiance or the surface jumps and exponentially small where they are
-      smooth. Measured against a brute-force surface integral on a curved masked surface with a
-      depth step and a shadow edge, kernel up to 37 px wide (tests/ops/test_reference_far.py): rel
-      RMS 1.5e-5 (box) and 1.7e-5 (bilinear) at ``FAR_RATIO`` 2, 1.8e-6 / 3.7e-6 at 3, 2.9e-4 at 1;
-      white-noise irradiance on a plane, one Gaussian, is the worst case measured: up to 1.5e-4 at
-      2. Support: every surface cell of the image extended by ``k`` pixels (clamp-to-edge) within
-      ``σ_g √(2 ln(1 / tol_g))`` in 3D, ``tol_g`` = ``tol`` over the Gaussian's largest share of a
-      channel's total (each Gaussian leaves out at most ``tol`` of any channel's energy). This
-      equals the window of the other methods unless ``k`` is capped by the image size (a kernel
-      wider than the image), where the other methods stop at ``±k`` pixels from each target.
+      footprint by the cell gather within their own (small) support, with nine hat-weighted cell
+      integrals per neighbour cell for the bilinear reconstruction (the same closed forms,
+      Gauss–Legendre per quadrant: :mod:`sssbench.ops._reference_near`; about 2.4× the box
+      reference's time on the face and the sphere at 128², measured); wider Gaussians from the
+      moments of the reconstructed ``q dA`` (mass, dipole, quadrupole; exact for both
+      reconstructions) of the coarsest pixel blocks whose patches fit in a ball of radius ``σ /
+      FAR_RATIO``, by the second-order Taylor expansion of the Gaussian about the block centre;
+      cells too large or steep for that are split into sub-patches that fit the same ball, with
+      exact moments (:mod:`sssbench.ops._reference_far`). The expansion's error is third order in
+      the block radius over σ where the irradiance or the surface jumps and exponentially small
+      where they are smooth. Measured against a brute-force surface integral on a curved masked
+      surface with a depth step and a shadow edge, kernel up to 37 px wide
+      (tests/ops/test_reference_far.py): rel RMS 1.5e-5 (box) and 1.7e-5 (bilinear) at ``FAR_RATIO``
+      2, 1.8e-6 / 3.7e-6 at 3, 2.9e-4 at 1; white-noise irradiance on a plane, one Gaussian, is the
+      worst case measured: up to 1.5e-4 at 2. Support: every surface cell of the image extended by
+      ``k`` pixels (clamp-to-edge) within ``σ_g √(2 ln(1 / tol_g))`` in 3D, ``tol_g`` = ``tol`` over
+      the Gaussian's largest share of a channel's total (each Gaussian leaves out at most ``tol`` of
+      any channel's energy). This equals the window of the other methods unless ``k`` is capped by
+      the image size (a kernel wider than the image), where the other methods stop at ``±k`` pixels
+      from each target.
     - ``"auto"``: fft for a constant depth, multipole for a sum of Gaussians with the
       library's cell integral, gather otherwise.
 
