@@ -153,7 +153,9 @@ def budget_text(budgets: pd.DataFrame) -> str:
     )
     if len(recon):
         text += (
-            f"; the reconstruction part is measured on {len(recon)} of them (every scene), "
+            f"; the reconstruction part is measured on {len(recon)} of them"
+            + (" (all of them)" if len(recon) == len(budgets) else "")
+            + ", "
             f"median share {100 * float(recon.median()):.0f} %"
         )
     return text + "."

@@ -62,6 +62,11 @@ def _pct(share: float) -> str:
     return f"{100 * share:.0f} %"
 
 
+def _delta(change: float) -> str:
+    """A relative change of the error, signed (``−44 %``, ``+6 %``)."""
+    return f"{100 * change:+.0f} %"
+
+
 def error_without(total: float, contribution: float, norm: float) -> float:
     """The rel RMS left when one part is taken out of the error: ``‖E − P‖ / ‖R‖`` from the
     error's ``total = ‖E‖/‖R‖``, the part's ``contribution = ⟨P, E⟩/(‖R‖ ‖E‖)`` and its
@@ -133,17 +138,16 @@ def budget_sentence(
         listed += ", reconstruction not measured"
     text = (
         f"{subject}: the {PART_NAMES[top]} part dominates: without it the rel RMS would be "
-        f"{left[top]:.3g} instead of {total:.3g} ({_pct(left[top] / total - 1)}; shares of the "
+        f"{left[top]:.3g} instead of {total:.3g} ({_delta(left[top] / total - 1)}; shares of the "
         f"error: {listed})"
     )
     if "taps" not in left:
         taps = "the taps part is not measured"
     elif left["taps"] > (1 - NO_HELP) * total:
-        taps = f"more taps will not help ({_pct(left['taps'] / total - 1)})"
+        taps = f"more taps will not help ({_delta(left['taps'] / total - 1)})"
     else:
-        taps = (
-            f"more taps can bring it down to {left['taps']:.3g} ({_pct(left['taps'] / total - 1)})"
-        )
+        change = _delta(left["taps"] / total - 1)
+        taps = f"more taps can bring it down to {left['taps']:.3g} ({change})"
     if top == "taps":
         return f"{text}; {taps}."
     remedy = {
