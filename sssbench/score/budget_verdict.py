@@ -122,9 +122,9 @@ def budget_sentence(
     nor taps remove it.
 
     E.g. ``"face · 0.3 mm/px · sum_of_gaussians uniform 17: the screen-space part dominates:
-    without it the rel RMS would be 0.011 instead of 0.0312 (−65 %; shares of the error: taps
+    without it the rel RMS would be 0.011 instead of 0.0312 (-65 %; shares of the error: taps
     5 % + model (kernel shape) 8 % + reconstruction 25 % + screen-space 62 %); more taps will
-    not help (−3 %); a pass that handles this geometry better (depth steps, silhouettes,
+    not help (+3 %); a pass that handles this geometry better (depth steps, silhouettes,
     curvature, borders) would."``
     """
     got = _without(contributions, norms)
