@@ -26,8 +26,10 @@ from experiments.common import Context, Section, main, md_table, shrink_png
 from sssbench import report
 from sssbench.app import compose_spec, preset_grid
 from sssbench.report import plots
+from sssbench.report.tables import budget_verdicts
 from sssbench.run import runner
 from sssbench.run.warm import warm
+from sssbench.score.budget_verdict import PART_NAMES, PARTS
 
 TITLE = "9. The benchmark: error against run time, per scene and scale"
 
@@ -136,7 +138,36 @@ def measured_text(table: pd.DataFrame, recs: pd.DataFrame) -> str:
             )
     if why:
         measured += " Below the skill bar of 0.3: " + "; ".join(why) + "."
-    return measured
+    return measured + " " + budget_text(budget_verdicts(table))
+
+
+def _pct(share: float) -> str:
+    return "–" if pd.isna(share) else f"{100 * float(share):.0f} %"
+
+
+def budget_text(budgets: pd.DataFrame) -> str:
+    """Which part of the error budget dominates (``dominant``), counted over ``budgets`` (one
+    row per scene, scale and method: :func:`~sssbench.report.tables.budget_verdicts`),
+    and the median
+    share of the reconstruction part (the same for every method of a group)."""
+    if budgets.empty:
+        return "No configuration has an error budget."
+    shares = budgets[[f"share_{p}" for p in PARTS]].astype(float)
+    counts = budgets["dominant"].value_counts()
+    listed = ", ".join(f"{PART_NAMES[p]} ×{int(counts[p])}" for p in PARTS if p in counts)
+    recon = shares["share_recon"].dropna()
+    text = (
+        f"Error budget (each method's best configuration per scene and scale, {len(budgets)} "
+        f"in all): the dominant part (whose removal lowers the error most) is {listed}"
+    )
+    if len(recon):
+        text += (
+            f"; the reconstruction part is measured on {len(recon)} of them"
+            + (" (all of them)" if len(recon) == len(budgets) else "")
+            + ", "
+            f"median share {100 * float(recon.median()):.0f} %"
+        )
+    return text + "."
 
 
 def run(ctx: Context) -> Section:
@@ -174,6 +205,13 @@ def preset_section(
         [r["scene"], r["scale"], r["resolution"], r["recommended"], r["best"], r["verdict"]]
         for _, r in recs.iterrows()
     ]
+    budgets = budget_verdicts(table)
+    budget_rows = [
+        [r["scene"], r["scale"], r["config"], r["rel_rms"]]
+        + [_pct(r[f"share_{p}"]) for p in PARTS]
+        + [r["sentence"].split(": ", 1)[1]]
+        for _, r in budgets.iterrows()
+    ]
     skill_rows = (
         visible.groupby(["method"])["skill"].agg(["min", "median", "max"]).reset_index()
         if len(visible)
@@ -189,6 +227,14 @@ def preset_section(
         + md_table(
             [[r["method"], r["min"], r["median"], r["max"]] for _, r in skill_rows.iterrows()],
             ["method", "min skill", "median skill", "max skill"],
+        )
+        + "\n\nError budget per scene and scale (each method's best configuration; each part's "
+        "share of its error: the contributions, which add up to its rel RMS; "
+        "docs/error_budget.md; computed from this run):\n\n"
+        + md_table(
+            budget_rows,
+            ["scene", "scale", "configuration", "rel RMS", "taps", "model", "recon", "screen"]
+            + ["what dominates, and what is left to gain"],
         )
     )
     return Section(

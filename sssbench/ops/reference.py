@@ -23,6 +23,7 @@ from sssbench._console import bar as progress_bar
 from sssbench.gbuffer import GBuffer, pixel_size_mm
 from sssbench.ops._reference_far import Surface, gather, map_threads, with_border
 from sssbench.ops._reference_flat import flat_kernel
+from sssbench.ops._reference_near import HAT_OFFSETS, hat_cell_weights
 from sssbench.ops.timing import timed_pass
 from sssbench.profiles.base import Profile, _gauss_legendre
 from sssbench.profiles.sum_of_gaussians import (
@@ -234,23 +235,26 @@ def reference_sss(
       so the sums are 2D convolutions (``torch.fft``) with the closed-form 1D factors of
       :mod:`sssbench.ops._reference_flat`, precise at any pixel / profile ratio.
     - ``"multipole"`` (sums of Gaussians): Gaussians narrower than ``WIDE_PIXELS`` times the largest
-      footprint by the cell gather within their own (small) support (box), or by graded
-      Gauss–Legendre points on the bilinear field (bilinear); wider Gaussians from the moments of
-      the reconstructed ``q dA`` (mass, dipole, quadrupole; exact for both reconstructions) of the
-      coarsest pixel blocks whose patches fit in a ball of radius ``σ / FAR_RATIO``, by the
-      second-order Taylor expansion of the Gaussian about the block centre; cells too large or steep
-      for that are split into sub-patches that fit the same ball, with exact moments
-      (:mod:`sssbench.ops._reference_far`). The expansion's error is third order in the block radius
-      over σ where the irradiance or the surface jumps and exponentially small where they are
-      smooth. Measured against a brute-force surface integral on a curved masked surface with a
-      depth step and a shadow edge, kernel up to 37 px wide (tests/ops/test_reference_far.py): rel
-      RMS 1.5e-5 (box) and 1.7e-5 (bilinear) at ``FAR_RATIO`` 2, 1.8e-6 / 3.7e-6 at 3, 2.9e-4 at 1;
-      white-noise irradiance on a plane, one Gaussian, is the worst case measured: up to 1.5e-4 at
-      2. Support: every surface cell of the image extended by ``k`` pixels (clamp-to-edge) within
-      ``σ_g √(2 ln(1 / tol_g))`` in 3D, ``tol_g`` = ``tol`` over the Gaussian's largest share of a
-      channel's total (each Gaussian leaves out at most ``tol`` of any channel's energy). This
-      equals the window of the other methods unless ``k`` is capped by the image size (a kernel
-      wider than the image), where the other methods stop at ``±k`` pixels from each target.
+      footprint by the cell gather within their own (small) support, with nine hat-weighted cell
+      integrals per neighbour cell for the bilinear reconstruction (the same closed forms,
+      Gauss–Legendre per quadrant: :mod:`sssbench.ops._reference_near`; about 2.4× the box
+      reference's time on the face and the sphere at 128², measured); wider Gaussians from the
+      moments of the reconstructed ``q dA`` (mass, dipole, quadrupole; exact for both
+      reconstructions) of the coarsest pixel blocks whose patches fit in a ball of radius ``σ /
+      FAR_RATIO``, by the second-order Taylor expansion of the Gaussian about the block centre;
+      cells too large or steep for that are split into sub-patches that fit the same ball, with
+      exact moments (:mod:`sssbench.ops._reference_far`). The expansion's error is third order in
+      the block radius over σ where the irradiance or the surface jumps and exponentially small
+      where they are smooth. Measured against a brute-force surface integral on a curved masked
+      surface with a depth step and a shadow edge, kernel up to 37 px wide
+      (tests/ops/test_reference_far.py): rel RMS 1.5e-5 (box) and 1.7e-5 (bilinear) at ``FAR_RATIO``
+      2, 1.8e-6 / 3.7e-6 at 3, 2.9e-4 at 1; white-noise irradiance on a plane, one Gaussian, is the
+      worst case measured: up to 1.5e-4 at 2. Support: every surface cell of the image extended by
+      ``k`` pixels (clamp-to-edge) within ``σ_g √(2 ln(1 / tol_g))`` in 3D, ``tol_g`` = ``tol`` over
+      the Gaussian's largest share of a channel's total (each Gaussian leaves out at most ``tol`` of
+      any channel's energy). This equals the window of the other methods unless ``k`` is capped by
+      the image size (a kernel wider than the image), where the other methods stop at ``±k`` pixels
+      from each target.
     - ``"auto"``: fft for a constant depth, multipole for a sum of Gaussians with the
       library's cell integral, gather otherwise.
 
@@ -400,23 +404,35 @@ def _multipole(
     wts = profile.weights
     wide = [i for i, v in enumerate(var) if math.sqrt(v) >= WIDE_PIXELS * p_max]
     narrow = [i for i in range(len(var)) if i not in wide]
-    nodes = narrow if reconstruction == "bilinear" else []
-    groups = [(ids, ratio) for ids, ratio in ((wide, FAR_RATIO), (nodes, None)) if ids]
+    groups = [(wide, FAR_RATIO)] if wide else []
     # a bar when the run takes more than a few seconds (measured on the face close-up,
     # skin_deon6: ~2e5 px·Gaussians per CPU second)
     show = e * len(var) > 500_000 if progress is None else progress
-    hp, wp = h + 2 * k, w + 2 * k
-    surf = _surface(g, k)
-    if narrow and reconstruction == "box":
+    # the bilinear near field reads every cell's 3×3 neighbours: one more ring of padding
+    ring = 1 if reconstruction == "bilinear" else 0
+    surf = _surface(g, k + ring)
+    if narrow:
         sub = SumOfGaussians(profile.variances[narrow], wts[narrow])
         r_n = sub.radius(tol)
         k_n = min(k, math.ceil(r_n / unit) + 1)
+        kr = k + ring
+        hp, wp = h + 2 * kr, w + 2 * kr
         bi, rem = active // (h * w), active % (h * w)
-        centre = bi * hp * wp + (rem // w + k) * wp + (rem % w + k)
+        centre = bi * hp * wp + (rem // w + kr) * wp + (rem % w + kr)
         with progress_bar(show, desc="reference (cells)", unit="offset") as near_bar:
             acc, wsum = _gather_sog(
-                sub, surf.table, centre, wp, k_n, r_n, progress=near_bar, workers=workers
+                sub,
+                surf.table,
+                centre,
+                wp,
+                k_n,
+                r_n,
+                progress=near_bar,
+                workers=workers,
+                reconstruction=reconstruction,
             )
+    if ring:
+        surf = _Padded(surf.fields[..., ring:-ring, ring:-ring])
     if not groups:
         return acc, wsum
     n_far = sum(len(ids) for ids, _ in groups)
@@ -594,6 +610,7 @@ def _gather_sog(
     radius_mm: float,
     progress: object = None,
     workers: int = 1,
+    reconstruction: str = "box",
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """:func:`_gather_generic` for a sum of Gaussians, many offsets per batch (``progress``:
     a tqdm bar, advanced by the offsets done; the chunks of centres run on ``workers`` threads,
@@ -618,7 +635,12 @@ def _gather_sog(
     at most ``2 max E`` times that over the gathered fraction of ``‖R‖₁`` (measured: 2e-13
     on the 512² head). The narrow closed form keeps ``√(80 v)``: with slopes along both axes
     it is not bounded by the nearest distance (measured: 7.6e-2 of a Gaussian's mass on a
-    silhouette cell 9σ away), so leaving it out earlier would change the result."""
+    silhouette cell 9σ away), so leaving it out earlier would change the result.
+
+    ``reconstruction="bilinear"``: each neighbour cell contributes the nine hat-weighted
+    integrals of :func:`~sssbench.ops._reference_near.hat_cell_weights` (same rules, a
+    Gauss–Legendre rule per quadrant) times the values of its 3×3 neighbours, which
+    ``table`` must hold (one ring of padding beyond the ``k`` the offsets reach)."""
     e = centre.numel()
     acc = torch.zeros(e, 3, dtype=torch.float64)
     wsum = torch.zeros_like(acc)
@@ -630,13 +652,17 @@ def _gather_sog(
     # field-major (every gathered field contiguous), without the stencil column: a neighbour
     # is on the surface iff its cell has a size (depth > 0 is validated by GBuffer), and a
     # zero-size cell has weight exactly 0 in every rule
-    fields = table[:, [0, 1, 2, 3, 4, 5, 7, 8, 9]].t().contiguous()
+    cols = [0, 1, 2, 3, 4, 5, 7, 8, 9] if reconstruction == "box" else list(range(10))
+    fields = table[:, cols].t().contiguous()
+    hat = None
+    if reconstruction == "bilinear":  # flat-index shifts of the 3×3 neighbours (row −b)
+        hat = torch.tensor([a - b * wp for a, b in HAT_OFFSETS], dtype=centre.dtype)
     if progress is not None:
         progress.reset(total=shift.numel() * math.ceil(e / _CENTRES))
 
     def chunk(i: int) -> int:
         part = slice(i, i + _CENTRES)
-        acc[part], wsum[part] = _sog_chunk(profile, v, fields, centre[part], shift, radius_mm)
+        acc[part], wsum[part] = _sog_chunk(profile, v, fields, centre[part], shift, radius_mm, hat)
         return shift.numel()
 
     for n in map_threads(chunk, range(0, e, _CENTRES), workers):
@@ -652,9 +678,12 @@ def _sog_chunk(
     centre: torch.Tensor,
     shift: torch.Tensor,
     radius_mm: float,
+    hat: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """:func:`_gather_sog` of at most ``_CENTRES`` centres (``fields``: field-major
-    neighbour table, ``shift``: flat offsets nearest first)."""
+    neighbour table, ``shift``: flat offsets nearest first; ``hat``: the flat shifts of the
+    nine bilinear neighbours, ``None`` for the box reconstruction, whose table has no
+    stencil row)."""
     e = centre.numel()
     acc = torch.zeros(e, 3, dtype=torch.float64)
     wsum = torch.zeros_like(acc)
@@ -687,6 +716,17 @@ def _sog_chunk(
             if len(rows) < c:
                 sel = torch.tensor(rows)
                 sub = [t.index_select(-2, sel) for t in sub]
+            if hat is not None:
+                cells = idx[0].view(c, e)
+                if len(rows) < c:
+                    cells = cells.index_select(0, sel)
+                wgt = hat_cell_weights(profile, rule, *(t.reshape(-1) for t in sub[:6]))
+                wgt = wgt.view(3, 9, -1, e)
+                for j, off in enumerate(hat.tolist()):
+                    qn = fields[6:10, cells + off]  # stencil, irradiance · stencil
+                    acc += (wgt[:, j] * qn[1:]).sum(1).t()
+                    wsum += (wgt[:, j] * qn[0]).sum(1).t()
+                continue
             wgt = _sog_cell_weights(profile, rule, *(t.reshape(-1) for t in sub[:6]))
             wgt = wgt.view(3, -1, e)
             acc += (wgt * sub[6]).sum(1).t()

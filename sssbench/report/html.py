@@ -41,6 +41,7 @@ from sssbench.report.tables import (
     REFERENCE,
     _flags,
     _fmt,
+    budget_verdicts,
     config_text,
     group_keys,
     label,
@@ -233,10 +234,18 @@ def write_html(
                 'class="hidden"', ""
             )
         )
+    budgets = budget_verdicts(table)
+    if len(budgets):
+        parts.append("<h2>Error budget</h2>")
+        parts.append(
+            "<p>Per scene, scale and method (its best configuration): each part's share of "
+            "the error, the contributions that add up to its rel RMS (docs/error_budget.md).</p>"
+        )
+        parts.append(_table(budgets, [*group_keys(table), "sentence"]))
     shown = table.assign(flags=[_flags(r, markdown=False) for _, r in table.iterrows()])
     cols = ["scene", "scale", "resolution", "stages", "method", "sampling", "samples",
             "time_ms", "rel_rms", "skill", "flip", "err_model", "err_taps", "err_screen",
-            "bias_rel_rms", "noise_rel_rms", "status", "flags"]  # fmt: skip
+            "err_recon", "bias_rel_rms", "noise_rel_rms", "status", "flags"]  # fmt: skip
     parts += ["<h2>Summary</h2>", _table(shown, cols)]
     for path in plots:
         parts.append(f"<h2>{html.escape(path.stem.replace('_', ' '))}</h2>")

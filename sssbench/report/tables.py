@@ -18,9 +18,12 @@ from typing import Any
 
 import pandas as pd
 
+from sssbench.score.budget_verdict import PARTS, budget_sentence, budget_shares, dominant_part
 from sssbench.store.tracking import METRIC_COLUMNS, RunStore
 
 __all__ = [
+    "BUDGET_COLUMNS",
+    "budget_verdicts",
     "load_runs",
     "summary_table",
     "annotate",
@@ -506,6 +509,60 @@ def search_fronts(group: pd.DataFrame) -> dict[str, pd.DataFrame]:
     return fronts
 
 
+# ----------------------------------------------------------------------------- budget
+#: the budget's four parts (rel RMS norms) as table columns, in the sentence's order
+BUDGET_COLUMNS = [f"err_{p}" for p in PARTS]
+
+
+def _parts(row: pd.Series, prefix: str) -> dict[str, float]:
+    """``{part: row[prefix + part]}`` (NaN where missing)."""
+    out = {}
+    for p in PARTS:
+        v = row.get(f"{prefix}{p}")
+        out[p] = math.nan if v is None or pd.isna(v) else float(v)
+    return out
+
+
+def budget_verdicts(table: pd.DataFrame) -> pd.DataFrame:
+    """Per ranking group (:func:`~sssbench.report.tables.group_keys`) and screen-space method:
+    the method's configuration with the best skill among its runs with a budget (the most
+    taps where no skill is known), its parts' shares of the error (``share_taps`` …, NaN
+    where not measured), the dominant part (:func:`~sssbench.score.budget_verdict.dominant_part`)
+    and the sentence. Groups or methods without a budget give no row."""
+    keys = group_keys(table)
+    shares = [f"share_{p}" for p in PARTS]
+    cols = [*keys, "method", "config", "rel_rms", *shares, "dominant", "sentence"]
+    rows = []
+    if table.empty or "contribution_model" not in table.columns:
+        return pd.DataFrame(columns=cols)
+    ok = table[(table["status"] == "ok") & ~table["method"].isin((BASELINE, REFERENCE))]
+    ok = ok[ok["contribution_model"].notna()]
+    for key, group in ok.groupby([*keys, "method"], dropna=False, sort=True):
+        info = dict(zip([*keys, "method"], key, strict=True))
+        skill = group["skill"].astype(float)
+        if skill.notna().any():
+            row = group.loc[skill.idxmax()]
+        else:
+            row = group.sort_values("samples", na_position="first").iloc[-1]
+        subject = f"{info['scene']} · {info['scale']} · {label(row)}"
+        contrib, norms = _parts(row, "contribution_"), _parts(row, "err_")
+        sentence = budget_sentence(subject, contrib, norms)
+        if sentence is None:
+            continue
+        shares = budget_shares(contrib) or {}
+        rows.append(
+            {
+                **info,
+                "config": label(row),
+                "rel_rms": float(sum(contrib[p] for p in shares)),
+                **{f"share_{p}": shares.get(p, math.nan) for p in PARTS},
+                "dominant": dominant_part(contrib, norms),
+                "sentence": sentence,
+            }
+        )
+    return pd.DataFrame(rows, columns=cols)
+
+
 # ----------------------------------------------------------------------------- writing
 def _fmt(value: Any) -> str:
     if value is None or value is pd.NA or (isinstance(value, float) and math.isnan(value)):
@@ -543,6 +600,7 @@ MD_COLUMNS = [
     "err_model",
     "err_taps",
     "err_screen",
+    "err_recon",
     "bias_rel_rms",
     "noise_rel_rms",
     "status",
@@ -587,6 +645,7 @@ def summary_markdown(table: pd.DataFrame, source: str) -> str:
         f"(relative to the reference RMS). {MISSING} = not applicable.",
     ]
     recs = recommendations(table)
+    budgets = budget_verdicts(table)
     table = table.assign(flags=[_flags(r) for _, r in table.iterrows()])
     for key, group in table.groupby(group_keys(table), dropna=False, sort=True):
         info = dict(zip(group_keys(table), key, strict=True))
@@ -602,6 +661,11 @@ def summary_markdown(table: pd.DataFrame, source: str) -> str:
             parts += ["", f"**Recommendation.** {r['verdict']}"]
             if r["pareto"] != MISSING:
                 parts += ["", f"Pareto front (fastest first): {r['pareto']}."]
+        lines = _group_rows(budgets, info)["sentence"].tolist()
+        if lines:
+            head = "**Error budget** (each part's share of the error, docs/error_budget.md):"
+            parts += ["", head]
+            parts += [""] + [f"- {line}" for line in lines]
     for line in device_lines(table):
         parts += ["", line]
     failed = table[table["status"] != "ok"]
@@ -609,6 +673,14 @@ def summary_markdown(table: pd.DataFrame, source: str) -> str:
         parts += ["", "## Failed or timed-out runs", ""]
         parts.append(_markdown(failed[[*POINT_COLUMNS, "status", "error"]]))
     return "\n".join(parts) + "\n"
+
+
+def _group_rows(rows: pd.DataFrame, info: dict[str, Any]) -> pd.DataFrame:
+    """The rows of ``rows`` in the ranking group ``info`` (its group keys)."""
+    for k, v in info.items():
+        if k in rows.columns:
+            rows = rows[rows[k].isna()] if v is None or v is pd.NA else rows[rows[k] == v]
+    return rows
 
 
 def device_lines(table: pd.DataFrame) -> list[str]:
@@ -650,11 +722,16 @@ def format_console(table: pd.DataFrame) -> str:
     ]
     if table["stages"].nunique(dropna=False) > 1:  # a sweep varies a stage: show which ran
         cols.insert(cols.index("samples") + 1, "stages")
+    budget = [c for c in ("err_taps", "err_model", "err_recon", "err_screen") if c in table]
+    if budget and table[budget].notna().any().any():  # the error budget's four parts
+        cols[cols.index("status") : cols.index("status")] = budget
+    else:
+        budget = []
     shown = table[cols].copy()
     shown["samples"] = [MISSING if pd.isna(v) else str(int(v)) for v in shown["samples"]]
     shown["sampling"] = [v if isinstance(v, str) else MISSING for v in shown["sampling"]]
     shown["passes"] = [MISSING if pd.isna(v) else str(int(v)) for v in shown["passes"]]
-    for c in ("time_ms", "rel_rms", "skill", "flip"):
+    for c in ("time_ms", "rel_rms", "skill", "flip", *budget):
         shown[c] = [_fmt(None if pd.isna(v) else float(v)) for v in shown[c]]
     shown["flags"] = [
         "".join(
@@ -682,4 +759,8 @@ def format_console(table: pd.DataFrame) -> str:
         where = f"{r['scene']} · {r['scale']} · {r['resolution']}"
         where += f" · {r['stages']}" if r["stages"] != MISSING else ""
         lines.append(f"{where}: {r['verdict']}")
+    sentences = budget_verdicts(table)["sentence"].tolist()
+    if sentences:
+        lines += ["", "error budget (each part's share of the error, docs/error_budget.md):"]
+        lines += sentences
     return "\n".join(lines)

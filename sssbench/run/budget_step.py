@@ -29,7 +29,7 @@ class BudgetInputs:
     build: Any  # samples -> the run's method at that tap count
     g64: Any  # the G-buffer in float64
     limit: tuple[torch.Tensor, int, float]  # converged image, its taps, its last change
-    bilinear: torch.Tensor | None  # the bilinear-reconstruction reference (flat scenes)
+    bilinear: torch.Tensor | None  # the bilinear-reconstruction reference
 
 
 def budget_inputs(
@@ -42,9 +42,9 @@ def budget_inputs(
 
     The method converged in taps and the bilinear-reconstruction reference do not depend on
     the run's tap count: one cached entry serves a whole samples sweep. ``err_recon`` is
-    computed on fronto-parallel planes only (the bilinear reference's FFT path); on curved
-    surfaces the bilinear reference costs minutes per image, so ``err_recon`` is NaN there
-    and the convention's share stays inside ``err_screen`` (docs/error_budget.md)."""
+    computed on every scene the exact reference runs on (the bilinear reference's FFT path on
+    planes, its closed-form near field elsewhere, about twice the box reference's time;
+    docs/error_budget.md)."""
     from sssbench.ops import ReferenceSSS
     from sssbench.score import budget
 
@@ -88,17 +88,14 @@ def budget_inputs(
     packed = packed.double()
     limit = (packed[:-2].reshape(g64.diffuse.shape), int(packed[-2]), float(packed[-1]))
     bil = None
-    flat = bool(gbuffer.depth.min() == gbuffer.depth.max())
-    if flat and "reconstruction" in inspect.signature(ReferenceSSS.__init__).parameters:
-        bil_key = {
-            **key,
-            "reference_params": {**spec.reference_params, "reconstruction": "bilinear"},
-        }
+    if "reconstruction" in inspect.signature(ReferenceSSS.__init__).parameters:
+        params = {**spec.reference_params, "reconstruction": "bilinear"}
+        if params.get("method") == "gather":  # the cell gather is box-only: same integral
+            params.pop("method")
+        bil_key = {**key, "reference_params": params}
         bil, _, _ = cached_reference(
             bil_key,
-            lambda: ReferenceSSS(
-                profile, **{**spec.reference_params, "reconstruction": "bilinear"}
-            )(gbuffer),
+            lambda: ReferenceSSS(profile, **params)(gbuffer),
             spec.reference_cache,
             shape=tuple(gbuffer.diffuse.shape),
         )

@@ -1,0 +1,198 @@
+"""Hat-weighted cell integrals: the bilinear reconstruction's near field in closed form.
+
+One module because the three cell rules below (flat, narrow tilted, Gauss–Legendre per
+quadrant) are one derivation: the box reference's cell rules
+(:func:`sssbench.profiles.sum_of_gaussians.cell_rules`) with the bilinear weights inside the
+integral.
+
+With the bilinear reconstruction (:func:`sssbench.ops.reference.reference_sss`) the field on
+the cell ``n`` at ``p_n + s t_x + t t_y`` (``|s|, |t| ≤ h``) is
+``Σ_{a,b ∈ {−1,0,1}} Λ_a(s) Λ_b(t) q_{n+(a,b)}`` with the hat weights
+``Λ_0(s) = 1 − |s|/2h``, ``Λ_{±1}(s) = max(0, ±s/2h)`` (they sum to 1). So the cell's
+contribution to a target is ``Σ_ab W_ab q_{n+(a,b)}`` with nine weights
+``W_ab = ∫_cell Λ_a(s) Λ_b(t) G(v, |Δ + s t_x + t t_y|) dA`` per Gaussian, instead of the box
+reconstruction's one weight ``∫_cell G dA = Σ_ab W_ab``. The nine weights come from the same
+rule the box reference uses for the cell:
+
+- ``"flat"`` (no slope): the Gaussian factorises, ``W_ab = e^{−dz²/2v} m_a(dx) m_b(dy)`` with
+  the 1D hat masses of :func:`hat_masses` (erfc and the normal density: exact).
+- ``"narrow"`` (σ < h/2 on a tilted cell): the box rule's completed square along each tangent
+  (:func:`~sssbench.profiles.sum_of_gaussians.narrow_tilted_cell_mass`), whose 1D factors are
+  Gaussians in ``s`` and ``t``: their hat masses, scaled by the box rule's cap (so the nine
+  weights sum to the box weight exactly).
+- an int ``n`` (Gauss–Legendre): the hat weights have a kink at the cell centre, so each cell is
+  split into its four quadrants (where they are linear) with an ``n``-point rule per half axis:
+  the integrand per quadrant is as smooth as the box rule's on the whole cell.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from sssbench.profiles.base import _gauss_legendre
+from sssbench.profiles.sum_of_gaussians import SumOfGaussians, interval_mass
+
+__all__ = ["HAT_OFFSETS", "hat_masses", "hat_cell_weights"]
+
+#: the nine neighbour offsets ``(a, b)`` of the bilinear reconstruction, in the order of the
+#: weights' second axis (column offset ``a``, row offset ``−b``: ``t`` runs upward)
+HAT_OFFSETS = tuple((a, b) for b in (-1, 0, 1) for a in (-1, 0, 1))
+_INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
+#: cells × quadrature nodes per block of :func:`_quadrant_gauss_legendre` (in cache)
+_NODE_ELEMS = 1 << 18
+
+
+def _density(x: torch.Tensor) -> torch.Tensor:
+    """The standard normal density ``φ(x)``."""
+    return torch.exp(-0.5 * x * x) * _INV_SQRT_2PI
+
+
+def hat_masses(
+    mu: torch.Tensor, sigma: torch.Tensor, h: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``∫_{−h}^{h} Λ_a(s) φ((s − μ)/σ)/σ ds`` for ``a = −1, 0, 1`` (broadcast shapes).
+
+    With ``P(l, u) = Φ((u−μ)/σ) − Φ((l−μ)/σ)`` (:func:`interval_mass`, no cancellation in the
+    tails) and ``∫_l^u s φ((s−μ)/σ)/σ ds = μ P(l, u) + σ (φ((l−μ)/σ) − φ((u−μ)/σ))``:
+    ``m_{+1} = (1/2h) ∫_0^h s …``, ``m_{−1} = −(1/2h) ∫_{−h}^0 s …``, and ``m_0 = P(−h, h) −
+    m_{−1} − m_{+1}`` (the hats sum to 1). 0 where ``h = 0`` (a cell off the surface).
+    """
+    on = h > 0
+    hs = torch.where(on, h, torch.ones_like(h))
+    lo, mid, hi = (-hs - mu) / sigma, -mu / sigma, (hs - mu) / sigma
+    p_lo, p_hi = interval_mass(lo, mid), interval_mass(mid, hi)
+    f_lo, f_mid, f_hi = _density(lo), _density(mid), _density(hi)
+    first_hi = mu * p_hi + sigma * (f_mid - f_hi)  # ∫_0^h s …
+    first_lo = mu * p_lo + sigma * (f_lo - f_mid)  # ∫_{−h}^0 s …
+    m_pos = (first_hi / (2 * hs)).clamp_min(0)
+    m_neg = (-first_lo / (2 * hs)).clamp_min(0)
+    m_0 = interval_mass(lo, hi) - m_pos - m_neg
+    zero = torch.zeros_like(m_0)
+    return (torch.where(on, m_neg, zero), torch.where(on, m_0, zero), torch.where(on, m_pos, zero))
+
+
+def _outer9(mx: tuple[torch.Tensor, ...], my: tuple[torch.Tensor, ...], f: torch.Tensor):
+    """``(9, M)``: ``f · mx_a · my_b`` in the order of :data:`HAT_OFFSETS`."""
+    return torch.stack([f * my[b + 1] * mx[a + 1] for a, b in HAT_OFFSETS])
+
+
+def _flat_hat(dx, dy, dz, hh, v: float) -> torch.Tensor:
+    """The ``"flat"`` rule: ``(9, M)`` (001 eq. 7 factorised, r² = x² + y² + dz²)."""
+    s = torch.full_like(dx, math.sqrt(v))
+    mx = hat_masses(-dx, s, hh)
+    my = hat_masses(-dy, s, hh)
+    return _outer9(mx, my, torch.exp(-(dz * dz) / (2 * v)))
+
+
+def _narrow_hat(dx, dy, dz, hh, sx, sy, v: float) -> torch.Tensor:
+    """The ``"narrow"`` rule: the terms of ``narrow_tilted_cell_mass`` with hat masses for its
+    interval masses, times ``min(term, cap) / term`` (its cap on the sum): ``(9, M)``."""
+    s = math.sqrt(v)
+    cx, cy = 1 + sx * sx, 1 + sy * sy
+    bx, by = dx + sx * dz, dy + sy * dz  # Δ · t_x, Δ · t_y
+    resid = (dx * dx + dy * dy + dz * dz - bx * bx / cx - by * by / cy).clamp_min(0)
+    mx = hat_masses(-bx / cx, s / torch.sqrt(cx), hh)
+    my = hat_masses(-by / cy, s / torch.sqrt(cy), hh)
+    lead = torch.exp(-resid / (2 * v))
+    term = lead * sum(mx) * sum(my)
+    near2 = (dx.abs() - hh).clamp_min(0) ** 2 + (dy.abs() - hh).clamp_min(0) ** 2
+    area = 4 * hh * hh * torch.sqrt(1 + sx * sx + sy * sy)
+    cap = area * torch.exp(-near2 / (2 * v)) / (2 * math.pi * v)
+    scale = torch.where(term > cap, cap / torch.where(term > 0, term, 1.0), 1.0)
+    return _outer9(mx, my, lead * scale)
+
+
+def _quadrant_nodes(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Nodes ``ξ ∈ [−1, 1]`` (``s = h ξ``) of an ``n``-point rule on each half axis, their
+    weights, and the hat weights ``(3, 2n)`` of the offsets −1, 0, 1 at them."""
+    x, w = _gauss_legendre(n)
+    u = (x + 1) / 2  # [0, 1]
+    xi = np.concatenate([-u[::-1], u])
+    wt = np.concatenate([w[::-1], w]) / 2
+    hat = np.stack([np.maximum(0, -xi) / 2, 1 - np.abs(xi) / 2, np.maximum(0, xi) / 2])
+    return xi, wt, hat
+
+
+def quadrant_order(n: int) -> int:
+    """Points per half axis for a cell the box rule integrates with ``n`` points: a half is
+    half as wide against σ, so about half the points (one more for the hat's linear
+    factor), at least 2."""
+    return max(2, n // 2 + 1)
+
+
+def _quadrant_gauss_legendre(dx, dy, dz, hh, sx, sy, v, n, weights) -> torch.Tensor:
+    """``Σ_g weights_g W_ab`` by ``n_g`` Gauss–Legendre points per half axis and quadrant,
+    several Gaussians at once: ``(3, 9, M)``.
+
+    As ``_sog_gauss_legendre`` of the reference: the squared distance of a node is a fixed
+    polynomial of the node, ``|Δ|² + 2hξ_a Δ·t_x + 2hξ_b Δ·t_y + h²ξ_a²|t_x|² + h²ξ_b²|t_y|²
+    + 2h²ξ_aξ_b t_x·t_y``, so the exponents are one matrix product of a (nodes, 6) table with
+    six per-cell features, and the sums (quadrature × hat × channel weights) a second one.
+    """
+    phi, red = [], []
+    for vg, nc, wg in zip(v, n, weights.tolist(), strict=True):
+        ng = quadrant_order(nc)
+        xi, wt, hat = _quadrant_nodes(ng)
+        xa, xb = np.repeat(xi, 2 * ng), np.tile(xi, 2 * ng)
+        phi.append(np.stack([np.ones_like(xa), xa, xb, xa**2, xb**2, xa * xb], 1) * (-0.5 / vg))
+        q = np.outer(wt, wt).ravel() / (2 * math.pi * vg)  # (nodes,)
+        hab = np.stack([np.outer(hat[a + 1], hat[b + 1]).ravel() for a, b in HAT_OFFSETS])
+        red.append(np.asarray(wg)[:, None, None] * (hab * q)[None])  # (3, 9, nodes)
+    a_mat = torch.from_numpy(np.concatenate(phi)).to(dx)
+    r_mat = torch.from_numpy(np.concatenate(red, 2).reshape(27, -1)).to(dx)
+    rows = a_mat.shape[0]
+    two_h, h2 = 2 * hh, hh * hh
+    sx2, sy2 = sx * sx, sy * sy
+    feats = torch.stack(
+        [
+            torch.addcmul(torch.addcmul(dx * dx, dy, dy), dz, dz),  # |Δ|²
+            two_h * torch.addcmul(dx, sx, dz),  # 2h Δ·t_x
+            two_h * torch.addcmul(dy, sy, dz),  # 2h Δ·t_y
+            torch.addcmul(h2, h2, sx2),  # h² |t_x|²
+            torch.addcmul(h2, h2, sy2),  # h² |t_y|²
+            (two_h * hh) * sx * sy,  # 2h² t_x·t_y
+        ]
+    )
+    block = max(1, _NODE_ELEMS // rows)
+    m = dx.shape[0]
+    parts = [r_mat @ torch.exp(a_mat @ feats[:, i : i + block]) for i in range(0, m, block)]
+    area = torch.sqrt(1 + sx2 + sy2) * h2
+    return (torch.cat(parts, 1) * area).view(3, 9, m)
+
+
+def hat_cell_weights(
+    profile: SumOfGaussians,
+    rule: tuple[int | str | None, ...],
+    dx: torch.Tensor,
+    dy: torch.Tensor,
+    dz: torch.Tensor,
+    hh: torch.Tensor,
+    sx: torch.Tensor,
+    sy: torch.Tensor,
+) -> torch.Tensor:
+    """The nine hat-weighted cell integrals of ``profile`` (channels first), ``(3, 9, M)``,
+    for flat cell tensors ``(M,)`` (offset ``Δ`` from the target, mm; half-size; slopes) with
+    the per-Gaussian ``rule`` of :func:`~sssbench.profiles.sum_of_gaussians.cell_rules`; an
+    int rule ``n`` takes ``n`` points per half axis and quadrant. Summed over the nine, the
+    box reference's cell weight (same rule; to rounding for ``"flat"`` and ``"narrow"``)."""
+    v = profile.variances.to(torch.float64).tolist()
+    w = profile.weights.to(dx)
+    out = dx.new_zeros(3, 9, dx.shape[0])
+    quad = [i for i, r in enumerate(rule) if isinstance(r, int)]
+    if quad:
+        order = [int(rule[i]) for i in quad]  # type: ignore[arg-type]
+        out += _quadrant_gauss_legendre(
+            dx, dy, dz, hh, sx, sy, [v[i] for i in quad], order, w[quad]
+        )
+    for i, r in enumerate(rule):
+        if r == "flat":
+            term = _flat_hat(dx, dy, dz, hh, v[i])
+        elif r == "narrow":
+            term = _narrow_hat(dx, dy, dz, hh, sx, sy, v[i])
+        else:
+            continue
+        out += w[i][:, None, None] * term[None]
+    return out
