@@ -26,6 +26,7 @@ from typing import NamedTuple
 import torch
 
 from sssbench.gbuffer import GBuffer
+from sssbench.gl._disk import disk_pass
 from sssbench.gl._context import (
     INSTALL_HINT,
     LLVMPIPE_NOTE,
@@ -293,4 +294,4 @@ def run_pass_sources(
 
 # the gather dispatches `backend("gl")` passes here without importing this package (it sits
 # above the operators: docs/architecture.md)
-register_pass_backend("gl", get_context, gather_pass)
+register_pass_backend("gl", get_context, gather_pass, disk_pass=disk_pass)
