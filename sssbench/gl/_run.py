@@ -479,11 +479,12 @@ def make_frame(
     glc: GLContext | None, gbuffer: GBuffer, bi: int, method, width_map, timings
 ) -> Frame:
     """The textures of image ``bi`` of ``gbuffer`` for ``method``."""
+    from sssbench.ops.disk import DISK_ROTATIONS
     from sssbench.ops.rotation import random_rotation
 
     glc = glc or get_context()
     rot = None
-    if getattr(method, "rotation", None) is not None:
+    if getattr(method, "rotation", None) not in (None, *DISK_ROTATIONS):  # (the disk: its own)
         rot = random_rotation(gbuffer, method.rotation, method.seed).angles[bi]
     return Frame(
         glc,

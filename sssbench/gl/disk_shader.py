@@ -165,12 +165,18 @@ bool accepted(ivec2 p) { return texelFetch(strengthTex, p, 0).r > 0.0; }
 
 // ---------------------------------------------------------------- radial sampling
 // Burley's radial CDF F(r) = 1 - e^{-r/d}/4 - 3 e^{-r/3d}/4 inverted (Christensen & Burley
-// 2015; Cardano: x = e^{-r/3d} = 2 sinh(asinh(2 (1 - u)) / 3)), area density F'(r) / (2 pi r)
+// 2015): x = e^{-r/3d} solves x^3 + 3x - 4v = 0, v = 1 - u. The torch sampler writes
+// Cardano's root as 2 sinh(asinh(2v) / 3); in float32 asinh(2v) = log(2v + sqrt(1 + 4v^2))
+// loses the digits of a small v (a tail sample), so the root is taken in HDRP's form
+// (below): x = 4v / c. Area density F'(r) / (2 pi r), F'(r) = (x^3 + x) / (4d)
 void sampleBurleyArea(float v, out float r, out float rcpPdfArea) {
     float d = DISK_SAMPLED_D;
-    float x = 2.0 * sinh(asinh(2.0 * v) / 3.0);  // v = 1 - u
-    r = -3.0 * d * log(max(x, FLT_MIN));
-    float dens = (exp(-r / d) + exp(-r / (3.0 * d))) / (4.0 * d);
+    float g = 1.0 + 4.0 * v * (2.0 * v + sqrt(1.0 + 4.0 * v * v));
+    float n = pow(g, -1.0 / 3.0);
+    float c = 1.0 + g * n * n + n;
+    float x = 4.0 * v / c;
+    r = 3.0 * d * log(c / (4.0 * v));
+    float dens = (x * x * x + x) / (4.0 * d);
     rcpPdfArea = TWO_PI * r / dens;
 }
 
