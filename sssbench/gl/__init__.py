@@ -26,7 +26,6 @@ from typing import NamedTuple
 import torch
 
 from sssbench.gbuffer import GBuffer
-from sssbench.gl._disk import disk_pass
 from sssbench.gl._context import (
     INSTALL_HINT,
     LLVMPIPE_NOTE,
@@ -35,6 +34,7 @@ from sssbench.gl._context import (
     available,
     get_context,
 )
+from sssbench.gl._disk import disk_pass, disk_schedule, disk_spec
 from sssbench.gl._run import Frame, GLMethodError, make_frame, pass_spec, schedule
 from sssbench.gl.shaders import PassShader, pass_source
 from sssbench.ops.pass_backends import register_pass_backend
@@ -157,7 +157,7 @@ def run_method(
     if not isinstance(gbuffer, GBuffer):
         raise TypeError(f"gbuffer must be a GBuffer, got {type(gbuffer).__name__}")
     glc = get_context()
-    fn = schedule(method)
+    fn = _schedule(method)
     b = gbuffer.diffuse.shape[0]
     images = []
     per_pass: dict[str, list[float]] = {}
@@ -189,6 +189,17 @@ def run_method(
         for r in range(repeats)
     ]
     return GLRun(image, times, glc.info, records, per_repeat)
+
+
+def _schedule(method):
+    """The GL schedule of ``method``: the disk's (:mod:`sssbench.gl._disk`, refusing an option
+    without a shader by name) or a separable method's (:func:`sssbench.gl._run.schedule`)."""
+    from sssbench.ops import DiskSSS
+
+    if isinstance(method, DiskSSS):
+        disk_spec(method)
+        return disk_schedule
+    return schedule(method)
 
 
 def _release(frame: Frame) -> None:

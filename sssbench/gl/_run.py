@@ -440,19 +440,13 @@ def _sum_of_gaussians(frame, method, gbuffer, wt):
 
 def schedule(method) -> Schedule:
     """The GL schedule of ``method`` (:class:`GLMethodError` naming why when there is none)."""
-    from sssbench.gl._disk import disk_schedule, disk_spec
     from sssbench.ops import (
         ArtistSSS,
-        DiskSSS,
         Jimenez2012SSS,
         LowRankSSS,
         PreintegratedSSS,
         SumOfGaussiansSSS,
     )
-
-    if isinstance(method, DiskSSS):
-        disk_spec(method)  # refuses an option without a shader, naming it
-        return disk_schedule
 
     table = [
         (PreintegratedSSS, _preintegrated),

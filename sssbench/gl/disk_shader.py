@@ -265,7 +265,8 @@ vec3 evaluateHdrp(ivec2 pix, ivec2 size, vec3 colorM, float depthM, float turn) 
 #endif
         float psi = TWO_PI * fract(goldenFrac(i) + turn);  // Golden2dSeq angle + rotation
         // position = pixelCoord + round(vec * pixelsPerMm), rows downward
-        ivec2 p = pix + ivec2(int(roundEven(ppm * r * cos(psi))), int(roundEven(ppm * r * sin(psi))));
+        vec2 offset = ppm * r * vec2(cos(psi), sin(psi));
+        ivec2 p = pix + ivec2(roundEven(offset));
         bool inside = all(greaterThanEqual(p, ivec2(0))) && all(lessThan(p, size));
         ivec2 q = clamp(p, ivec2(0), size - 1);
         float dz = texelFetch(depthTex, q, 0).r - depthM;
