@@ -16,9 +16,10 @@ reference of Burley's profile on a stepped surface costs minutes per image here.
 Where the engines' estimators are documented: HDRP's in Unity-Technologies/Graphics
 ``com.unity.render-pipelines.high-definition/Runtime/Material/SubsurfaceScattering/
 SubsurfaceScattering.compute`` (``EvaluateSss``, ``EvaluateSample``) and
-``DiffusionProfile.hlsl``, after Golubev 2018 (SIGGRAPH Advances); UE5's in
-``Engine/Shaders/Private/PostProcessSubsurface*.usf`` (the Burley screen-space pass); EEVEE's
-in Blender's ``eevee_subsurface_*`` shaders (docs/gl.md, docs/disk.md when present).
+``DiffusionProfile.hlsl``, after Golubev 2018 (SIGGRAPH Advances); UE5's screen-space Burley
+pass in ``Engine/Source/Runtime/Renderer/Private/PostProcess/SubsurfaceBurleyNormalized.cpp``
+and its shaders; EEVEE's in Blender's ``eevee_subsurface.cc`` and ``eevee_subsurface_*``
+shaders (docs/gl.md, "The disk shader").
 
 Run on its own (it rewrites only its block of ``experiments/sections/disk.md``)::
 
