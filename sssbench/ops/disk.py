@@ -484,6 +484,10 @@ class DiskSSS(nn.Module):
         ``(B, 1, H, W)`` float64 in ``[0, 1)``, 0 at pixels with ``mask == 0``. For backends
         that take them as a texture (the GL disk, :mod:`sssbench.gl`): GLSL 330 has no 64-bit
         integers for the hash of a 63-bit seed."""
+        if not isinstance(gbuffer, GBuffer):
+            raise TypeError(f"gbuffer must be a GBuffer, got {type(gbuffer).__name__}")
+        frame = check_int("frame", frame, 0, MAX_DISK_FRAMES - 1)
+        stream = check_int("stream", stream, 0, MAX_DISK_SAMPLES)
         ctx = _Pixels(gbuffer)
         sel = torch.arange(ctx.index.numel())
         pix = ctx.index
