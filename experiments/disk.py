@@ -33,7 +33,11 @@ the six-Gaussian skin fit here too (its exact reference is the fast multipole on
 rules run with the tabulated radial sampler (HDRP itself has only Burley's profile, whose
 exact reference on a stepped surface costs minutes per image here).
 
+Third part (:mod:`experiments.disk_crossing`, runnable on its own): the light each estimator
+and the exact reference let across a 0.5–2 mm depth step onto an unlit surface.
+
     python -m experiments.run disk [--quick]
+    python -m experiments.disk_crossing [--quick]   # only the crossing block of the section
 """
 
 from __future__ import annotations
@@ -44,6 +48,7 @@ import sys
 import matplotlib.pyplot as plt
 import torch
 
+from experiments import disk_crossing
 from experiments.common import Context, Section, errors, main, md_table, reference
 from experiments.common import scene as make
 from experiments.methods import SCREEN_SPACE, build
@@ -313,6 +318,7 @@ def run(ctx: Context) -> Section:
         f"engines' disk at equal cost? {answer}.{area_note}{cmp_sentence}"
     )
     verdict = "reproduced" if beatsK <= n_pairs / 2 else "not reproduced"
+    crossing = disk_crossing.measure(ctx.quick)  # runnable alone: experiments/disk_crossing.py
     return Section(
         TITLE,
         "Golubev 2018 (SIGGRAPH Advances, HDRP): an importance-sampled disk of Burley's profile "
@@ -362,7 +368,9 @@ def run(ctx: Context) -> Section:
                 "se",
                 "lower error",
             ],
-        ),  # fmt: skip
+        )
+        + "\n\n"
+        + disk_crossing.block(crossing),  # fmt: skip
         figures=[link],
         data={
             "beats_one_frame": beats1,
@@ -371,6 +379,7 @@ def run(ctx: Context) -> Section:
             "head_close_bias": curved["diskK"][top]["bias"],
             "head_close_bias_surface_area": curved["diskA"][top]["bias"],
             "estimators": {name: {**c, "verdict": verdict_of(c)} for name, c in cases},
+            "crossing": {f"{h:g}": v for h, v in crossing["steps"].items()},
         },
     )
 

@@ -1,7 +1,10 @@
-"""``sssbench.gl``: the separable methods as GLSL fragment shaders on a headless OpenGL context.
+"""``sssbench.gl``: the separable methods and the disk as GLSL fragment shaders on a headless
+OpenGL context.
 
 The passes are GLSL 330 fragment shaders with ``SeparableSSS.h`` semantics
-(:mod:`sssbench.gl.shaders`, 002 appendix ``SSSSBlurPS``) run by moderngl on an EGL context:
+(:mod:`sssbench.gl.shaders`, 002 appendix ``SSSSBlurPS``), and the disk
+(:class:`~sssbench.ops.DiskSSS`, both estimators; HDRP's ``SubsurfaceScattering.compute``) is
+one fragment shader (:mod:`sssbench.gl.disk_shader`), run by moderngl on an EGL context:
 Mesa's llvmpipe on a machine without a GPU, the GPU's own driver where there is one. Float32
 textures throughout (RGBA32F colour, R32F depth / mask / width, RG32F rotation).
 
@@ -12,7 +15,8 @@ Two ways in:
   repeats after warm-up) and the renderer — what a renderer pays for the passes;
 - ``with sssbench.backend("gl"):`` makes every :func:`~sssbench.ops.separable_pass` run its
   pass as the GL shader (upload, draw, read back), so any method or pipeline built on the
-  gather primitive computes its blur passes on GL.
+  gather primitive computes its blur passes on GL, and every :class:`~sssbench.ops.DiskSSS`
+  its disk (the two are registered with :mod:`sssbench.ops.pass_backends`).
 
 No context (no moderngl, no EGL): :class:`GLUnavailable`, one line naming what to install;
 never a silent fall-back to torch. :func:`available` asks without raising.
@@ -34,6 +38,7 @@ from sssbench.gl._context import (
     available,
     get_context,
 )
+from sssbench.gl._disk import disk_pass, disk_schedule, disk_spec
 from sssbench.gl._run import Frame, GLMethodError, make_frame, pass_spec, schedule
 from sssbench.gl.shaders import PassShader, pass_source
 from sssbench.ops.pass_backends import register_pass_backend
@@ -130,8 +135,9 @@ def run_method(
     :class:`~sssbench.ops.ArtistSSS`, :class:`~sssbench.ops.LowRankSSS` (rank-N passes, summed
     by additive blending) and :class:`~sssbench.ops.SumOfGaussiansSSS` (blur passes, 003
     Listing 7.2's blend state, LOD, JG10 stretch), each with its follow-surface mode,
-    stochastic rotation, and the mask as stencil and strength. Halo reduction is refused
-    (:class:`GLMethodError`).
+    stochastic rotation, and the mask as stencil and strength; :class:`~sssbench.ops.DiskSSS`
+    (one ``disk`` draw per frame, :mod:`sssbench.gl.disk_shader`). Halo reduction, the disk's
+    ``adaptive`` and per-pixel profile lists are refused (:class:`GLMethodError`).
 
     Args:
         method: a built method (e.g. :func:`sssbench.run.registry.build_method`).
@@ -156,7 +162,7 @@ def run_method(
     if not isinstance(gbuffer, GBuffer):
         raise TypeError(f"gbuffer must be a GBuffer, got {type(gbuffer).__name__}")
     glc = get_context()
-    fn = schedule(method)
+    fn = _schedule(method)
     b = gbuffer.diffuse.shape[0]
     images = []
     per_pass: dict[str, list[float]] = {}
@@ -188,6 +194,17 @@ def run_method(
         for r in range(repeats)
     ]
     return GLRun(image, times, glc.info, records, per_repeat)
+
+
+def _schedule(method):
+    """The GL schedule of ``method``: the disk's (:mod:`sssbench.gl._disk`, refusing an option
+    without a shader by name) or a separable method's (:func:`sssbench.gl._run.schedule`)."""
+    from sssbench.ops import DiskSSS
+
+    if isinstance(method, DiskSSS):
+        disk_spec(method)
+        return disk_schedule
+    return schedule(method)
 
 
 def _release(frame: Frame) -> None:
@@ -293,4 +310,4 @@ def run_pass_sources(
 
 # the gather dispatches `backend("gl")` passes here without importing this package (it sits
 # above the operators: docs/architecture.md)
-register_pass_backend("gl", get_context, gather_pass)
+register_pass_backend("gl", get_context, gather_pass, disk_pass=disk_pass)

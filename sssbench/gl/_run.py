@@ -465,7 +465,7 @@ def schedule(method) -> Schedule:
             return fn
     raise GLMethodError(
         f"the GL backend has no schedule for {type(method).__name__}: it runs preintegrated, "
-        "jimenez2012, artist, low_rank and sum_of_gaussians"
+        "jimenez2012, artist, low_rank, sum_of_gaussians and disk"
     )
 
 
@@ -473,11 +473,12 @@ def make_frame(
     glc: GLContext | None, gbuffer: GBuffer, bi: int, method, width_map, timings
 ) -> Frame:
     """The textures of image ``bi`` of ``gbuffer`` for ``method``."""
+    from sssbench.ops.disk import DISK_ROTATIONS
     from sssbench.ops.rotation import random_rotation
 
     glc = glc or get_context()
     rot = None
-    if getattr(method, "rotation", None) is not None:
+    if getattr(method, "rotation", None) not in (None, *DISK_ROTATIONS):  # (the disk: its own)
         rot = random_rotation(gbuffer, method.rotation, method.seed).angles[bi]
     return Frame(
         glc,

@@ -188,6 +188,8 @@ from sssbench.ops._disk_radial import RadialSampler, radial_sampler
 from sssbench.ops._repr import options_repr
 from sssbench.ops._stencil import active_pixels
 from sssbench.ops.functional import functional
+from sssbench.ops.gather import get_backend
+from sssbench.ops.pass_backends import PASS_BACKENDS_ABOVE, _disk_pass_backend
 from sssbench.ops.reference import _minmod_slope
 from sssbench.ops.timing import timed_pass
 from sssbench.profiles.base import Profile
@@ -483,6 +485,40 @@ class DiskSSS(nn.Module):
             return blue_noise_phase(row, col, self.seed, frame, stream)
         return torch.zeros(sel.shape, dtype=torch.float64)
 
+    def noise(
+        self, gbuffer: GBuffer, frame: int, stream: int = 0
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """The per-pixel random numbers of ``frame`` and ``stream`` as :meth:`forward` draws
+        them: the rotation (turns) and the radial shift (0 without ``jitter_radius``), each
+        ``(B, 1, H, W)`` float64 in ``[0, 1)``, 0 at pixels with ``mask == 0``. For backends
+        that take them as a texture (the GL disk, :mod:`sssbench.gl`): GLSL 330 has no 64-bit
+        integers for the hash of a 63-bit seed."""
+        if not isinstance(gbuffer, GBuffer):
+            raise TypeError(f"gbuffer must be a GBuffer, got {type(gbuffer).__name__}")
+        frame = check_int("frame", frame, 0, MAX_DISK_FRAMES - 1)
+        stream = check_int("stream", stream, 0, MAX_DISK_SAMPLES)
+        ctx = _Pixels(gbuffer)
+        sel = torch.arange(ctx.index.numel())
+        pix = ctx.index
+        phase = self._phase(ctx, sel, frame, stream)
+        shift = (
+            hash_uniform(pix % ctx.hw, self.seed, frame, 2 * stream + 1)
+            if self.jitter_radius
+            else torch.zeros_like(phase)
+        )
+        b, h, w = gbuffer.shape
+        planes = []
+        for values in (phase, shift):
+            full = torch.zeros(b * h * w, dtype=torch.float64).index_copy(0, pix, values.double())
+            planes.append(full.reshape(b, 1, h, w))
+        return planes[0], planes[1]
+
+    def pixel_areas(self, gbuffer: GBuffer) -> torch.Tensor:
+        """Each pixel's surface area (mm²) as ``surface_area=True`` weighs it (module doc):
+        ``(B, 1, H, W)`` in the G-buffer's dtype. For backends that take it as a texture."""
+        area = _Pixels(gbuffer, surface_area=True).area
+        return area.reshape(gbuffer.depth.shape)
+
     # ------------------------------------------------------------------ one batch of samples
     def _gather(
         self,
@@ -697,6 +733,9 @@ class DiskSSS(nn.Module):
         """Scattered diffuse ``(B, 3, H, W)`` (``inplace``: written into ``gbuffer.diffuse``)."""
         if not isinstance(gbuffer, GBuffer):
             raise TypeError(f"gbuffer must be a GBuffer, got {type(gbuffer).__name__}")
+        if get_backend() in PASS_BACKENDS_ABOVE:  # e.g. the GL fragment shader (sssbench.gl)
+            out = _disk_pass_backend(get_backend())(self, gbuffer)
+            return gbuffer.diffuse.copy_(out) if inplace else out
         ctx = _Pixels(gbuffer, surface_area=self.surface_area)
         m = ctx.index.numel()
         acc = torch.zeros(m, 3, dtype=gbuffer.dtype)

@@ -170,9 +170,10 @@ def gl_times(
     queries, ``warmup`` untimed runs, median / min / max over ``repeats``;
     :func:`sssbench.gl.run_method`) and the renderer (``GL_RENDERER``, ``GL_VERSION`` and,
     on llvmpipe, the note that these are a software rasteriser's times). ``None`` for the
-    baseline and the reference, which run no pass. A method without a GL schedule (the disk,
-    halo reduction) raises :class:`sssbench.gl.GLMethodError` naming it: the run fails, it is
-    never timed on the CPU instead. The run's passes and ``time_ms`` are then the method's
+    baseline and the reference, which run no pass. A method without a GL schedule (halo
+    reduction; a disk option without a shader, e.g. ``adaptive``) raises
+    :class:`sssbench.gl.GLMethodError` naming it: the run fails, it is never timed on the CPU
+    instead. The run's passes and ``time_ms`` are then the method's
     passes on the device (its blend passes included); the pipeline's other stages (specular,
     translucency, ...) compute on the CPU and are not in the time."""
     if method_name in _NO_PASSES:

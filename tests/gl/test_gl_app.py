@@ -22,11 +22,12 @@ pytestmark = pytest.mark.skipif(not OK, reason=f"no headless GL: {WHY}")
 COMMON = ["scene=face_close", "resolution=[32,32]", "repeats=2", "warmup=1", "budget=false"]
 
 
-def _run(tmp_path, backend, method="preintegrated"):
+def _run(tmp_path, backend, method="preintegrated", *extra):
     spec = compose_spec(
         f"method={method}",
         f"backend={backend}",
         *COMMON,
+        *extra,
         f"reference_cache={tmp_path / 'refs'}",
         store=tmp_path / "s.sqlite",
     )
@@ -67,6 +68,28 @@ def test_gl_run_records_device_times_and_renderer(tmp_path, method):
 
 
 def test_a_method_without_a_gl_shader_fails_naming_it(tmp_path):
-    out, _ = _run(tmp_path, "gl", "disk")
+    out, _ = _run(tmp_path, "gl", "preintegrated", "halo=on")
     assert out.status == "failed"
-    assert "disk" in out.message.lower() or "DiskSSS" in out.message
+    assert "halo" in out.message.lower()
+
+
+@pytest.mark.parametrize("estimator", ["sssbench", "hdrp"])
+def test_gl_disk_run_records_device_times(tmp_path, estimator):
+    """``sssbench method=disk backend=gl``: the disk's draw timed by GL_TIME_ELAPSED, its
+    image the torch disk's (to the float32 boundary samples, tests/gl/test_gl_disk.py)."""
+    est = f"method.params.estimator={estimator}"
+    gl_out, gl_dir = _run(tmp_path, "gl", "disk", est)
+    cpu_out, cpu_dir = _run(tmp_path, "torch", "disk", est)
+    assert gl_out.status == "ok", gl_out.message
+    assert cpu_out.status == "ok", cpu_out.message
+    m = json.loads((gl_dir / "metrics.json").read_text())
+    assert m["time_source"] == "GL_TIME_ELAPSED"
+    assert m["renderer"] == gl.renderer_info()["renderer"]
+    (rec,) = m["pass_times"]
+    assert rec["name"] == "disk" and rec["samples"] == 32 and rec["ms_median"] > 0
+    assert m["time_ms"] == pytest.approx(rec["ms_median"])
+    c = json.loads((cpu_dir / "metrics.json").read_text())
+    assert "disk" in {p["name"] for p in c["pass_times"]}  # (the CPU run also times specular)
+    a = read_image_exr(gl_dir / "result.exr")
+    b = read_image_exr(cpu_dir / "result.exr")
+    assert rel_rms(a, b) <= 1e-4

@@ -1,0 +1,222 @@
+"""The disk (:class:`~sssbench.ops.DiskSSS`) on the GL device: its shader constants, its
+textures (pattern, radial table, per-pixel noise, surface areas) and one draw per frame.
+
+Both ways in use it: :func:`disk_schedule` is the disk's schedule for
+:func:`sssbench.gl.run_method` (timed draws, textures resident), :func:`disk_pass` the
+``backend("gl")`` dispatch of :meth:`DiskSSS.forward` (registered with
+:func:`sssbench.ops.pass_backends.register_pass_backend`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from sssbench.gbuffer import GBuffer
+from sssbench.gl._context import get_context
+from sssbench.gl._run import Frame, GLMethodError
+from sssbench.gl.disk_shader import PATTERN_ROW, SOG_MAX, DiskShader, disk_source
+from sssbench.ops.timing import timed_pass
+
+__all__ = ["disk_spec", "disk_schedule", "disk_pass", "DISK_PASS"]
+
+#: the name of the disk's draw (one per frame), as the torch disk records it
+DISK_PASS = "disk"
+
+
+def _profile_constants(profile, name: str) -> dict:
+    """Burley ``d`` or sum-of-Gaussians constants of ``profile`` (GLMethodError otherwise)."""
+    from sssbench.profiles.burley import BurleyNormalized
+    from sssbench.profiles.sum_of_gaussians import SumOfGaussians
+
+    if type(profile) is BurleyNormalized:
+        return {"burley_d": tuple(float(v) for v in profile.d.double().tolist())}
+    if type(profile) is SumOfGaussians:
+        v = profile.variances.double()
+        w = profile.weights.double() / profile.total().double()
+        if v.numel() > SOG_MAX:
+            raise GLMethodError(
+                f"DiskSSS {name}: the GL disk takes at most {SOG_MAX} Gaussians, got {v.numel()}"
+            )
+        a = w / (2 * math.pi * v[:, None])
+        return {
+            "sog": tuple(
+                (float(1.0 / (2.0 * v[k])), tuple(float(x) for x in a[k].tolist()))
+                for k in range(v.numel())
+            )
+        }
+    raise GLMethodError(
+        f"DiskSSS {name}={type(profile).__name__}: the GL disk evaluates BurleyNormalized and "
+        "SumOfGaussians profiles in the shader; run other profiles on backend 'native' or "
+        "'torch'"
+    )
+
+
+def disk_spec(method) -> DiskShader:
+    """The :class:`DiskShader` of a built :class:`~sssbench.ops.DiskSSS`; GLMethodError naming
+    an option the shader does not run (a list of profiles, ``adaptive``, an unsupported
+    profile class)."""
+    from sssbench.ops._disk_radial import BurleyRadial
+    from sssbench.ops.disk import HDRP_MIN_PIXEL_MM, HDRP_PIXELS_PER_SAMPLE
+
+    if method.per_pixel:
+        raise GLMethodError(
+            "DiskSSS with a list of profiles (per-pixel profile_id): the GL disk runs one "
+            "profile; run it on backend 'native' or 'torch'"
+        )
+    if method.adaptive is not None:
+        raise GLMethodError(
+            f"DiskSSS(adaptive={method.adaptive!r}): the adaptive pilot and refinement passes "
+            "have no GL shader; run it on backend 'native' or 'torch'"
+        )
+    kernel = method.kernels[0]
+    consts = _profile_constants(kernel.profile, "profile")
+    sampler = kernel.sampler
+    table = None if isinstance(sampler, BurleyRadial) else int(sampler.r.numel() - 1)
+    hdrp = method.estimator == "hdrp"
+    return DiskShader(
+        hdrp=hdrp,
+        samples=method.samples,
+        normalise=method.normalise,
+        jitter=method.jitter_radius,
+        bilinear=method.fetch == "bilinear",
+        surface_area=method.surface_area,
+        radial_table=table,
+        sampled_d=sampler.d if table is None else 1.0,
+        filter_radius=kernel.filter_radius if hdrp else 0.0,
+        min_pixel_mm=HDRP_MIN_PIXEL_MM,
+        pixels_per_sample=HDRP_PIXELS_PER_SAMPLE,
+        **consts,
+    )
+
+
+def _radial_plane(sampler) -> torch.Tensor:
+    """``(4, 1, K + 1)`` per tabulated node ``(c_k, 1 − c_k, r_k, dr/dc)`` (``dr/dc`` of the
+    interval ``[k, k + 1]``), formed in float64: the shader needs no difference of two float32
+    CDF values, and ``1 − c_k`` keeps its digits in the tail where ``c_k`` rounds to 1."""
+    tiny = torch.finfo(torch.float64).tiny
+    c, r = sampler.cdf, sampler.r
+    slope = ((c[1:] - c[:-1]) / (r[1:] - r[:-1])).clamp_min(tiny)
+    drdc = torch.cat([(1.0 / slope).clamp_max(torch.finfo(torch.float32).max), slope[-1:] * 0])
+    return torch.stack([c, 1.0 - c, r, drdc])[:, None, :]
+
+
+def _split(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``x`` (float64) as a float32 pair ``hi + lo`` (float-float)."""
+    hi = x.float().double()
+    return hi, x - hi
+
+
+def _pattern_plane(pattern: str, n: int) -> torch.Tensor:
+    """``(4, rows, PATTERN_ROW)`` of the pattern's ``(u_i, θ_i / 2π mod 1, 1 − u_i)``, the
+    last as a float32 pair (float64 first)."""
+    from sssbench.ops.disk import pattern_points
+
+    u, theta = pattern_points(pattern, n)
+    rows = -(-n // PATTERN_ROW)
+    plane = torch.zeros(4, rows * PATTERN_ROW, dtype=torch.float64)
+    plane[0, :n] = u
+    plane[1, :n] = torch.remainder(theta / (2 * math.pi), 1.0)
+    plane[2, :n], plane[3, :n] = _split(1.0 - u)
+    return plane.reshape(4, rows, PATTERN_ROW)
+
+
+def _frame_gbuffer(frame: Frame) -> GBuffer:
+    return GBuffer(frame.diffuse[None], frame.depth[None], frame.fov_y, mask=frame.strength[None])
+
+
+def _textures(frame: Frame, method, spec: DiskShader) -> None:
+    """The disk's textures of ``frame`` (made once per frame object: the schedule's repeats
+    reuse them)."""
+    t, g = frame.textures, frame.glc
+    if "disk.noise0" in t:
+        return
+    gb = _frame_gbuffer(frame)
+    for f in range(method.frames):  # the operator's own per-pixel random numbers
+        phase, shift = method.noise(gb, f, 0)
+        hi, lo = _split(shift[0])
+        t[f"disk.noise{f}"] = g.texture(torch.cat([phase[0], hi, lo, torch.zeros_like(hi)], 0))
+    t["disk.pattern"] = g.texture(_pattern_plane(method.pattern, method.samples))
+    sampler = method.kernels[0].sampler
+    plane = _radial_plane(sampler) if spec.radial_table is not None else torch.zeros(4, 1, 1)
+    t["disk.radial"] = g.texture(plane)
+    area = method.pixel_areas(gb)[0] if spec.surface_area else torch.zeros(1, 1, 1)
+    t["disk.area"] = g.texture(area)
+
+
+def draw_disk(frame: Frame, method, spec: DiskShader | None = None) -> object:
+    """All frames of the disk of ``method`` on ``frame``: one draw per frame, summed into the
+    target ``"disk"`` by additive blending; the target texture."""
+    spec = spec or disk_spec(method)
+    _textures(frame, method, spec)
+    glc, t = frame.glc, frame.textures
+    mgl = glc.moderngl
+    prog = glc.program(disk_source(spec))
+    dst = frame.target(DISK_PASS)
+    frame.clear(dst)
+    pm = 2.0 * math.tan(frame.fov_y / 2.0) / frame.h
+    for k, v in {
+        "pixelMmPerMm": pm,
+        "tanHalfFov": math.tan(frame.fov_y / 2.0),
+        "frameWeight": 1.0 / method.frames,
+    }.items():
+        u = prog.get(k, None)
+        if u is not None:
+            u.value = v
+    ctx = glc.ctx
+    ctx.enable(mgl.BLEND)
+    ctx.blend_func = (mgl.ONE, mgl.ONE)  # the frames' shares are summed
+    try:
+        for f in range(method.frames):
+            frame._bind(prog, {
+                "colorTex": t["color"], "depthTex": t["depth"], "strengthTex": t["strength"],
+                "noiseTex": t[f"disk.noise{f}"], "patternTex": t["disk.pattern"],
+                "radialTex": t["disk.radial"], "areaTex": t["disk.area"],
+            })  # fmt: skip
+            frame._run(prog, dst, DISK_PASS, method.samples)
+    finally:
+        ctx.disable(mgl.BLEND)
+    return dst
+
+
+def disk_schedule(frame: Frame, method, gbuffer: GBuffer, wt: bool) -> object:
+    """The disk's GL schedule for :func:`sssbench.gl.run_method` (``wt``, a width texture,
+    does not apply: the disk has no per-pixel width)."""
+    if wt:
+        raise GLMethodError("DiskSSS takes no per-pixel width (curvature modulation)")
+    return draw_disk(frame, method)
+
+
+def disk_pass(method, gbuffer: GBuffer) -> torch.Tensor:
+    """:meth:`DiskSSS.forward` on GL (the ``"gl"`` backend's disk dispatch): per image upload,
+    the frames' draws, read back; ``(B, 3, H, W)`` in the G-buffer's dtype, recorded as the
+    pass ``"disk"``."""
+    if torch.is_grad_enabled() and gbuffer.diffuse.requires_grad:
+        raise ValueError(
+            "the gl backend computes no gradients: run a DiskSSS that autograd records on "
+            "backend 'native' or 'torch'"
+        )
+    spec = disk_spec(method)
+    glc = get_context()
+    mask = gbuffer.mask_or_ones()
+    method.last_counts = None  # the per-pixel counts stay on the device
+    results = []
+    with timed_pass(DISK_PASS, method.samples, int((mask > 0).sum())):
+        for bi in range(gbuffer.diffuse.shape[0]):
+            frame = Frame(
+                glc,
+                gbuffer.diffuse[bi].detach(),
+                gbuffer.depth[bi],
+                mask[bi],
+                gbuffer.fov_y,
+            )
+            try:
+                results.append(glc.read(draw_disk(frame, method, spec)))
+            finally:
+                for tex in frame.textures.values():
+                    tex.release()
+                for fb in frame._fbos.values():
+                    fb.release()
+    out = torch.stack(results)
+    return out.to(dtype=gbuffer.dtype, device=gbuffer.device)
