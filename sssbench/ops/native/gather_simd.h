@@ -249,6 +249,28 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
                 o[2 * hw + l] = acc2[l];
             }
         }
+        if (j->blend_out) { /* lerp(blend_out, result, blend_w): BLEND_LERP, lane-wise */
+            SCALAR *bo = j->blend_out + row * w + c;
+            const vec accs[3] = {acc0, acc1, acc2};
+            for (int ch = 0; ch < 3; ++ch) {
+                const SCALAR wt = j->blend_w[ch];
+                const int small = FABSF(wt) < (SCALAR)0.5;
+                vec ov;
+                if (n == VW) {
+                    __builtin_memcpy(&ov, bo + ch * hw, sizeof ov);
+                } else {
+                    ov = zero;
+                    for (int64_t l = 0; l < n; ++l) ov[l] = bo[ch * hw + l];
+                }
+                const vec e = accs[ch];
+                const vec r = small ? ov + wt * (e - ov) : e - (e - ov) * ((SCALAR)1 - wt);
+                if (n == VW) {
+                    __builtin_memcpy(bo + ch * hw, &r, sizeof r);
+                } else {
+                    for (int64_t l = 0; l < n; ++l) bo[ch * hw + l] = r[l];
+                }
+            }
+        }
     }
 }
 
