@@ -361,7 +361,9 @@ class SumOfGaussiansSSS(SeparableMethod):
         """The G-buffer mask with pixels where ``sigma`` (mm) is under the LOD width zeroed.
 
         Memoised per G-buffer (:func:`~sssbench._memo.memoised`): like the stencil, a
-        renderer derives it once from depth, not per call."""
+        renderer derives it once from depth, not per call. Where no covered pixel is culled
+        the result is the G-buffer's mask tensor itself (the same values): the steps then share
+        one stencil per call (its runs, read once) and one mask in cache, not a copy each."""
         if not self.lod:
             return gbuffer.mask_or_ones()
         _, h, _ = gbuffer.shape
@@ -374,7 +376,10 @@ class SumOfGaussiansSSS(SeparableMethod):
             with torch.inference_mode(False):
                 mask = gbuffer.mask_or_ones()
                 width_px = sigma * level * focal_px / gbuffer.depth * mask  # 003 §7.3.2, dd = 0
-                return torch.where(width_px >= self.lod_threshold, mask, torch.zeros_like(mask))
+                keep = width_px >= self.lod_threshold
+                if gbuffer.mask is not None and bool((keep | (mask == 0)).all()):
+                    return gbuffer.mask  # nothing culled: where(keep, mask, 0) is mask
+                return torch.where(keep, mask, torch.zeros_like(mask))
 
         tag = ("sog_lod", sigma, level, focal_px, self.lod_threshold)
         return memoised((gbuffer.depth, gbuffer.mask), tag, compute)
@@ -414,7 +419,7 @@ class SumOfGaussiansSSS(SeparableMethod):
                 for axis in ("x", "y"):
                     add_record(PassRecord(f"{name}.{axis}", len(step.kernel), 0, 0.0))
                 continue
-            g = gbuffer.replace(mask=mask)
+            g = gbuffer if mask is gbuffer.mask else gbuffer.replace(mask=mask)
             # render targets owned by this call are overwritten (no full-image copy per pass)
             owned = rt1 is not gbuffer.diffuse
             tmp = separable_pass(
