@@ -294,11 +294,12 @@ static inline __attribute__((always_inline)) void CAT(lines_, SUFFIX)(
 
 #if SSS_SIMD /* the vectorised loops (gather_simd.h), one per instruction set */
 #define ISA avx2
-#define ISA_TARGET "avx2"
+#define ISA_TARGET "avx2,fma"
 #define VW VW_AVX2
 #define GATHER_RAW GATHER_AVX2
 #define IANY IANY_AVX2
 #define SHUFFLE2 SHUFFLE2_AVX2
+#define VFMA FMA_AVX2
 #include "gather_simd.h"
 #undef ISA
 #undef ISA_TARGET
@@ -306,12 +307,14 @@ static inline __attribute__((always_inline)) void CAT(lines_, SUFFIX)(
 #undef GATHER_RAW
 #undef IANY
 #undef SHUFFLE2
+#undef VFMA
 #define ISA avx512
 #define ISA_TARGET "avx512f"
 #define VW VW_AVX512
 #define GATHER_RAW GATHER_AVX512
 #define IANY IANY_AVX512
 #define SHUFFLE2 SHUFFLE2_AVX512
+#define VFMA FMA_AVX512
 #include "gather_simd.h"
 #undef ISA
 #undef ISA_TARGET
@@ -319,6 +322,7 @@ static inline __attribute__((always_inline)) void CAT(lines_, SUFFIX)(
 #undef GATHER_RAW
 #undef IANY
 #undef SHUFFLE2
+#undef VFMA
 #endif
 
 /* One thread's lines, specialised per axis and follow-surface mode (constants there). */
