@@ -93,6 +93,8 @@ int sss_get_simd(void) {
     ((__typeof__(a))_mm256_fmadd_ps((__m256)(a), (__m256)(b), (__m256)(c)))
 #define FMA_AVX512(a, b, c) \
     ((__typeof__(a))_mm512_fmadd_ps((__m512)(a), (__m512)(b), (__m512)(c)))
+/* p * 2^n for a float n of integer value, subnormal results rounded (AVX-512F only) */
+#define SCALEF_AVX512(p, n) ((__typeof__(p))_mm512_scalef_ps((__m512)(p), (__m512)(n)))
 #define EXP_TABLE 1 /* the vectorised exp by a table of 2^(j/16) (gather_simd.h) */
 #include "gather_body.h"
 #undef SCALAR
@@ -113,6 +115,7 @@ int sss_get_simd(void) {
 #undef SHUFFLE2_AVX512
 #undef FMA_AVX2
 #undef FMA_AVX512
+#undef SCALEF_AVX512
 #undef EXP_TABLE
 
 #define SCALAR double

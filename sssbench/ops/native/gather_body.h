@@ -315,7 +315,11 @@ static inline __attribute__((always_inline)) void CAT(lines_, SUFFIX)(
 #define IANY IANY_AVX512
 #define SHUFFLE2 SHUFFLE2_AVX512
 #define VFMA FMA_AVX512
+#ifdef SCALEF_AVX512
+#define VSCALEF SCALEF_AVX512
+#endif
 #include "gather_simd.h"
+#undef VSCALEF
 #undef ISA
 #undef ISA_TARGET
 #undef VW
