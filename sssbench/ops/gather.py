@@ -103,8 +103,9 @@ BACKEND_AGREEMENT = (
     "bitwise equal in float32 and float64 with follow_surface None or 'lerp', at every "
     "instruction-set level of the native loop (scalar, AVX2, AVX-512: the same IEEE operations "
     "in the same order per pixel, the per-pixel scale in float64 in all); with 'gaussian' the "
-    "exp differs (the C library's in the scalar native loop, a polynomial within 1 ulp of it in "
-    "the vectorised ones, torch's vectorised exp) by a few ulp, so results agree to within 1e-6 "
+    "exp differs (the C library's in the scalar native loop, a table and polynomial exp within "
+    "1 ulp of it in the vectorised ones, torch's vectorised exp) by a few ulp, so results agree "
+    "to within 1e-6 "
     "(float32) / 1e-14 (float64) relative to the image's range"
 )
 

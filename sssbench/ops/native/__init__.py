@@ -163,8 +163,9 @@ def library() -> ctypes.CDLL | None:
 
 
 #: the tap loop's instruction-set levels, narrowest first: ``"scalar"`` (one pixel at a time,
-#: its colour and depth in one 4-lane vector: any CPU), ``"avx2"`` (8 float32 / 4 float64
-#: pixels per vector) and ``"avx512"`` (AVX-512F: 16 / 8); see ``native/gather_simd.h``
+#: its colour and depth in one 4-lane vector: any CPU), ``"avx2"`` (AVX2 with FMA, used by the
+#: float32 exp only: 8 float32 / 4 float64 pixels per vector) and ``"avx512"`` (AVX-512F:
+#: 16 / 8); see ``native/gather_simd.h``
 SIMD_LEVELS = ("scalar", "avx2", "avx512")
 
 

@@ -14,7 +14,8 @@
  * order as in the scalar loop (lane-wise IEEE arithmetic, no FMA: the library is built with
  * -ffp-contract=off; min / max / clamp as the same selects): the results are bitwise those of
  * the scalar loop, so of the torch loop, but for the gaussian follow-surface's exp, computed
- * here by a vectorised polynomial (exp_ below) instead of the C library's expf / exp. Built without -march: the functions carry target attributes and sss_gather_ calls
+ * here by a vectorised table and polynomial (exp_ below, the only code with fused
+ * multiply-adds) instead of the C library's expf / exp. Built without -march: the functions carry target attributes and sss_gather_ calls
  * them only when the CPU has the set (sss_set_simd in gather.c). */
 
 #define SIMDN(name) CAT(CAT(name, SUFFIX), CAT(_, ISA))
@@ -26,8 +27,9 @@ typedef int32_t SIMDN(vi_) __attribute__((vector_size(VW * 4)));
 typedef uint32_t SIMDN(vu_) __attribute__((vector_size(VW * 4)));
 
 /* exp(x) for x <= 0 (also -inf), all lanes at once: the gaussian follow-surface factor
- * (000 eq. 7), whose argument -d^2 / 2 is never positive. Cody-Waite reduction x = n ln 2 + r,
- * |r| <= ln 2 / 2, then Cephes' degree-7 polynomial (float) or the Taylor polynomial of degree
+ * (000 eq. 7), whose argument -d^2 / 2 is never positive. Float: the table exp under
+ * EXP_TABLE; otherwise (double) Cody-Waite reduction x = n ln 2 + r, |r| <= ln 2 / 2, then
+ * Cephes' degree-7 polynomial (float, unused since issue 30) or the Taylor polynomial of degree
  * 13 (double), scaled by 2^n built in the exponent bits; 0 where 2^n would be subnormal (an
  * absolute error below 1.2e-38 / 2.3e-308). Not the C library's exp: a few ulp from it (the
  * measured bound is BACKEND_AGREEMENT's, sssbench/ops/gather.py). */
