@@ -2,7 +2,9 @@
 
 Every separable method of the papers (pre-integrated, artist, 2012, SVD rank-N, sum of
 Gaussians) is a kernel builder plus a schedule of calls to :func:`separable_pass`; the papers'
-variants are options of this function, not copies of its loop.
+variants are options of this function, not copies of its loop. One module because the pass's
+validation, backend choice and dispatch (the fused blend's too) are one public entry whose
+options every method shares; the loops themselves are in ``_gather_torch`` / ``_gather_native``.
 
 The loop is the CPU counterpart of the papers' blur shader (002 appendix, 003 Listing 7.1):
 for each active pixel, step along the pass axis by ``offset × width × (pixels per mm at this
