@@ -347,6 +347,8 @@ def run(ctx: Context) -> Section:
         return statistics.median(a / b for a, b in pairs_)
 
     sog_ratio, artist_ratio = ratio_to("sum_of_gaussians", eq_ms), ratio_to("artist", eq_ms)
+    # the passes the app's schedule runs here (two per blurred Gaussian; LOD may cull more)
+    sog_passes = 2 * sum(s.kernel is not None for s in equal["sum_of_gaussians"].steps)
 
     # the disk (32 samples) against the 7-tap two-pass (14 fetches), per fetch, interleaved,
     # on the smallest resolution's close-up (the disk's C loop when the library is there)
@@ -481,13 +483,20 @@ def run(ctx: Context) -> Section:
             mm = sum(ms for _, ms in pts) / len(pts)
             slope = sum((t - mt) * (ms - mm) for t, ms in pts) / sum((t - mt) ** 2 for t, _ in pts)
             icpt = mm - slope * mt
+            # issue 7's target assumes time ∝ taps; with a part a independent of the taps,
+            # t33 / t7 = f + (1 − f)·33/7 for f = a / t7, so the band's lower end needs f below
+            fixed_max = (33 / 7 - 0.75 * 33 / 7) / (33 / 7 - 1)
             targets.append(
                 f"- taps 7 → 33, {mode}"
                 + (" (the three tap counts interleaved, 1080p close-up)" if headline else "")
                 + f": ×{t33 / t7:.2f} (33/7 = 4.71; target "
-                f"{4.71 * 0.75:.2f}–{4.71 * 1.25:.2f}); least squares over "
-                f"{'/'.join(str(t) for t, _ in pts)} taps: {icpt:.1f} ms + {slope:.2f} ms/tap "
-                f"(the per-pixel part independent of taps is {icpt / t7:.0%} of the 7-tap time)."
+                f"{4.71 * 0.75:.2f}–{4.71 * 1.25:.2f}, which assumes time ∝ taps); least "
+                f"squares over {'/'.join(str(t) for t, _ in pts)} taps: {icpt:.1f} ms + "
+                f"{slope:.2f} ms/tap (the per-pixel part independent of taps, the pass's fixed "
+                f"work per pixel: reading its window, depth and stencil, its scale, writing its "
+                f"result, is {icpt / t7:.0%} of the 7-tap time; the target's band can only be "
+                f"reached while it is at most {fixed_max:.0%}: the per-tap part is what scales "
+                f"with taps, and it does by construction of the fit)."
             )
             if headline:
                 met.append(abs(t33 / t7 / 4.71 - 1) <= 0.25)
@@ -503,8 +512,8 @@ def run(ctx: Context) -> Section:
             f"per-tap work (follow-surface lerp, LOD off): ×{sog12 / pre:.2f} (target 5–7×; "
             f"12/2 passes = 6). With 003's unblurred first Gaussian (10 passes) ×"
             f"{sog10 / pre:.2f} (10/2 = 5; its narrow passes read smaller windows than the "
-            f"pre-integrated kernel's); as the app runs it (10 passes, LOD, no follow-surface) "
-            f"×{app / pre:.2f}."
+            f"pre-integrated kernel's); as the app runs it ({sog_passes} passes, LOD, its "
+            f"default follow-surface) ×{app / pre:.2f}."
         )
         met.append(5 <= sog12 / pre <= 7)
     targets.append(
@@ -583,8 +592,9 @@ def run(ctx: Context) -> Section:
         t30.append(line)
     ok = sog_ratio <= 4.0
     t30.append(
-        f"- sum of Gaussians as the app runs it (10 passes, LOD) / pre-integrated two-pass at 7 "
-        f"taps (interleaved): {sog_ratio:.2f}× (target ≤ 4×) — {verdict30(ok)}."
+        f"- sum of Gaussians as the app runs it ({sog_passes} passes, LOD, the blend fused into "
+        f"each step's y pass) / pre-integrated two-pass at 7 taps (interleaved): "
+        f"{sog_ratio:.2f}× (target ≤ 4×) — {verdict30(ok)}."
     )
     met.append(ok)
     ok = artist_ratio <= 1.3

@@ -56,7 +56,14 @@ def weights_overflow(weights: Tensor, dtype: torch.dtype) -> ValueError:
     )
 
 
-def native_pass(lib: object, image: Tensor, out: Tensor, args: tuple, copy: bool) -> int:
+def native_pass(
+    lib: object,
+    image: Tensor,
+    out: Tensor,
+    args: tuple,
+    copy: bool,
+    blend: tuple[Tensor, Tensor] | None = None,
+) -> int:
     """One pass over a batch through the C loop (``native/gather_body.h``); the active pixel
     count. ``args``: the arguments after ``image`` of
     :func:`~sssbench.ops._gather_torch.gather_torch`, but for the taps: ``offsets``,
@@ -69,6 +76,13 @@ def native_pass(lib: object, image: Tensor, out: Tensor, args: tuple, copy: bool
     ``out`` is uninitialised and gets ``image``'s pixels everywhere else (copied line by line
     as the loop goes, no separate full-image pass). Threads: ``torch.get_num_threads()``, at
     most one per 16384 pixels of work (see :mod:`sssbench.ops.gather`).
+
+    ``blend``: ``(target, weight)`` or ``None``: ``target`` ``(B, 3, H, W)`` contiguous in
+    ``image``'s dtype, sharing no memory with the pass's tensors, and ``weight`` ``(3,)``;
+    every result the pass writes is also blended into ``target`` at the same pixel,
+    ``target ← lerp(target, result, weight)`` (the sum of Gaussians' blend, 003 §7.3.3, fused
+    into its step's last pass: bitwise ``torch.ops.sssbench.blend_(target, out, weight,
+    mask)`` after the pass, without reading ``out`` back).
 
     Tensors already contiguous in the right dtype (the rule) are passed by address, image by
     image, without a torch call: on a far-away object the fixed cost of a pass is what its
@@ -99,6 +113,12 @@ def native_pass(lib: object, image: Tensor, out: Tensor, args: tuple, copy: bool
         raise ValueError(f"out must be contiguous {dtype}, got {out.dtype} strides {out.stride()}")
     fields = [planes(t) for t in (image, depth, strength, width, ddepth, out)]
     taps = (f64(offsets), f64(weights), f64(inv_scale))
+    target, blend_w = (None, 0), None
+    if blend is not None:
+        if blend[0].dtype != dtype or not blend[0].is_contiguous():
+            raise ValueError("the blend target must be contiguous in the image's dtype")
+        target = planes(blend[0])
+        blend_w = planes(blend[1].reshape(3))[0]
     n_total = 0
     threads = torch.get_num_threads()
     for bi, spans in enumerate(image_spans(strength, (b, h, w))):
@@ -106,6 +126,7 @@ def native_pass(lib: object, image: Tensor, out: Tensor, args: tuple, copy: bool
         status = fn(
             src, z, spans.data_ptr(), mask, wid, dd, *taps, dst, f_px, width_scalar, correction,
             maxdd, spans.shape[0], offsets.numel(), h, w, int(axis_y), follow, int(copy), threads,
+            None if target[0] is None else target[0] + bi * target[1], blend_w,
         )  # fmt: skip
         if status == -2:
             raise weights_overflow(weights, dtype)
@@ -115,7 +136,9 @@ def native_pass(lib: object, image: Tensor, out: Tensor, args: tuple, copy: bool
     return n_total
 
 
-def run_pass(image: Tensor, args: tuple, inplace: bool) -> tuple[Tensor, int]:
+def run_pass(
+    image: Tensor, args: tuple, inplace: bool, blend: tuple[Tensor, Tensor] | None = None
+) -> tuple[Tensor, int]:
     """One gather pass over a batch without autograd: ``(result, active pixel count)``.
 
     ``inplace``: the result is written into ``image`` (contiguous, overlapping no other
@@ -125,13 +148,14 @@ def run_pass(image: Tensor, args: tuple, inplace: bool) -> tuple[Tensor, int]:
     ``image`` (validated by :func:`~sssbench.ops.gather.separable_pass`, the public entry;
     with the C library the taps may also come as :func:`native_pass` takes them). The torch
     loop without the C library. Bumps no version counter: the operators below
-    (and :func:`~sssbench.ops.gather.separable_pass` when it calls this directly) do."""
+    (and :func:`~sssbench.ops.gather.separable_pass` when it calls this directly) do.
+    ``blend``: see :func:`native_pass` (the C library is required for it)."""
     lib = native.library()
     if lib is None:
         with torch.no_grad():
             return gather_torch(image, *args, out=image if inplace else None)
     out = image if inplace else torch.empty(image.shape, dtype=image.dtype, device=image.device)
-    return out, native_pass(lib, image, out, args, copy=not inplace)
+    return out, native_pass(lib, image, out, args, copy=not inplace, blend=blend)
 
 
 def _gather(image: Tensor, *args) -> Tensor:

@@ -2,7 +2,9 @@
 
 Every separable method of the papers (pre-integrated, artist, 2012, SVD rank-N, sum of
 Gaussians) is a kernel builder plus a schedule of calls to :func:`separable_pass`; the papers'
-variants are options of this function, not copies of its loop.
+variants are options of this function, not copies of its loop. One module because the pass's
+validation, backend choice and dispatch (the fused blend's too) are one public entry whose
+options every method shares; the loops themselves are in ``_gather_torch`` / ``_gather_native``.
 
 The loop is the CPU counterpart of the papers' blur shader (002 appendix, 003 Listing 7.1):
 for each active pixel, step along the pass axis by ``offset × width × (pixels per mm at this
@@ -103,8 +105,9 @@ BACKEND_AGREEMENT = (
     "bitwise equal in float32 and float64 with follow_surface None or 'lerp', at every "
     "instruction-set level of the native loop (scalar, AVX2, AVX-512: the same IEEE operations "
     "in the same order per pixel, the per-pixel scale in float64 in all); with 'gaussian' the "
-    "exp differs (the C library's in the scalar native loop, a polynomial within 1 ulp of it in "
-    "the vectorised ones, torch's vectorised exp) by a few ulp, so results agree to within 1e-6 "
+    "exp differs (the C library's in the scalar native loop, a table and polynomial exp within "
+    "1 ulp of it in the vectorised ones, torch's vectorised exp) by a few ulp, so results agree "
+    "to within 1e-6 "
     "(float32) / 1e-14 (float64) relative to the image's range"
 )
 
@@ -382,6 +385,7 @@ def separable_pass(
     name: str | None = None,
     check_finite: bool = True,
     inplace: bool = False,
+    blend_into: tuple[torch.Tensor, torch.Tensor] | None = None,
 ) -> torch.Tensor:
     """One depth-aware 1D gather pass over the active pixels (DESIGN §4).
 
@@ -425,6 +429,16 @@ def separable_pass(
             (``ValueError``, :func:`check_writable`) when ``image`` shares memory with a
             G-buffer field or another input, has elements sharing memory (an expanded view),
             or is an inference tensor outside ``torch.inference_mode``.
+        blend_into: ``(target, weight)`` or ``None``: after the pass,
+            ``blend_on_stencil(target, result, weight, mask)`` (:func:`blend_on_stencil`, the
+            sum of Gaussians' blend of a step into its result, 003 §7.3.3) with this pass's
+            stencil (``gbuffer.mask`` with ``use_mask``, else every pixel); ``target``
+            ``(B, 3, H, W)`` of the image's dtype is overwritten there. On the native backend
+            without autograd and a contiguous ``target`` the blend is done by the pass itself
+            as it writes each result (bitwise the separate native blend, one read of the
+            result less); otherwise by :func:`blend_on_stencil` after it. ``target`` must not
+            share memory with the pass's inputs or its result (``ValueError``,
+            :func:`check_writable`).
 
     Returns:
         ``(B, 3, H, W)``: blurred where active, ``image`` elsewhere. Differentiable with
@@ -474,6 +488,11 @@ def separable_pass(
             "gbuffer.depth": gbuffer.depth, "gbuffer.mask": strength, "width": per_pixel,
             "guide": guide, "rotation.angles": None if rotation is None else rotation.angles,
         })  # fmt: skip
+    if blend_into is not None:
+        target, blend_w = _check_blend_into(blend_into, image, {
+            "image": image, "gbuffer.depth": gbuffer.depth, "gbuffer.mask": strength,
+            "width": per_pixel, "guide": guide,
+        })  # fmt: skip
     scale_t = surface_scale if isinstance(surface_scale, torch.Tensor) else None
     grads = torch.is_grad_enabled() and any(
         t is not None and t.requires_grad
@@ -488,6 +507,10 @@ def separable_pass(
             "sampling='optimised' fitting) on backend 'native' or 'torch'"
         )
     direct = name_ == "native" and not (grads or torch.compiler.is_compiling())
+    fused = None  # the blend done by the C loop as it writes each result
+    if blend_into is not None and direct and target.is_contiguous():
+        if not (torch.is_grad_enabled() and (target.requires_grad or blend_w.requires_grad)):
+            fused = (target, blend_w.detach().to(dtype))
     if direct:  # the C loop converts the kernel's taps itself, as _pass_constants does
         taps = (kernel.offsets, kernel.weights, _reciprocal(surface_scale))
     else:
@@ -518,9 +541,11 @@ def separable_pass(
             # no autograd: the operator's implementation called directly (the dispatcher and
             # its argument binding cost ~65 us per pass, more than a small object's work),
             # bumping the version counter of an in-place target as the operator would
-            out, n_total = run_pass(image, args, inplace)
+            out, n_total = run_pass(image, args, inplace, blend=fused)
             if inplace and not image.is_inference():
                 torch.autograd.graph.increment_version(image)
+            if fused is not None and not target.is_inference():
+                torch.autograd.graph.increment_version(target)
         else:
             rot = None
             if rotation is not None:
@@ -530,9 +555,34 @@ def separable_pass(
                 out=image if inplace else None,
                 accumulate=compiled_accumulate() if name_ == "compile" else None,
             )  # fmt: skip
+        if blend_into is not None and fused is None:
+            blend_on_stencil(target, out, blend_w, strength)
     ms = (time.perf_counter() - start) * 1e3
     add_record(PassRecord(name or f"pass.{direction}", len(kernel), n_total, ms))
     return out
+
+
+def _check_blend_into(
+    blend_into: object, image: torch.Tensor, others: dict[str, torch.Tensor | None]
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(target, weight)`` of :func:`separable_pass`'s ``blend_into``, checked: a pair of
+    tensors, ``target`` of the image's shape and dtype and writable beside ``others``
+    (:func:`check_writable`), ``weight`` ``(3,)`` finite."""
+    if not (isinstance(blend_into, tuple) and len(blend_into) == 2):
+        raise TypeError("blend_into must be a (target, weight) pair of tensors or None")
+    target, weight = blend_into
+    if not isinstance(target, torch.Tensor) or not isinstance(weight, torch.Tensor):
+        raise TypeError("blend_into must be a (target, weight) pair of tensors or None")
+    if target.shape != image.shape or target.dtype != image.dtype:
+        raise ValueError(
+            f"blend_into target must have the image's shape {tuple(image.shape)} and dtype "
+            f"{image.dtype}, got {tuple(target.shape)} {target.dtype}"
+        )
+    check_tensor("blend_into weight", weight, ndim=1)
+    if weight.shape != (3,):
+        raise ValueError(f"blend_into weight must have shape (3,), got {tuple(weight.shape)}")
+    check_writable("blend_into target", target, others)
+    return target, weight
 
 
 def _backend_for(

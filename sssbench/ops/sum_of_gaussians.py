@@ -23,9 +23,9 @@ from sssbench.kernels.kernel1d import Kernel1D
 from sssbench.kernels.preintegrated import preintegrated
 from sssbench.kernels.sampling import MAX_SAMPLES, METHOD_SAMPLINGS, OPTIMISED
 from sssbench.kernels.sources import check_optimised_sampling, use_optimised
-from sssbench.ops._stencil import image_stencils
+from sssbench.ops._stencil import image_spans
 from sssbench.ops.functional import functional
-from sssbench.ops.gather import Stretch, blend_on_stencil, separable_pass
+from sssbench.ops.gather import Stretch, separable_pass
 from sssbench.ops.method import SeparableMethod
 from sssbench.ops.timing import PassRecord, add_record
 from sssbench.profiles.sum_of_gaussians import SumOfGaussians
@@ -361,7 +361,9 @@ class SumOfGaussiansSSS(SeparableMethod):
         """The G-buffer mask with pixels where ``sigma`` (mm) is under the LOD width zeroed.
 
         Memoised per G-buffer (:func:`~sssbench._memo.memoised`): like the stencil, a
-        renderer derives it once from depth, not per call."""
+        renderer derives it once from depth, not per call. Where no covered pixel is culled
+        the result is the G-buffer's mask tensor itself (the same values): the steps then share
+        one stencil per call (its runs, read once) and one mask in cache, not a copy each."""
         if not self.lod:
             return gbuffer.mask_or_ones()
         _, h, _ = gbuffer.shape
@@ -374,7 +376,10 @@ class SumOfGaussiansSSS(SeparableMethod):
             with torch.inference_mode(False):
                 mask = gbuffer.mask_or_ones()
                 width_px = sigma * level * focal_px / gbuffer.depth * mask  # 003 §7.3.2, dd = 0
-                return torch.where(width_px >= self.lod_threshold, mask, torch.zeros_like(mask))
+                keep = width_px >= self.lod_threshold
+                if gbuffer.mask is not None and bool((keep | (mask == 0)).all()):
+                    return gbuffer.mask  # nothing culled: where(keep, mask, 0) is mask
+                return torch.where(keep, mask, torch.zeros_like(mask))
 
         tag = ("sog_lod", sigma, level, focal_px, self.lod_threshold)
         return memoised((gbuffer.depth, gbuffer.mask), tag, compute)
@@ -406,26 +411,29 @@ class SumOfGaussiansSSS(SeparableMethod):
             if step.kernel is None:  # the unblurred first Gaussian: w'_1 = 1, no pass
                 continue
             mask = self._lod_mask(gbuffer, math.sqrt(step.increment))
-            stencils = image_stencils(mask)
+            # the stencil's runs, shared with the passes within this call (one read of the
+            # mask; image_stencils would compare the mask with a kept snapshot first)
+            spans = image_spans(mask, (mask.shape[0], *mask.shape[2:]))
             name = f"sog{i}"
-            if not any(lin.numel() for lin in stencils):  # 003 §7.3.2: not computed anywhere
+            if not any(s.shape[0] for s in spans):  # 003 §7.3.2: not computed anywhere
                 for axis in ("x", "y"):
                     add_record(PassRecord(f"{name}.{axis}", len(step.kernel), 0, 0.0))
                 continue
-            g = gbuffer.replace(mask=mask)
+            g = gbuffer if mask is gbuffer.mask else gbuffer.replace(mask=mask)
             # render targets owned by this call are overwritten (no full-image copy per pass)
             owned = rt1 is not gbuffer.diffuse
             tmp = separable_pass(
                 rt1, step.kernel, "x", g, name=f"{name}.x", inplace=owned, **per_axis["x"]
             )
-            rt1 = separable_pass(
-                tmp, step.kernel, "y", g, name=f"{name}.y", inplace=True, **per_axis["y"]
-            )
             if rtf is gbuffer.diffuse:
                 rtf = rtf.clone(memory_format=torch.contiguous_format)
             # 003 §7.3.3, Listing 7.2: rtf ← blend · rt1 + (1 − blend) · rtf, as one lerp, on
-            # the stencil's pixels only
-            rtf = blend_on_stencil(rtf, rt1, blend.view(3), mask)
+            # the stencil's pixels only (blend_on_stencil), done by the y pass as it writes
+            # each pixel of rt1 (the native loop; after it otherwise)
+            rt1 = separable_pass(
+                tmp, step.kernel, "y", g, name=f"{name}.y", inplace=True,
+                blend_into=(rtf, blend.view(3)), **per_axis["y"],
+            )  # fmt: skip
         return rtf
 
 

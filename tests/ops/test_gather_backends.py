@@ -548,3 +548,105 @@ def test_simd_level_is_capped_chosen_by_name_and_by_the_environment():
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
                          check=True)  # fmt: skip
     assert out.stdout.strip() == "scalar"
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("inplace", [False, True])
+@pytest.mark.parametrize(
+    "options",
+    [
+        {},
+        {"follow_surface": "lerp", "surface_scale": 4.0},
+        {"follow_surface": "gaussian", "surface_scale": torch.tensor([1.0, 4.0, 20.0])},
+        {"stretch": Stretch(ssslevel=2.0, correction=50.0, maxdd=0.5)},
+        {"use_mask": False},
+    ],
+    ids=lambda o: "-".join(f"{k}" for k in o) or "plain",
+)
+def test_blend_fused_into_the_pass_equals_the_pass_then_the_blend(simd, dtype, inplace, options):
+    """``separable_pass(..., blend_into=(target, w))``: the native loop blends each result into
+    ``target`` as it writes it (the sum of Gaussians' step, issue 30). Its specification is the
+    pass followed by :func:`blend_on_stencil` on the pass's stencil: bitwise the native pass
+    and the native blend run one after the other (both weights' formulas: w < 0.5 and >= 0.5),
+    and within the backends' tolerance the torch loop followed by ``torch.lerp``; ``target``
+    off the stencil and the pass's own result are untouched by the fusion."""
+    from sssbench.ops.gather import blend_on_stencil
+
+    weight = torch.tensor([0.2, 0.5, 0.9], dtype=dtype)
+    opts = {k: (v.to(dtype) if isinstance(v, torch.Tensor) else v) for k, v in options.items()}
+    for cover in (0.7, 0.1):  # wide and narrow column strips
+        g = scene(seed=5, b=2, h=37, w=83, dtype=dtype, cover=cover)
+        start = torch.rand(2, 3, 37, 83, generator=torch.Generator().manual_seed(8), dtype=dtype)
+        stencil = g.mask if opts.get("use_mask", True) else None
+        for direction in ("x", "y"):
+            with backend("native"):
+                image, target = g.diffuse.clone(), start.clone()
+                out = separable_pass(image, kernel(), direction, g, inplace=inplace,
+                                     blend_into=(target, weight), **opts)  # fmt: skip
+                plain = separable_pass(g.diffuse.clone(), kernel(), direction, g, **opts)
+                expected = blend_on_stencil(start.clone(), plain, weight, stencil)
+            assert torch.equal(out, plain), direction
+            assert torch.equal(target, expected), direction
+            if stencil is not None:
+                off = (stencil <= 0).expand_as(target)
+                assert torch.equal(target[off], start[off])
+            with backend("torch"):
+                ref_target = start.clone()
+                separable_pass(g.diffuse.clone(), kernel(), direction, g,
+                               blend_into=(ref_target, weight), **opts)  # fmt: skip
+            torch.testing.assert_close(target, ref_target, **tol(dtype))
+            assert not torch.equal(target, start)
+
+
+def test_blend_into_checks_its_target():
+    """A target of another shape or dtype, or sharing memory with the pass's image or the
+    G-buffer, is refused naming ``blend_into``; a weight that is not ``(3,)`` too."""
+    g = scene(seed=2)
+    w = torch.tensor([0.3, 0.3, 0.3], dtype=torch.float64)
+    image = g.diffuse.clone()
+    cases = [
+        ((torch.zeros(1, 3, 5, 5, dtype=torch.float64), w), "shape"),
+        ((g.diffuse.clone().float(), w), "dtype"),
+        ((image, w), "shares memory with image"),
+        ((g.diffuse.clone(), w[:2]), r"shape \(3,\)"),
+    ]
+    for blend_into, match in cases:
+        with pytest.raises(ValueError, match=match):
+            separable_pass(image, kernel(), "x", g, blend_into=blend_into)
+    with pytest.raises(TypeError, match="blend_into"):
+        separable_pass(image, kernel(), "x", g, blend_into=g.diffuse.clone())
+
+
+@pytest.mark.parametrize("level", LEVELS)
+def test_gaussian_follow_surface_exp_is_within_one_ulp(level):
+    """The gaussian follow-surface factor ``exp(-d² / 2)`` of the float32 loops against the
+    correctly rounded exp (float64 ``exp`` of the same float32 argument, rounded): at most
+    1 ulp over arguments from 0 to -104 (the vectorised loops' table exp; the scalar loop's C
+    library ``expf``). One tap of weight 1 clamped onto the row's last pixel, colour 1: each
+    result is the factor of its pixel's depth step to that pixel, bit for bit as computed."""
+    import numpy as np
+
+    n = 4001
+    depth = torch.linspace(100.0, 114.5, n, dtype=torch.float32).view(1, 1, 1, n)
+    g = GBuffer(torch.ones(1, 3, 1, n), depth.contiguous(), 0.7)
+    inv = torch.tensor([1.0, 0.37, 2.9], dtype=torch.float64)  # 1 / surface_scale, per channel
+    k = Kernel1D(torch.tensor([1e6], dtype=torch.float64), torch.ones(1, 3, dtype=torch.float64))
+    with native.simd(level), backend("native"):
+        out = separable_pass(g.diffuse, k, "x", g, follow_surface="gaussian",
+                             surface_scale=1.0 / inv, use_mask=False)  # fmt: skip
+    z = depth.view(-1).numpy()
+    dz = np.abs(z[-1] - z)  # float32, as the loop
+    inv32 = (1.0 / (1.0 / inv)).to(torch.float32).numpy()
+    lowest = 0.0
+    for ch in range(3):
+        d = dz * inv32[ch]
+        x = (np.float32(-0.5) * d) * d
+        exact = np.exp(x.astype(np.float64)).astype(np.float32)
+        got = out[0, ch, 0].numpy()
+        normal = exact >= np.finfo(np.float32).tiny  # subnormal factors: 0 allowed (< 1.2e-38)
+        ulps = np.abs(got.view(np.int32).astype(np.int64) - exact.view(np.int32))
+        assert int(ulps[normal].max()) <= 1, (level, ch)
+        assert float(np.abs(got[~normal]).max(initial=0.0)) < np.finfo(np.float32).tiny
+        assert x.max() == 0
+        lowest = min(lowest, float(x[normal].min()))
+    assert lowest < -87  # the arguments of every normal factor are covered

@@ -230,3 +230,28 @@ def test_bad_arguments():
         blend_weights(torch.tensor([[-1.0, 0.0, 0.0]]))
     with pytest.raises(ValueError, match="ascending"):
         incremental_variances(torch.tensor([2.0, 1.0]), False)
+
+
+def test_lod_mask_is_the_gbuffer_mask_where_nothing_is_culled():
+    """003 §7.3.2's LOD mask, ``mask`` where the step's σ is at least ``lod_threshold`` pixels
+    wide and 0 elsewhere, from its closed form: on a near plane (every covered pixel keeps the
+    step) it is the G-buffer's mask tensor itself (the steps share one stencil per call); on a
+    receding one the narrow step is culled on the far part and the mask is a new tensor."""
+    h, w = 16, 32
+    gen = torch.Generator().manual_seed(5)
+    img = torch.rand(1, 3, h, w, generator=gen, dtype=torch.float64)
+    # strengths of 0.5–1 (003 §7.3.2 scales the width by the strength too) and holes
+    mask = (0.5 + 0.5 * torch.rand(1, 1, h, w, generator=gen, dtype=torch.float64)) * (
+        torch.rand(1, 1, h, w, generator=gen, dtype=torch.float64) < 0.7
+    )
+    op = SumOfGaussiansSSS(SumOfGaussians.from_table("skin_jg10"))
+    sigma = math.sqrt(op.steps[1].increment)
+    focal = h / (2 * math.tan(FOV / 2))
+    for near, far, culled in ((5.0, 6.0, False), (10.0, 80.0, True)):
+        depth = torch.linspace(near, far, w, dtype=torch.float64).expand(1, 1, h, w).contiguous()
+        g = GBuffer(img, depth, FOV, mask=mask)
+        expected = torch.where(sigma * focal / depth * mask >= op.lod_threshold, mask, 0.0)
+        got = op._lod_mask(g, sigma)
+        assert torch.equal(got, expected)
+        assert (got is g.mask) is not culled
+        assert culled == bool(((expected == 0) & (mask > 0)).any())

@@ -108,7 +108,7 @@ def _declare(lib: ctypes.CDLL) -> None:
     p, i64, i32, f64 = ctypes.c_void_p, ctypes.c_int64, ctypes.c_int, ctypes.c_double
     for fn in (lib.sss_gather_f32, lib.sss_gather_f64):
         fn.restype = ctypes.c_int64  # active pixels, -1: out of memory
-        fn.argtypes = [p] * 10 + [f64] * 4 + [i64] * 4 + [i32] * 4
+        fn.argtypes = [p] * 10 + [f64] * 4 + [i64] * 4 + [i32] * 4 + [p] * 2
     for fn in (lib.sss_blend_f32, lib.sss_blend_f64):
         fn.restype = ctypes.c_int64  # active pixels
         fn.argtypes = [p] * 4 + [i64] * 3 + [i32]
@@ -169,8 +169,9 @@ def library() -> ctypes.CDLL | None:
 
 
 #: the tap loop's instruction-set levels, narrowest first: ``"scalar"`` (one pixel at a time,
-#: its colour and depth in one 4-lane vector: any CPU), ``"avx2"`` (8 float32 / 4 float64
-#: pixels per vector) and ``"avx512"`` (AVX-512F: 16 / 8); see ``native/gather_simd.h``
+#: its colour and depth in one 4-lane vector: any CPU), ``"avx2"`` (AVX2 with FMA, used by the
+#: float32 exp only: 8 float32 / 4 float64 pixels per vector) and ``"avx512"`` (AVX-512F:
+#: 16 / 8); see ``native/gather_simd.h``
 SIMD_LEVELS = ("scalar", "avx2", "avx512")
 
 

@@ -53,7 +53,7 @@ int sss_simd_best(void) {
 #if SSS_SIMD
     __builtin_cpu_init();
     if (__builtin_cpu_supports("avx512f")) return 2;
-    if (__builtin_cpu_supports("avx2")) return 1;
+    if (__builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma")) return 1;
 #endif
     return 0;
 }
@@ -88,6 +88,14 @@ int sss_get_simd(void) {
 #define SHUFFLE2_AVX512(lo, hi, idx) \
     _mm512_permutex2var_ps((__m512)(lo), (__m512i)(idx), (__m512)(hi))
 #define IANY_AVX512(m) _mm512_test_epi32_mask((__m512i)(m), (__m512i)(m))
+/* a * b + c rounded once (the table exp only: every other operation stays unfused) */
+#define FMA_AVX2(a, b, c) \
+    ((__typeof__(a))_mm256_fmadd_ps((__m256)(a), (__m256)(b), (__m256)(c)))
+#define FMA_AVX512(a, b, c) \
+    ((__typeof__(a))_mm512_fmadd_ps((__m512)(a), (__m512)(b), (__m512)(c)))
+/* p * 2^n for a float n of integer value, subnormal results rounded (AVX-512F only) */
+#define SCALEF_AVX512(p, n) ((__typeof__(p))_mm512_scalef_ps((__m512)(p), (__m512)(n)))
+#define EXP_TABLE 1 /* the vectorised exp by a table of 2^(j/16) (gather_simd.h) */
 #include "gather_body.h"
 #undef SCALAR
 #undef LANE
@@ -105,6 +113,10 @@ int sss_get_simd(void) {
 #undef IANY_AVX512
 #undef SHUFFLE2_AVX2
 #undef SHUFFLE2_AVX512
+#undef FMA_AVX2
+#undef FMA_AVX512
+#undef SCALEF_AVX512
+#undef EXP_TABLE
 
 #define SCALAR double
 #define LANE int64_t
@@ -126,4 +138,5 @@ int sss_get_simd(void) {
                                  (__m256i)(((idx) << 1) | ((((idx) << 1) + 1) << 32))))
 #define SHUFFLE2_AVX512(lo, hi, idx) \
     _mm512_permutex2var_pd((__m512d)(lo), (__m512i)(idx), (__m512d)(hi))
+#define EXP_TABLE 0 /* double: the degree-13 polynomial */
 #include "gather_body.h"

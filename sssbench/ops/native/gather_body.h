@@ -38,7 +38,15 @@ typedef struct {
     int axis_y, follow, copy; /* copy: dst starts as a copy of src, line by line */
     SCALAR *buf;   /* per thread: the line's interleaved (r, g, b, depth) window */
     SCALAR *scale; /* per thread: the scales of one line's active pixels */
+    SCALAR *blend_out;      /* (3, H*W) NULL, or lerped toward each result as it is written */
+    const SCALAR *blend_w;  /* (3,) per-channel blend weights of blend_out */
 } CAT(job_, SUFFIX);
+
+/* o <- lerp(o, e, wt): the sum-of-Gaussians blend (003 §7.3.3), torch.lerp's formula with a
+ * separate multiply and add, the branch on |wt| < 0.5 as in run_blend_ below (bitwise its
+ * result: the blend fused into a pass writes what a separate blend of the pass's result would) */
+#define BLEND_LERP(o, e, wt, small) \
+    ((small) ? (o) + (wt) * ((e) - (o)) : (e) - ((e) - (o)) * (1 - (wt)))
 
 typedef SCALAR CAT(vec_, SUFFIX) __attribute__((vector_size(4 * sizeof(SCALAR))));
 /* 16 bytes (one SSE register) of SCALARs and the lane masks of comparing two: the stencil scan */
@@ -273,6 +281,12 @@ static inline __attribute__((always_inline)) void CAT(lines_, SUFFIX)(
                 j->dst[l] = acc[0];
                 j->dst[hw + l] = acc[1];
                 j->dst[2 * hw + l] = acc[2];
+                if (j->blend_out)
+                    for (int ch = 0; ch < 3; ++ch) {
+                        const SCALAR wt = j->blend_w[ch], e = acc[ch];
+                        SCALAR *o = j->blend_out + ch * hw + l;
+                        *o = BLEND_LERP(*o, e, wt, FABSF(wt) < (SCALAR)0.5);
+                    }
             }
         }
     }
@@ -280,11 +294,12 @@ static inline __attribute__((always_inline)) void CAT(lines_, SUFFIX)(
 
 #if SSS_SIMD /* the vectorised loops (gather_simd.h), one per instruction set */
 #define ISA avx2
-#define ISA_TARGET "avx2"
+#define ISA_TARGET "avx2,fma"
 #define VW VW_AVX2
 #define GATHER_RAW GATHER_AVX2
 #define IANY IANY_AVX2
 #define SHUFFLE2 SHUFFLE2_AVX2
+#define VFMA FMA_AVX2
 #include "gather_simd.h"
 #undef ISA
 #undef ISA_TARGET
@@ -292,19 +307,26 @@ static inline __attribute__((always_inline)) void CAT(lines_, SUFFIX)(
 #undef GATHER_RAW
 #undef IANY
 #undef SHUFFLE2
+#undef VFMA
 #define ISA avx512
 #define ISA_TARGET "avx512f"
 #define VW VW_AVX512
 #define GATHER_RAW GATHER_AVX512
 #define IANY IANY_AVX512
 #define SHUFFLE2 SHUFFLE2_AVX512
+#define VFMA FMA_AVX512
+#ifdef SCALEF_AVX512
+#define VSCALEF SCALEF_AVX512
+#endif
 #include "gather_simd.h"
+#undef VSCALEF
 #undef ISA
 #undef ISA_TARGET
 #undef VW
 #undef GATHER_RAW
 #undef IANY
 #undef SHUFFLE2
+#undef VFMA
 #endif
 
 /* One thread's lines, specialised per axis and follow-surface mode (constants there). */
@@ -347,14 +369,18 @@ static void CAT(taps_in_, SUFFIX)(const double *offsets, const double *weights,
 /* One pass over the active pixels of one image (see the job fields); returns their number,
  * -1 when memory for the per-thread buffers cannot be had, or -2 when a kernel weight is not
  * finite in SCALAR (nothing is written then). The kernel comes in float64 (offsets (k,),
- * weights (k, 3), 1 / surface_scale (3,): see taps_in_). */
+ * weights (k, 3), 1 / surface_scale (3,): see taps_in_). blend_out (3, H*W) or NULL: each
+ * result written to dst is also blended into it, blend_out <- lerp(blend_out, result, blend_w)
+ * per channel at the same pixel (the sum of Gaussians' blend fused into its step's last pass:
+ * bitwise sss_blend_ of the pass's output, without reading that output back). */
 int64_t CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const int64_t *spans,
                              const SCALAR *mask, const SCALAR *width, const SCALAR *ddepth,
                              const double *offsets, const double *weights,
                              const double *inv_scale, SCALAR *dst, double focal_px,
                              double width_scalar, double correction, double maxdd,
                              int64_t n_spans, int64_t k, int64_t h, int64_t w, int axis_y,
-                             int follow, int copy, int threads) {
+                             int follow, int copy, int threads, SCALAR *blend_out,
+                             const SCALAR *blend_w) {
     enum { MAX_THREADS = 64 };
     for (int64_t i = 0; i < 3 * k; ++i) /* every weight finite in SCALAR, checked first */
         if (!(FABSF((SCALAR)weights[i]) <= SCALAR_MAX)) return -2;
@@ -436,7 +462,7 @@ int64_t CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const i
         CAT(job_, SUFFIX) jb = {src, depth, spans, mask, width, ddepth, offsets_s, weights4,
                                 inv_s, dst, lines, ids, focal_px, width_scalar,
                                 correction, maxdd, max_offset, k, h, w, first, q, strip, axis_y, follow, copy,
-                                mine, mine + 4 * (size_t)line_len};
+                                mine, mine + 4 * (size_t)line_len, blend_out, blend_w};
         jobs[t] = jb;
     }
     void *(*run)(void *) = CAT(run_, SUFFIX); /* the widest loop the CPU allows (sss_set_simd) */
@@ -471,7 +497,7 @@ static void *CAT(run_blend_, SUFFIX)(void *arg) {
         for (int64_t s = j->first; s < j->last; ++s) {
             const int64_t base = j->spans[3 * s] * j->w;
             for (int64_t l = base + j->spans[3 * s + 1]; l < base + j->spans[3 * s + 2]; ++l)
-                o[l] = small ? o[l] + wt * (e[l] - o[l]) : e[l] - (e[l] - o[l]) * ((SCALAR)1 - wt);
+                o[l] = BLEND_LERP(o[l], e[l], wt, small);
         }
     }
     return NULL;
@@ -558,5 +584,6 @@ int64_t CAT(sss_spans_, SUFFIX)(const SCALAR *mask, int64_t h, int64_t w, int64_
 #undef NARROW_STRIP
 #undef WIDE_STRIP
 #undef SHORT_ROW
+#undef BLEND_LERP
 #undef CAT
 #undef CAT_

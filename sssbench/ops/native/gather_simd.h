@@ -14,7 +14,8 @@
  * order as in the scalar loop (lane-wise IEEE arithmetic, no FMA: the library is built with
  * -ffp-contract=off; min / max / clamp as the same selects): the results are bitwise those of
  * the scalar loop, so of the torch loop, but for the gaussian follow-surface's exp, computed
- * here by a vectorised polynomial (exp_ below) instead of the C library's expf / exp. Built without -march: the functions carry target attributes and sss_gather_ calls
+ * here by a vectorised table and polynomial (exp_ below, the only code with fused
+ * multiply-adds) instead of the C library's expf / exp. Built without -march: the functions carry target attributes and sss_gather_ calls
  * them only when the CPU has the set (sss_set_simd in gather.c). */
 
 #define SIMDN(name) CAT(CAT(name, SUFFIX), CAT(_, ISA))
@@ -26,11 +27,68 @@ typedef int32_t SIMDN(vi_) __attribute__((vector_size(VW * 4)));
 typedef uint32_t SIMDN(vu_) __attribute__((vector_size(VW * 4)));
 
 /* exp(x) for x <= 0 (also -inf), all lanes at once: the gaussian follow-surface factor
- * (000 eq. 7), whose argument -d^2 / 2 is never positive. Cody-Waite reduction x = n ln 2 + r,
- * |r| <= ln 2 / 2, then Cephes' degree-7 polynomial (float) or the Taylor polynomial of degree
+ * (000 eq. 7), whose argument -d^2 / 2 is never positive. Float: the table exp under
+ * EXP_TABLE; otherwise (double) Cody-Waite reduction x = n ln 2 + r, |r| <= ln 2 / 2, then
+ * Cephes' degree-7 polynomial (float, unused since issue 30) or the Taylor polynomial of degree
  * 13 (double), scaled by 2^n built in the exponent bits; 0 where 2^n would be subnormal (an
  * absolute error below 1.2e-38 / 2.3e-308). Not the C library's exp: a few ulp from it (the
  * measured bound is BACKEND_AGREEMENT's, sssbench/ops/gather.py). */
+#if EXP_TABLE
+/* float: exp(x) = 2^n 2^(j/16) e^r with round(x 16 / ln 2) = 16 n + j, |r| <= ln 2 / 32: the
+ * table entry as the sum of two floats (hi + lo: 2^(j/16) to ~2^-48), e^r - 1 by its Taylor
+ * polynomial of degree 3 (truncation below 1e-8, 0.08 ulp), assembled as hi + (hi q + lo)
+ * with fused multiply-adds (one rounding each; the bitwise-specified tap arithmetic stays
+ * unfused), 2^n by scalef on AVX-512 (subnormal results rounded) or built in the exponent
+ * bits on AVX2 (0 where 2^n would be subnormal, as below): about 12 vector operations against
+ * the 31 of the polynomial of degree 7 below. Within 1 ulp of the correctly rounded exp and
+ * of the C library's expf at every float in [-104, 0] with a normal result (checked
+ * exhaustively, 1.1e9 arguments, at both levels; tests/ops/test_gather_backends.py samples
+ * it through a pass). */
+static const float SIMDN(exp_hi_)[16] __attribute__((aligned(64))) = {
+    1.0f, 1.0442737340927124f, 1.0905077457427979f, 1.1387885808944702f, 1.1892070770263672f,
+    1.2418577671051025f, 1.2968395948410034f, 1.3542555570602417f, 1.4142135381698608f,
+    1.4768261909484863f, 1.5422108173370361f, 1.610490322113037f, 1.6817928552627563f,
+    1.7562521696090698f, 1.8340080976486206f, 1.9152065515518188f};
+static const float SIMDN(exp_lo_)[16] __attribute__((aligned(64))) = {
+    0.0f, 4.8334701574503924e-08f, -1.3077539939843064e-08f, 5.386222312608879e-08f,
+    3.797635272917432e-08f, 4.496838101886169e-08f, -4.018999533172973e-08f,
+    -1.0123349269974824e-08f, 2.4203234971764687e-08f, -4.500898853621038e-08f,
+    8.070904833346049e-09f, 9.836217174097328e-09f, -2.4755326677450284e-08f,
+    -9.235770370707996e-09f, -1.1239277952768134e-08f, 9.845328108326612e-09f};
+
+SIMD_FN SIMDN(vs_) SIMDN(exp_)(SIMDN(vs_) x) {
+    typedef SIMDN(vs_) vec;
+    typedef SIMDN(vm_) mask;
+    typedef SIMDN(vi_) ivec;
+    const vec zero = {0};
+    const vec lowest = zero + (SCALAR)-104.0;
+    x = VSELECT(x > lowest, x, lowest); /* also -inf; n stays within int32 */
+    /* x 16 / ln 2 - 1/2 <= 0: truncation rounds it to the nearest integer n16 = 16 n + j */
+    const vec t = VFMA(x, zero + (SCALAR)23.083120346069336, zero - (SCALAR)0.5);
+    const ivec n16 = __builtin_convertvector(t, ivec);
+    const vec nf = __builtin_convertvector(n16, vec);
+    /* r = x - n16 ln 2 / 16, ln 2 / 16 as two floats */
+    vec r = VFMA(nf, zero - (SCALAR)0.043321698904037476, x);
+    r = VFMA(nf, zero - (SCALAR)-1.1904088825787085e-10, r);
+    vec q = VFMA(r, zero + (SCALAR)(1.0 / 6), zero + (SCALAR)0.5);
+    q = VFMA(q, r * r, r); /* e^r - 1 */
+    const mask j = (mask)(n16 & 15);
+    vec hi0, hi1, lo0, lo1;
+    __builtin_memcpy(&hi0, SIMDN(exp_hi_), sizeof hi0);
+    __builtin_memcpy(&hi1, SIMDN(exp_hi_) + (VW < 16 ? VW : 0), sizeof hi1);
+    __builtin_memcpy(&lo0, SIMDN(exp_lo_), sizeof lo0);
+    __builtin_memcpy(&lo1, SIMDN(exp_lo_) + (VW < 16 ? VW : 0), sizeof lo1);
+    const vec hi = (vec)SHUFFLE2(hi0, hi1, j), lo = (vec)SHUFFLE2(lo0, lo1, j);
+    const vec p = hi + VFMA(hi, q, lo);
+#ifdef VSCALEF /* AVX-512: p 2^n in one instruction (subnormal results rounded, not 0) */
+    return VSCALEF(p, __builtin_convertvector(n16 >> 4, vec));
+#endif
+    const ivec biased = (n16 >> 4) + 127; /* n = floor(n16 / 16); > 0: 2^n is normal */
+    const mask e = __builtin_convertvector(biased, mask) << 23;
+    const vec scale = VSELECT(__builtin_convertvector(biased > 0, mask), (vec)e, zero);
+    return p * scale;
+}
+#else
 SIMD_FN SIMDN(vs_) SIMDN(exp_)(SIMDN(vs_) x) {
     typedef SIMDN(vs_) vec;
     typedef SIMDN(vm_) mask;
@@ -70,6 +128,7 @@ SIMD_FN SIMDN(vs_) SIMDN(exp_)(SIMDN(vs_) x) {
     const vec scale = VSELECT(__builtin_convertvector(biased > 0, mask), (vec)e, zero);
     return p * scale;
 }
+#endif
 
 /* The taps of the active pixels [a, b) of row `row` (within the line's strip), VW at a time;
  * `scale` holds their scales. The last vector of a run shorter than VW repeats its last pixel
@@ -247,6 +306,28 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
                 o[l] = acc0[l];
                 o[hw + l] = acc1[l];
                 o[2 * hw + l] = acc2[l];
+            }
+        }
+        if (j->blend_out) { /* lerp(blend_out, result, blend_w): BLEND_LERP, lane-wise */
+            SCALAR *bo = j->blend_out + row * w + c;
+            const vec accs[3] = {acc0, acc1, acc2};
+            for (int ch = 0; ch < 3; ++ch) {
+                const SCALAR wt = j->blend_w[ch];
+                const int small = FABSF(wt) < (SCALAR)0.5;
+                vec ov;
+                if (n == VW) {
+                    __builtin_memcpy(&ov, bo + ch * hw, sizeof ov);
+                } else {
+                    ov = zero;
+                    for (int64_t l = 0; l < n; ++l) ov[l] = bo[ch * hw + l];
+                }
+                const vec e = accs[ch];
+                const vec r = small ? ov + wt * (e - ov) : e - (e - ov) * ((SCALAR)1 - wt);
+                if (n == VW) {
+                    __builtin_memcpy(bo + ch * hw, &r, sizeof r);
+                } else {
+                    for (int64_t l = 0; l < n; ++l) bo[ch * hw + l] = r[l];
+                }
             }
         }
     }
