@@ -860,8 +860,11 @@ def check_stages(argv: list[str]) -> tuple[str | None, list[str]]:
         swept = {a[0].split("=", 1)[0].lstrip("+") for a in axes}
         params = OmegaConf.to_container(preset_hydra(presets[0]).sweeper.get("params") or {})
         for key, value in dict(params or {}).items():
+            value = str(value)
+            if "(" in value and not value.startswith("glob("):
+                continue  # a search space (``choice(...)``, ``interval(...)``): each run checks
             if str(key).lstrip("+") not in swept:
-                axes.append([job[0] for job in expand_grid({str(key): str(value)})])
+                axes.append([job[0] for job in expand_grid({str(key): value})])
     if not any(_stage_requested(item) for axis in axes for item in axis):
         first = [a[0] for a in axes]
         try:
