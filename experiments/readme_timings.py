@@ -54,8 +54,9 @@ README = REPO / "README.md"
 #: the markers of the README's generated timing lines
 BEGIN = "<!-- readme_timings: written by experiments/readme_timings.py from readme_timings.json -->"
 END = "<!-- /readme_timings -->"
-#: a load average (1 min) below this is an idle machine; above, the wall time is an upper bound
-IDLE_LOAD = 0.5
+#: a load average (1 min) before the job below this is an idle machine; above, the wall time is
+#: an upper bound (the load after a job is mostly its own processes, so it does not decide)
+IDLE_LOAD = 0.75
 
 #: the jobs as the README writes them
 COMMANDS = {
@@ -120,8 +121,8 @@ def _conditions(r: dict[str, object], mach: dict[str, object]) -> str:
         f"on {mach['cores']} cores ({mach['cpu']}) at load average {before:.1f} before and "
         f"{after:.1f} after"
     )
-    if max(before, after) < IDLE_LOAD:
-        return where + " (an idle machine)"
+    if before < IDLE_LOAD:  # the load after a job is mostly the job's own processes
+        return where + " (an idle machine before the run; the load after is the job's own)"
     return (
         where + " — a shared machine, so the wall time is an upper bound above an idle "
         "machine's; re-run the script on an idle machine for its figure"
