@@ -143,7 +143,27 @@ def _quadrant_gauss_legendre(dx, dy, dz, hh, sx, sy, v, n, weights) -> torch.Ten
         red.append(np.asarray(wg)[:, None, None] * (hab * q)[None])  # (3, 9, nodes)
     a_mat = torch.from_numpy(np.concatenate(phi)).to(dx)
     r_mat = torch.from_numpy(np.concatenate(red, 2).reshape(27, -1)).to(dx)
-    rows = a_mat.shape[0]
+    return node_sums(a_mat, r_mat, dx, dy, dz, sx, sy, hh).view(3, 9, dx.shape[0])
+
+
+def node_sums(
+    a_mat: torch.Tensor,
+    r_mat: torch.Tensor,
+    dx: torch.Tensor,
+    dy: torch.Tensor,
+    dz: torch.Tensor,
+    sx: torch.Tensor,
+    sy: torch.Tensor,
+    hh: torch.Tensor,
+) -> torch.Tensor:
+    """``r_mat @ exp(a_mat @ features) · area`` per source: the quadrature of Gaussians over
+    tilted cells shared by the box rule (:mod:`sssbench.ops.reference`) and the hat-weighted
+    one here, the exponent being linear in six features of each cell (offset ``Δ = (dx, dy,
+    dz)`` mm, slopes ``sx, sy``, half-size ``hh`` mm, all ``(M,)``).
+
+    ``a_mat`` ``(rows, 6)`` holds each node's coefficients of the features, ``r_mat``
+    ``(R, rows)`` the weights that reduce nodes to outputs; returns ``(R, M)``. Sources are
+    taken in blocks so that ``rows × block`` stays near :data:`_NODE_ELEMS` elements."""
     two_h, h2 = 2 * hh, hh * hh
     sx2, sy2 = sx * sx, sy * sy
     feats = torch.stack(
@@ -156,11 +176,11 @@ def _quadrant_gauss_legendre(dx, dy, dz, hh, sx, sy, v, n, weights) -> torch.Ten
             (two_h * hh) * sx * sy,  # 2h² t_x·t_y
         ]
     )
-    block = max(1, _NODE_ELEMS // rows)
+    block = max(1, _NODE_ELEMS // a_mat.shape[0])
     m = dx.shape[0]
     parts = [r_mat @ torch.exp(a_mat @ feats[:, i : i + block]) for i in range(0, m, block)]
-    area = torch.sqrt(1 + sx2 + sy2) * h2
-    return (torch.cat(parts, 1) * area).view(3, 9, m)
+    area = torch.sqrt(1 + sx2 + sy2) * h2  # dA = sqrt(1 + |∇z|²) dx dy
+    return torch.cat(parts, 1) * area
 
 
 def hat_cell_weights(

@@ -23,7 +23,7 @@ from sssbench._console import bar as progress_bar
 from sssbench.gbuffer import GBuffer, pixel_size_mm
 from sssbench.ops._reference_far import Surface, gather, map_threads, with_border
 from sssbench.ops._reference_flat import flat_kernel
-from sssbench.ops._reference_near import HAT_OFFSETS, hat_cell_weights
+from sssbench.ops._reference_near import HAT_OFFSETS, hat_cell_weights, node_sums
 from sssbench.ops.timing import timed_pass
 from sssbench.profiles.base import Profile, _gauss_legendre
 from sssbench.profiles.sum_of_gaussians import (
@@ -498,8 +498,6 @@ _CENTRES = 1 << 15
 #: a Gauss–Legendre Gaussian is left out of an offset whose cells all lie where it is below
 #: exp(-_SOG_SKIP) of its peak (see :func:`_gather_sog`; ``cell_integral`` uses 40)
 _SOG_SKIP = 25.0
-#: cells × quadrature nodes per block of :func:`_sog_gauss_legendre` (in cache)
-_NODE_ELEMS = 1 << 18
 
 
 def _is_sum_of_gaussians(profile: Profile) -> bool:
@@ -548,24 +546,7 @@ def _sog_gauss_legendre(
         start += len(c)
     a_mat = torch.from_numpy(np.concatenate(phi)).to(dx)
     r_mat = weights.to(dx).t() @ torch.from_numpy(reduce).to(dx)  # (3, nodes)
-    two_h = 2 * hh
-    h2 = hh * hh
-    sx2, sy2 = sx * sx, sy * sy
-    feats = torch.stack(
-        [
-            torch.addcmul(torch.addcmul(dx * dx, dy, dy), dz, dz),  # |Δ|²
-            two_h * torch.addcmul(dx, sx, dz),  # 2h Δ·t_x
-            two_h * torch.addcmul(dy, sy, dz),  # 2h Δ·t_y
-            torch.addcmul(h2, h2, sx2),  # h² |t_x|²
-            torch.addcmul(h2, h2, sy2),  # h² |t_y|²
-            (two_h * hh) * sx * sy,  # 2h² t_x·t_y
-        ]
-    )
-    block = max(1, _NODE_ELEMS // rows)
-    m = dx.shape[0]
-    parts = [r_mat @ torch.exp(a_mat @ feats[:, i : i + block]) for i in range(0, m, block)]
-    area = torch.sqrt(1 + sx2 + sy2) * h2
-    return torch.cat(parts, 1) * area
+    return node_sums(a_mat, r_mat, dx, dy, dz, sx, sy, hh)
 
 
 def _sog_cell_weights(
