@@ -105,6 +105,27 @@ class GLContext:
         self._sampling(tex)
         return tex
 
+    @property
+    def fp64(self) -> bool:
+        """Whether the driver runs double-precision shader arithmetic (GL 4.0 core, GLSL 400:
+        ``double``, ``packDouble2x32``, ``frexp`` / ``ldexp`` on doubles, ``precise``)."""
+        return self.ctx.version_code >= 400
+
+    def texture_f64(self, plane: torch.Tensor) -> object:
+        """An exact float64 texture of a ``(C, H, W)`` plane set, ``C`` 1 or 2: each double
+        as its two 32-bit halves (low word first) in an RG32UI / RGBA32UI texel, read in the
+        shader with ``packDouble2x32(texelFetch(...).xy)`` (GL has no double texture
+        format). Nearest filtering (an integer texture is not filterable)."""
+        c, h, w = plane.shape
+        if c not in (1, 2):
+            raise ValueError(f"plane must have 1 or 2 channels, got {c}")
+        data = plane.detach().to(device="cpu", dtype=torch.float64)
+        arr = np.ascontiguousarray(data.permute(1, 2, 0).numpy()).view(np.uint32)
+        tex = self.ctx.texture((w, h), 2 * c, arr.tobytes(), dtype="u4")
+        tex.filter = (self.moderngl.NEAREST, self.moderngl.NEAREST)
+        tex.repeat_x = tex.repeat_y = False
+        return tex
+
     def target(self, w: int, h: int) -> object:
         """An empty RGBA32F texture of ``w × h``."""
         tex = self.ctx.texture((w, h), 4, dtype="f4")

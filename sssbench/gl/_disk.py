@@ -19,10 +19,53 @@ from sssbench.gl._run import Frame, GLMethodError
 from sssbench.gl.disk_shader import PATTERN_ROW, SOG_MAX, DiskShader, disk_source
 from sssbench.ops.timing import timed_pass
 
-__all__ = ["disk_spec", "disk_schedule", "disk_pass", "DISK_PASS"]
+__all__ = [
+    "disk_spec",
+    "disk_schedule",
+    "disk_pass",
+    "DISK_PASS",
+    "DISK_GEOMETRIES",
+    "disk_geometry",
+    "set_disk_geometry",
+]
 
 #: the name of the disk's draw (one per frame), as the torch disk records it
 DISK_PASS = "disk"
+#: the precisions of a disk sample's geometry in the shader: ``"float64"`` (default; GLSL 400,
+#: the torch disk's own, whole images equal to ≤ 1e-5 relative RMS) and ``"float32"`` (the
+#: GLSL 330 fallback for a driver without doubles, chosen explicitly: docs/gl.md states its
+#: tolerance)
+DISK_GEOMETRIES = ("float64", "float32")
+_GEOMETRY = {"requested": "float64"}
+
+
+def set_disk_geometry(precision: str) -> str:
+    """Choose the precision the disk shader forms each sample's geometry in (``"float64"``,
+    the default, or ``"float32"``, the fallback for a driver without doubles); returns the
+    previous choice. Nothing ever falls back by itself: with ``"float64"`` on a driver
+    without GLSL 400 the disk raises :class:`GLMethodError` naming this function."""
+    if precision not in DISK_GEOMETRIES:
+        raise ValueError(f"precision must be one of {DISK_GEOMETRIES}, got {precision!r}")
+    old = _GEOMETRY["requested"]
+    _GEOMETRY["requested"] = precision
+    return old
+
+
+def disk_geometry() -> str:
+    """The precision the disk shader forms its sample geometry in on this context
+    (:func:`set_disk_geometry`; recorded by runs as ``gl_disk_geometry``).
+    :class:`GLMethodError` when ``"float64"`` is asked of a driver without doubles."""
+    want = _GEOMETRY["requested"]
+    if want == "float64":
+        glc = get_context()
+        if not glc.fp64:
+            raise GLMethodError(
+                f"DiskSSS on GL forms each sample's geometry in float64 as the torch disk does, "
+                f"which needs GLSL 400 (double); this driver is {glc.renderer} / {glc.version}. "
+                "Call sssbench.gl.set_disk_geometry('float32') to run the float32-geometry "
+                "shader (its tolerance: docs/gl.md)"
+            )
+    return want
 
 
 def _profile_constants(profile, name: str) -> dict:
@@ -53,10 +96,10 @@ def _profile_constants(profile, name: str) -> dict:
     )
 
 
-def disk_spec(method) -> DiskShader:
-    """The :class:`DiskShader` of a built :class:`~sssbench.ops.DiskSSS`; GLMethodError naming
-    an option the shader does not run (a list of profiles, ``adaptive``, an unsupported
-    profile class)."""
+def disk_spec(method, geometry: str | None = None) -> DiskShader:
+    """The :class:`DiskShader` of a built :class:`~sssbench.ops.DiskSSS` with its sample
+    geometry in ``geometry`` (default :func:`disk_geometry`); GLMethodError naming an option
+    the shader does not run (a list of profiles, ``adaptive``, an unsupported profile class)."""
     from sssbench.ops._disk_radial import BurleyRadial
     from sssbench.ops.disk import HDRP_MIN_PIXEL_MM, HDRP_PIXELS_PER_SAMPLE
 
@@ -87,6 +130,7 @@ def disk_spec(method) -> DiskShader:
         filter_radius=kernel.filter_radius if hdrp else 0.0,
         min_pixel_mm=HDRP_MIN_PIXEL_MM,
         pixels_per_sample=HDRP_PIXELS_PER_SAMPLE,
+        fp64=(geometry or disk_geometry()) == "float64",
         **consts,
     )
 
@@ -122,27 +166,58 @@ def _pattern_plane(pattern: str, n: int) -> torch.Tensor:
     return plane.reshape(4, rows, PATTERN_ROW)
 
 
+def _pattern_plane64(method, spec: DiskShader) -> torch.Tensor:
+    """``(2, rows, PATTERN_ROW)`` float64 per sample: ``(u_i, θ_i)`` (radians, as
+    :func:`~sssbench.ops.disk.pattern_points` gives them), or for HDRP ``(2π frac(i/φ), 0)``
+    (``DiskSSS._gather_hdrp``'s angles), for :meth:`GLContext.texture_f64`."""
+    from sssbench.ops.disk import GOLDEN_RATIO, pattern_points
+
+    n = method.samples
+    rows = -(-n // PATTERN_ROW)
+    plane = torch.zeros(2, rows * PATTERN_ROW, dtype=torch.float64)
+    if spec.hdrp:
+        i = torch.arange(n, dtype=torch.float64)
+        plane[0, :n] = 2 * math.pi * torch.frac(i / GOLDEN_RATIO)
+    else:
+        plane[0, :n], plane[1, :n] = pattern_points(method.pattern, n)
+    return plane.reshape(2, rows, PATTERN_ROW)
+
+
 def _frame_gbuffer(frame: Frame) -> GBuffer:
     return GBuffer(frame.diffuse[None], frame.depth[None], frame.fov_y, mask=frame.strength[None])
+
+
+def _key(spec: DiskShader) -> str:
+    """The prefix of a frame's disk textures (float64 and float32 geometry differ)."""
+    return "disk64." if spec.fp64 else "disk."
 
 
 def _textures(frame: Frame, method, spec: DiskShader) -> None:
     """The disk's textures of ``frame`` (made once per frame object: the schedule's repeats
     reuse them)."""
     t, g = frame.textures, frame.glc
-    if "disk.noise0" in t:
+    key = _key(spec)
+    if f"{key}noise0" in t:
         return
     gb = _frame_gbuffer(frame)
+    sampler = method.kernels[0].sampler
+    table = spec.radial_table is not None
     for f in range(method.frames):  # the operator's own per-pixel random numbers
         phase, shift = method.noise(gb, f, 0)
+        if spec.fp64:  # exact doubles
+            t[f"{key}noise{f}"] = g.texture_f64(torch.cat([phase[0], shift[0]], 0))
+            continue
         hi, lo = _split(shift[0])
-        t[f"disk.noise{f}"] = g.texture(torch.cat([phase[0], hi, lo, torch.zeros_like(hi)], 0))
-    t["disk.pattern"] = g.texture(_pattern_plane(method.pattern, method.samples))
-    sampler = method.kernels[0].sampler
-    plane = _radial_plane(sampler) if spec.radial_table is not None else torch.zeros(4, 1, 1)
-    t["disk.radial"] = g.texture(plane)
+        t[f"{key}noise{f}"] = g.texture(torch.cat([phase[0], hi, lo, torch.zeros_like(hi)], 0))
+    if spec.fp64:
+        t[f"{key}pattern"] = g.texture_f64(_pattern_plane64(method, spec))
+        nodes = torch.stack([sampler.cdf, sampler.r])[:, None] if table else torch.zeros(2, 1, 1)
+        t[f"{key}radial"] = g.texture_f64(nodes)
+    else:
+        t[f"{key}pattern"] = g.texture(_pattern_plane(method.pattern, method.samples))
+        t[f"{key}radial"] = g.texture(_radial_plane(sampler) if table else torch.zeros(4, 1, 1))
     area = method.pixel_areas(gb)[0] if spec.surface_area else torch.zeros(1, 1, 1)
-    t["disk.area"] = g.texture(area)
+    t[f"{key}area"] = g.texture(area)
 
 
 def draw_disk(frame: Frame, method, spec: DiskShader | None = None) -> object:
@@ -151,13 +226,15 @@ def draw_disk(frame: Frame, method, spec: DiskShader | None = None) -> object:
     spec = spec or disk_spec(method)
     _textures(frame, method, spec)
     glc, t = frame.glc, frame.textures
+    key = _key(spec)
     mgl = glc.moderngl
     prog = glc.program(disk_source(spec))
     dst = frame.target(DISK_PASS)
     frame.clear(dst)
-    pm = 2.0 * math.tan(frame.fov_y / 2.0) / frame.h
+    pm = 2.0 * math.tan(frame.fov_y / 2.0) / frame.h  # gbuffer.pixel_size_mm's factor
     for k, v in {
         "pixelMmPerMm": pm,
+        "pixelMmPerMmD": pm,
         "tanHalfFov": math.tan(frame.fov_y / 2.0),
         "frameWeight": 1.0 / method.frames,
     }.items():
@@ -171,8 +248,8 @@ def draw_disk(frame: Frame, method, spec: DiskShader | None = None) -> object:
         for f in range(method.frames):
             frame._bind(prog, {
                 "colorTex": t["color"], "depthTex": t["depth"], "strengthTex": t["strength"],
-                "noiseTex": t[f"disk.noise{f}"], "patternTex": t["disk.pattern"],
-                "radialTex": t["disk.radial"], "areaTex": t["disk.area"],
+                "noiseTex": t[f"{key}noise{f}"], "patternTex": t[f"{key}pattern"],
+                "radialTex": t[f"{key}radial"], "areaTex": t[f"{key}area"],
             })  # fmt: skip
             frame._run(prog, dst, DISK_PASS, method.samples)
     finally:
