@@ -549,7 +549,8 @@ void sampleTableD(double u, out double r, out double slope) {
         else hi = mid - 1;
     }
     int k = min(lo, DISK_RADIAL_INTERVALS - 1);
-    uvec4 n0 = texelFetch(radialTex, ivec2(k, 0), 0), n1 = texelFetch(radialTex, ivec2(k + 1, 0), 0);
+    uvec4 n0 = texelFetch(radialTex, ivec2(k, 0), 0);
+    uvec4 n1 = texelFetch(radialTex, ivec2(k + 1, 0), 0);
     double c0 = packDouble2x32(n0.xy), r0 = packDouble2x32(n0.zw);
     double c1 = packDouble2x32(n1.xy), r1 = packDouble2x32(n1.zw);
     slope = max((c1 - c0) / (r1 - r0), DBL_TINY);
