@@ -1,4 +1,5 @@
-"""GLSL 330 source of the disk (:class:`~sssbench.ops.DiskSSS`) as one fragment shader, both
+"""GLSL 400 (float64 geometry) or GLSL 330 (float32 fallback) source of the disk
+(:class:`~sssbench.ops.DiskSSS`) as one fragment shader, both
 estimators, written after the published formulas (no third-party shader text is vendored).
 
 One draw per frame computes, per pixel, the estimate of the module doc of
@@ -31,27 +32,42 @@ mod 2π), the radius from Burley's inverse CDF (``x = 2 sinh(asinh(2(1 − u))/3
 profile, the sample's view position on the ray through its screen position at the fetched
 depth, ``w = R(d) / pdf / ‖R‖₁``.
 
-Per-pixel random numbers: the torch disk hashes a 63-bit seed with 64-bit integer arithmetic,
-which GLSL 330 does not have; like an engine's noise texture, the rotation (turns) and the
-radial shift of every pixel and frame are computed on the CPU by the operator's own function
-(:meth:`~sssbench.ops.DiskSSS.noise`) and uploaded as an RG32F texture (``noiseTex``). HDRP's
-golden-ratio angle ``frac(i/φ)`` is computed in 32-bit fixed point (``i · 2654435769u``,
-``2³²/φ`` rounded: exact modulo 2³²), so it does not lose the fraction to float32 as ``i``
-grows.
+Per-pixel random numbers: the torch disk hashes a 63-bit seed with 64-bit integer arithmetic;
+like an engine's noise texture, the rotation (turns) and the radial shift of every pixel and
+frame are computed on the CPU by the operator's own function
+(:meth:`~sssbench.ops.DiskSSS.noise`) and uploaded (``noiseTex``); the shader never hashes.
+HDRP's golden-ratio angle ``2π frac(i/φ)`` is the torch loop's double (float64 geometry) or,
+in the float32 fallback, computed in 32-bit fixed point (``i · 2654435769u``, ``2³²/φ``
+rounded: exact modulo 2³²), so it does not lose the fraction to float32 as ``i`` grows.
 
-Precision: the torch disk forms a sample's geometry (radius, offset, 3D distance, weight) in
-float64 whatever the image dtype; this shader forms it in float32. Where a sample's position
-rounds to a pixel, a float32 radius within 1e-6 of a pixel boundary can land on the
-neighbour, which changes that pixel's result by that one sample's share; measured against
-torch in ``tests/gl/test_gl_disk.py`` (≤ 1e-5 relative RMS over the image, docs/gl.md).
+Precision (``DiskShader.fp64``): the torch disk forms a sample's geometry (quantile, radius,
+angle, offset, the pixel it rounds to, bilinear fractions, 3D distance, weight) in float64
+whatever the image dtype, and so does this shader by default (``#version 400``, doubles): in
+the torch loop's order of operations, from exact doubles — per-sample pattern values and
+HDRP's angles, per-pixel rotation and radial shift, the tabulated CDF — uploaded as two
+32-bit words each (``packDouble2x32``), every constant written as the very double torch uses
+(``LF`` literals), and ``exp`` / ``log`` / ``sin`` / ``cos`` / the cube root, which GLSL has
+only for floats, in double (:func:`double_math_source`; Newton steps for the roots). Only
+colours and depths are float32, as in torch. A sample then lands in the same pixel as in
+torch unless it lies within ~1e-15 of its offset of a pixel boundary, and the weights round
+to the same float32: on llvmpipe the images are bitwise equal to torch's except for the
+frames' blend order (measured in ``tests/gl/test_gl_disk.py``, docs/gl.md).
+The fallback for a driver without doubles (``fp64=False``, ``#version 330``, chosen
+explicitly with :func:`sssbench.gl.set_disk_geometry`) forms the geometry in float32: a
+sample within float32 rounding of a pixel boundary (1e-7 of its offset) can land on the
+neighbour, which changes that pixel by that one sample's share (docs/gl.md states the
+tolerance).
 
 Uniforms: ``colorTex`` RGBA32F irradiance, ``depthTex`` R32F linear depth (mm),
-``strengthTex`` R32F mask (stencil and strength), ``noiseTex`` RG32F (rotation in turns,
-radial shift), ``patternTex`` RG32F ``(u_i, θ_i)`` in rows of :data:`PATTERN_ROW` texels,
-``radialTex`` RGBA32F per tabulated interval ``(c_k, r_k, dr/dc, r_{k+1})``, ``areaTex`` R32F
-pixel surface areas (mm²), ``pixelMmPerMm`` = ``2 tan(fov_y/2) / H`` (mm per pixel at 1 mm
-depth), ``tanHalfFov`` and ``frameWeight`` (``1 / frames``: each frame's draw is summed into
-the target by additive blending).
+``strengthTex`` R32F mask (stencil and strength), ``areaTex`` R32F pixel surface areas (mm²),
+``pixelMmPerMm`` (and, float64, ``pixelMmPerMmD``) = ``2 tan(fov_y/2) / H`` (mm per pixel at
+1 mm depth), ``tanHalfFov`` and ``frameWeight`` (``1 / frames``: each frame's draw is summed
+into the target by additive blending). Float64 geometry: ``noiseTex`` RGBA32UI (rotation,
+shift), ``patternTex`` RGBA32UI ``(u_i, θ_i)`` or HDRP's ``(2π frac(i/φ), 0)`` in rows of
+:data:`PATTERN_ROW` texels, ``radialTex`` RGBA32UI per node ``(c_k, r_k)``, each value a
+double. Float32 fallback: ``noiseTex`` RGBA32F (rotation, shift as a hi/lo pair),
+``patternTex`` RGBA32F ``(u_i, θ_i/2π, 1 − u_i as hi/lo)``, ``radialTex`` RGBA32F per node
+``(c_k, 1 − c_k, r_k, dr/dc)``.
 """
 
 from __future__ import annotations
@@ -62,7 +78,7 @@ from dataclasses import dataclass
 
 from sssbench.gl.shaders import _num, _vec3
 
-__all__ = ["DiskShader", "disk_source", "PATTERN_ROW", "SOG_MAX"]
+__all__ = ["DiskShader", "disk_source", "double_math_source", "PATTERN_ROW", "SOG_MAX"]
 
 #: texels per row of the pattern texture (``samples`` up to 65536 fit in 16 rows)
 PATTERN_ROW = 4096
@@ -109,7 +125,8 @@ class DiskShader:
 
 
 def disk_source(spec: DiskShader, header: Sequence[str] = ()) -> str:
-    """The complete GLSL 330 fragment shader of one disk draw (module doc)."""
+    """The complete fragment shader of one disk draw (module doc): GLSL 400 with the float64
+    geometry (``spec.fp64``), else GLSL 330 with the float32 geometry."""
     if spec.burley_d is None and not spec.sog:
         raise ValueError("a disk shader needs a Burley d or sum-of-Gaussians constants")
     if len(spec.sog) > SOG_MAX:
@@ -164,11 +181,8 @@ def _dvec3(v: Sequence[float]) -> str:
 
 
 def _double_constants(spec: DiskShader, sog) -> list[str]:
-    """The float64 block's constants, each the very double the torch disk uses (``_dnum``), and
-    the Taylor coefficients of the double ``sin`` / ``cos`` / ``exp`` (module doc)."""
-    fact = math.factorial
-    sin_c = ", ".join(_dnum((-1) ** (j + 1) / fact(2 * j + 3)) for j in range(10))
-    cos_c = ", ".join(_dnum((-1) ** j / fact(2 * j + 4)) for j in range(10))
+    """The float64 block's constants, each the very double the torch disk uses (``_dnum``),
+    and the double math (:func:`double_math_source`)."""
     b = ", ".join(_dnum(g[0]) for g in sog)
     a = ", ".join(_dvec3(g[1]) for g in sog)
     return [
@@ -185,11 +199,76 @@ def _double_constants(spec: DiskShader, sog) -> list[str]:
         f"const double SSS_PIXELS_PER_SAMPLE_D = {_dnum(spec.pixels_per_sample)};",
         f"const double sogBD[DISK_SOG_N] = double[DISK_SOG_N]({b});",
         f"const dvec3 sogAD[DISK_SOG_N] = dvec3[DISK_SOG_N]({a});",
+        double_math_source(),
+    ]
+
+
+def double_math_source() -> str:
+    """GLSL 400 ``expD``, ``logD`` and ``sinCosD`` on doubles (GLSL's ``exp``, ``log``,
+    ``sin``, ``cos`` and ``pow`` take only floats): range reduction (fdlibm's two- and
+    three-part ``ln 2`` and ``π/2``) and Taylor series to below double rounding. Checked
+    against Python's ``math`` to a few ulp in ``tests/gl/test_gl_disk.py``."""
+    fact = math.factorial
+    sin_c = ", ".join(_dnum((-1) ** (j + 1) / fact(2 * j + 3)) for j in range(10))
+    cos_c = ", ".join(_dnum((-1) ** j / fact(2 * j + 4)) for j in range(10))
+    return "\n".join([
         "// Taylor coefficients: sin t = t + t^3 sum_j SIN_C[j] t^2j, (-1)^(j+1) / (2j+3)!;",
         "// cos t = 1 - t^2/2 + t^4 sum_j COS_C[j] t^2j, (-1)^j / (2j+4)!",
         f"const double SIN_C[10] = double[10]({sin_c});",
         f"const double COS_C[10] = double[10]({cos_c});",
-    ]
+        _MATH_CONSTS + _MATH_FUNCS,
+    ])  # fmt: skip
+
+
+_MATH_CONSTS = """
+const double LN2_HI = 6.93147180369123816490e-01LF; // ln 2 in two parts (fdlibm): k LN2_HI
+const double LN2_LO = 1.90821492927058770002e-10LF; // is exact for |k| < 2^20
+const double PIO2_1 = 1.57079632673412561417e+00LF; // pi/2 in three 33-bit parts (fdlibm)
+const double PIO2_2 = 6.07710050630396597660e-11LF;
+const double PIO2_3 = 2.02226624871116645580e-21LF;
+
+"""
+
+_MATH_FUNCS = """
+// e^x for x <= 709: x = k ln2 + t, |t| <= ln2 / 2, e^t by Horner to t^14 (error < 1e-17);
+// below -708 (no normal double) 0: a weight there is 0 in float32 long before
+double expD(double x) {
+    if (x < -708.0LF) return 0.0LF;
+    double k = roundEven(min(x, 709.0LF) * 1.44269504088896338700LF);
+    double t = (x - k * LN2_HI) - k * LN2_LO;
+    double p = 1.0LF;
+    for (int j = 14; j >= 1; j--) p = 1.0LF + t * p / double(j);
+    return ldexp(p, int(k));
+}
+
+// ln x for a normal x > 0: x = m 2^e, m in [1/sqrt 2, sqrt 2), ln m = 2 atanh(s),
+// s = (m - 1)/(m + 1), |s| <= 0.172: the odd series to s^25 (error < 1e-19)
+double logD(double x) {
+    int e;
+    double m = frexp(x, e);
+    if (m < 0.70710678118654752440LF) { m *= 2.0LF; e -= 1; }
+    double s = (m - 1.0LF) / (m + 1.0LF);
+    double s2 = s * s;
+    double p = 1.0LF / 25.0LF;
+    for (int k = 11; k >= 0; k--) p = 1.0LF / double(2 * k + 1) + s2 * p;
+    return double(e) * LN2_HI + (double(e) * LN2_LO + 2.0LF * s * p);
+}
+
+// sin x and cos x: x = k pi/2 + t (Cody-Waite, exact for |k| < 2^20), |t| <= pi/4: Taylor
+// to t^21 and t^22 (error < 1e-22)
+void sinCosD(double x, out double sn, out double cs) {
+    double k = roundEven(x * 0.63661977236758134308LF);
+    double t = ((x - k * PIO2_1) - k * PIO2_2) - k * PIO2_3;
+    double t2 = t * t;
+    double ps = SIN_C[9], pc = COS_C[9];
+    for (int j = 8; j >= 0; j--) { ps = SIN_C[j] + t2 * ps; pc = COS_C[j] + t2 * pc; }
+    double s = t + t * t2 * ps;
+    double c = 1.0LF + t2 * (-0.5LF + t2 * pc);
+    int q = int(k) & 3;
+    sn = q == 0 ? s : q == 1 ? c : q == 2 ? -s : -c;
+    cs = q == 0 ? c : q == 1 ? -s : q == 2 ? -c : s;
+}
+"""
 
 
 _BODY = r"""
@@ -459,53 +538,10 @@ vec3 evaluateSssbench(ivec2 pix, ivec2 size, vec3 colorM, float depthM, vec4 noi
 // of its own offset of a pixel boundary, where float32 put ~1e-7.
 
 const double DBL_TINY = 2.2250738585072014e-308LF;  // torch.finfo(float64).tiny
-const double LN2_HI = 6.93147180369123816490e-01LF; // ln 2 in two parts (fdlibm): k LN2_HI
-const double LN2_LO = 1.90821492927058770002e-10LF; // is exact for |k| < 2^20
-const double PIO2_1 = 1.57079632673412561417e+00LF; // pi/2 in three 33-bit parts (fdlibm)
-const double PIO2_2 = 6.07710050630396597660e-11LF;
-const double PIO2_3 = 2.02226624871116645580e-21LF;
 
 double fetchDouble(usampler2D t, int i, bool second) {
     uvec4 w = texelFetch(t, ivec2(i % PATTERN_ROW, i / PATTERN_ROW), 0);
     return packDouble2x32(second ? w.zw : w.xy);
-}
-
-// e^x for x <= 709: x = k ln2 + t, |t| <= ln2 / 2, e^t by Horner to t^14 (error < 1e-17);
-// below -708 (no normal double) 0: a weight there is 0 in float32 long before
-double expD(double x) {
-    if (x < -708.0LF) return 0.0LF;
-    double k = roundEven(min(x, 709.0LF) * 1.44269504088896338700LF);
-    double t = (x - k * LN2_HI) - k * LN2_LO;
-    double p = 1.0LF;
-    for (int j = 14; j >= 1; j--) p = 1.0LF + t * p / double(j);
-    return ldexp(p, int(k));
-}
-
-// ln x for a normal x > 0: x = m 2^e, m in [1/sqrt 2, sqrt 2), ln m = 2 atanh(s),
-// s = (m - 1)/(m + 1), |s| <= 0.172: the odd series to s^25 (error < 1e-19)
-double logD(double x) {
-    int e;
-    double m = frexp(x, e);
-    if (m < 0.70710678118654752440LF) { m *= 2.0LF; e -= 1; }
-    double s = (m - 1.0LF) / (m + 1.0LF);
-    double s2 = s * s;
-    double p = 1.0LF / 25.0LF;
-    for (int k = 11; k >= 0; k--) p = 1.0LF / double(2 * k + 1) + s2 * p;
-    return double(e) * LN2_HI + (double(e) * LN2_LO + 2.0LF * s * p);
-}
-
-// sin x and cos x: x = k pi/2 + t (Cody-Waite, exact for |k| < 2^20), Taylor to t^23
-void sinCosD(double x, out double sn, out double cs) {
-    double k = roundEven(x * 0.63661977236758134308LF);
-    double t = ((x - k * PIO2_1) - k * PIO2_2) - k * PIO2_3;
-    double t2 = t * t;
-    double ps = SIN_C[9], pc = COS_C[9];
-    for (int j = 8; j >= 0; j--) { ps = SIN_C[j] + t2 * ps; pc = COS_C[j] + t2 * pc; }
-    double s = t + t * t2 * ps;
-    double c = 1.0LF + t2 * (-0.5LF + t2 * pc);
-    int q = int(k) & 3;
-    sn = q == 0 ? s : q == 1 ? c : q == 2 ? -s : -c;
-    cs = q == 0 ? c : q == 1 ? -s : q == 2 ? -c : s;
 }
 
 // ---------------------------------------------------------------- radial sampling, float64
