@@ -38,7 +38,14 @@ from sssbench.gl._context import (
     available,
     get_context,
 )
-from sssbench.gl._disk import disk_pass, disk_schedule, disk_spec
+from sssbench.gl._disk import (
+    DISK_GEOMETRIES,
+    disk_geometry,
+    disk_pass,
+    disk_schedule,
+    disk_spec,
+    set_disk_geometry,
+)
 from sssbench.gl._run import Frame, GLMethodError, make_frame, pass_spec, schedule
 from sssbench.gl.shaders import PassShader, pass_source
 from sssbench.ops.pass_backends import register_pass_backend
@@ -56,6 +63,9 @@ __all__ = [
     "gather_pass",
     "run_pass_sources",
     "renderer_info",
+    "DISK_GEOMETRIES",
+    "disk_geometry",
+    "set_disk_geometry",
     "pass_source",
     "PassShader",
     "INSTALL_HINT",
@@ -153,7 +163,8 @@ def run_method(
     Returns:
         :class:`GLRun`. How a run records it: ``passes`` in place of the CPU pass records,
         ``renderer["renderer"]`` / ``["version"]`` beside the times, ``renderer["note"]``
-        (the llvmpipe caveat) in the report.
+        (the llvmpipe caveat) in the report; for the disk ``renderer["disk_geometry"]``,
+        the precision its shader formed the sample geometry in (:func:`disk_geometry`).
 
     Raises:
         GLUnavailable: no GL context (one line naming what to install).
@@ -163,6 +174,9 @@ def run_method(
         raise TypeError(f"gbuffer must be a GBuffer, got {type(gbuffer).__name__}")
     glc = get_context()
     fn = _schedule(method)
+    info = glc.info
+    if fn is disk_schedule:
+        info = {**info, "disk_geometry": disk_geometry()}
     b = gbuffer.diffuse.shape[0]
     images = []
     per_pass: dict[str, list[float]] = {}
@@ -193,7 +207,7 @@ def run_method(
         [PassRecord(name, samples[name], pixels[name], v[r]) for name, v in per_pass.items()]
         for r in range(repeats)
     ]
-    return GLRun(image, times, glc.info, records, per_repeat)
+    return GLRun(image, times, info, records, per_repeat)
 
 
 def _schedule(method):

@@ -42,6 +42,7 @@ INFO_KEYS = (
     "gl_version",
     "timing_note",
     "time_source",
+    "gl_disk_geometry",
 )
 
 

@@ -169,7 +169,8 @@ def gl_times(
     """With ``backend=gl``: the method's passes timed on the GL device (``GL_TIME_ELAPSED``
     queries, ``warmup`` untimed runs, median / min / max over ``repeats``;
     :func:`sssbench.gl.run_method`) and the renderer (``GL_RENDERER``, ``GL_VERSION`` and,
-    on llvmpipe, the note that these are a software rasteriser's times). ``None`` for the
+    on llvmpipe, the note that these are a software rasteriser's times; for the disk,
+    ``gl_disk_geometry``: ``float64`` or ``float32``). ``None`` for the
     baseline and the reference, which run no pass. A method without a GL schedule (halo
     reduction; a disk option without a shader, e.g. ``adaptive``) raises
     :class:`sssbench.gl.GLMethodError` naming it: the run fails, it is never timed on the CPU
@@ -182,9 +183,12 @@ def gl_times(
 
     run = gl.run_method(pipeline.method, gbuffer, repeats=max(repeats, 1), warmup=warmup)
     info = run.renderer
-    return pass_stats(run.repeats), {
+    record = {
         "renderer": str(info.get("renderer", "")),
         "gl_version": str(info.get("version", "")),
         "timing_note": str(info.get("note", "") or ""),
         "time_source": "GL_TIME_ELAPSED",
     }
+    if "disk_geometry" in info:  # the precision of the disk shader's sample geometry
+        record["gl_disk_geometry"] = str(info["disk_geometry"])
+    return pass_stats(run.repeats), record
