@@ -43,7 +43,7 @@ from sssbench.gl._disk import (
     disk_geometry,
     disk_pass,
     disk_schedule,
-    disk_spec,
+    disk_specs,
     set_disk_geometry,
 )
 from sssbench.gl._run import Frame, GLMethodError, make_frame, pass_spec, schedule
@@ -146,8 +146,8 @@ def run_method(
     by additive blending) and :class:`~sssbench.ops.SumOfGaussiansSSS` (blur passes, 003
     Listing 7.2's blend state, LOD, JG10 stretch), each with its follow-surface mode,
     stochastic rotation, and the mask as stencil and strength; :class:`~sssbench.ops.DiskSSS`
-    (one ``disk`` draw per frame, :mod:`sssbench.gl.disk_shader`). Halo reduction, the disk's
-    ``adaptive`` and per-pixel profile lists are refused (:class:`GLMethodError`).
+    (one ``disk`` draw per frame and profile, :mod:`sssbench.gl.disk_shader`). Halo
+    reduction and the disk's ``adaptive`` are refused (:class:`GLMethodError`).
 
     Args:
         method: a built method (e.g. :func:`sssbench.run.registry.build_method`).
@@ -216,7 +216,7 @@ def _schedule(method):
     from sssbench.ops import DiskSSS
 
     if isinstance(method, DiskSSS):
-        disk_spec(method)
+        disk_specs(method)  # every profile's shader exists (and the geometry is available)
         return disk_schedule
     return schedule(method)
 

@@ -21,6 +21,8 @@ from sssbench.ops.timing import timed_pass
 
 __all__ = [
     "disk_spec",
+    "disk_specs",
+    "check_profile_id",
     "disk_schedule",
     "disk_pass",
     "DISK_PASS",
@@ -96,26 +98,22 @@ def _profile_constants(profile, name: str) -> dict:
     )
 
 
-def disk_spec(method, geometry: str | None = None) -> DiskShader:
-    """The :class:`DiskShader` of a built :class:`~sssbench.ops.DiskSSS` with its sample
-    geometry in ``geometry`` (default :func:`disk_geometry`); GLMethodError naming an option
-    the shader does not run (a list of profiles, ``adaptive``, an unsupported profile class)."""
+def disk_spec(method, geometry: str | None = None, kernel: int = 0) -> DiskShader:
+    """The :class:`DiskShader` of profile ``kernel`` of a built :class:`~sssbench.ops.DiskSSS`
+    (one draw per profile of a list) with its sample geometry in ``geometry`` (default
+    :func:`disk_geometry`); GLMethodError naming an option the shader does not run
+    (``adaptive``, an unsupported profile class)."""
     from sssbench.ops._disk_radial import BurleyRadial
     from sssbench.ops.disk import HDRP_MIN_PIXEL_MM, HDRP_PIXELS_PER_SAMPLE
 
-    if method.per_pixel:
-        raise GLMethodError(
-            "DiskSSS with a list of profiles (per-pixel profile_id): the GL disk runs one "
-            "profile; run it on backend 'native' or 'torch'"
-        )
     if method.adaptive is not None:
         raise GLMethodError(
             f"DiskSSS(adaptive={method.adaptive!r}): the adaptive pilot and refinement passes "
-            "have no GL shader; run it on backend 'native' or 'torch'"
+            "have no GL shader (docs/gl.md says why); run it on backend 'native' or 'torch'"
         )
-    kernel = method.kernels[0]
-    consts = _profile_constants(kernel.profile, "profile")
-    sampler = kernel.sampler
+    k = method.kernels[kernel]
+    consts = _profile_constants(k.profile, f"profile[{kernel}]" if method.per_pixel else "profile")
+    sampler = k.sampler
     table = None if isinstance(sampler, BurleyRadial) else int(sampler.r.numel() - 1)
     hdrp = method.estimator == "hdrp"
     return DiskShader(
@@ -127,12 +125,33 @@ def disk_spec(method, geometry: str | None = None) -> DiskShader:
         surface_area=method.surface_area,
         radial_table=table,
         sampled_d=sampler.d if table is None else 1.0,
-        filter_radius=kernel.filter_radius if hdrp else 0.0,
+        filter_radius=k.filter_radius if hdrp else 0.0,
         min_pixel_mm=HDRP_MIN_PIXEL_MM,
         pixels_per_sample=HDRP_PIXELS_PER_SAMPLE,
         fp64=(geometry or disk_geometry()) == "float64",
+        per_pixel=method.per_pixel,
+        profile_index=kernel,
+        cross_accept=method.cross_profile == "accept",
         **consts,
     )
+
+
+def disk_specs(method, geometry: str | None = None) -> list[DiskShader]:
+    """One :class:`DiskShader` per profile of ``method`` (one for a single profile)."""
+    geometry = geometry or disk_geometry()
+    return [disk_spec(method, geometry, k) for k in range(len(method.kernels))]
+
+
+def check_profile_id(method, gbuffer: GBuffer) -> None:
+    """The torch disk's checks of ``gbuffer.profile_id`` for a list of profiles
+    (``DiskSSS._groups``), before anything is uploaded."""
+    if not method.per_pixel:
+        return
+    if gbuffer.profile_id is None:
+        raise ValueError("DiskSSS with a list of profiles needs gbuffer.profile_id")
+    top = int(gbuffer.profile_id.max())
+    if top >= len(method.kernels):
+        raise ValueError(f"profile_id must index the {len(method.kernels)} profiles, got max {top}")
 
 
 def _radial_plane(sampler) -> torch.Tensor:
@@ -192,16 +211,15 @@ def _key(spec: DiskShader) -> str:
     return "disk64." if spec.fp64 else "disk."
 
 
-def _textures(frame: Frame, method, spec: DiskShader) -> None:
+def _textures(frame: Frame, method, specs: list[DiskShader]) -> None:
     """The disk's textures of ``frame`` (made once per frame object: the schedule's repeats
-    reuse them)."""
+    reuse them): noise, pattern and areas shared, a radial table per profile."""
     t, g = frame.textures, frame.glc
+    spec = specs[0]
     key = _key(spec)
     if f"{key}noise0" in t:
         return
     gb = _frame_gbuffer(frame)
-    sampler = method.kernels[0].sampler
-    table = spec.radial_table is not None
     for f in range(method.frames):  # the operator's own per-pixel random numbers
         phase, shift = method.noise(gb, f, 0)
         if spec.fp64:  # exact doubles
@@ -211,47 +229,59 @@ def _textures(frame: Frame, method, spec: DiskShader) -> None:
         t[f"{key}noise{f}"] = g.texture(torch.cat([phase[0], hi, lo, torch.zeros_like(hi)], 0))
     if spec.fp64:
         t[f"{key}pattern"] = g.texture_f64(_pattern_plane64(method, spec))
-        nodes = torch.stack([sampler.cdf, sampler.r])[:, None] if table else torch.zeros(2, 1, 1)
-        t[f"{key}radial"] = g.texture_f64(nodes)
     else:
         t[f"{key}pattern"] = g.texture(_pattern_plane(method.pattern, method.samples))
-        t[f"{key}radial"] = g.texture(_radial_plane(sampler) if table else torch.zeros(4, 1, 1))
+    for k, s in enumerate(specs):
+        sampler = method.kernels[k].sampler
+        table = s.radial_table is not None
+        if s.fp64:
+            nodes = torch.stack([sampler.cdf, sampler.r])[:, None] if table else None
+            t[f"{key}radial{k}"] = g.texture_f64(torch.zeros(2, 1, 1) if nodes is None else nodes)
+        else:
+            plane = _radial_plane(sampler) if table else torch.zeros(4, 1, 1)
+            t[f"{key}radial{k}"] = g.texture(plane)
+    if "profile_id" not in t:  # (a single profile: an unused 1-texel stand-in)
+        t["profile_id"] = g.texture(torch.zeros(1, 1, 1))
     area = method.pixel_areas(gb)[0] if spec.surface_area else torch.zeros(1, 1, 1)
     t[f"{key}area"] = g.texture(area)
 
 
-def draw_disk(frame: Frame, method, spec: DiskShader | None = None) -> object:
-    """All frames of the disk of ``method`` on ``frame``: one draw per frame, summed into the
-    target ``"disk"`` by additive blending; the target texture."""
-    spec = spec or disk_spec(method)
-    _textures(frame, method, spec)
+def draw_disk(frame: Frame, method, specs: list[DiskShader] | None = None) -> object:
+    """All frames of the disk of ``method`` on ``frame``: per frame one draw per profile
+    (each computing its own pixels), summed into the target ``"disk"`` by additive blending;
+    the target texture."""
+    specs = specs or disk_specs(method)
+    _textures(frame, method, specs)
     glc, t = frame.glc, frame.textures
-    key = _key(spec)
+    key = _key(specs[0])
     mgl = glc.moderngl
-    prog = glc.program(disk_source(spec))
+    progs = [glc.program(disk_source(s)) for s in specs]
     dst = frame.target(DISK_PASS)
     frame.clear(dst)
     pm = 2.0 * math.tan(frame.fov_y / 2.0) / frame.h  # gbuffer.pixel_size_mm's factor
-    for k, v in {
-        "pixelMmPerMm": pm,
-        "pixelMmPerMmD": pm,
-        "tanHalfFov": math.tan(frame.fov_y / 2.0),
-        "frameWeight": 1.0 / method.frames,
-    }.items():
-        u = prog.get(k, None)
-        if u is not None:
-            u.value = v
+    for prog in progs:
+        for k, v in {
+            "pixelMmPerMm": pm,
+            "pixelMmPerMmD": pm,
+            "tanHalfFov": math.tan(frame.fov_y / 2.0),
+            "frameWeight": 1.0 / method.frames,
+        }.items():
+            u = prog.get(k, None)
+            if u is not None:
+                u.value = v
     ctx = glc.ctx
     ctx.enable(mgl.BLEND)
-    ctx.blend_func = (mgl.ONE, mgl.ONE)  # the frames' shares are summed
+    ctx.blend_func = (mgl.ONE, mgl.ONE)  # the frames' (and profiles') shares are summed
     try:
         for f in range(method.frames):
-            frame._bind(prog, {
-                "colorTex": t["color"], "depthTex": t["depth"], "strengthTex": t["strength"],
-                "noiseTex": t[f"{key}noise{f}"], "patternTex": t[f"{key}pattern"],
-                "radialTex": t[f"{key}radial"], "areaTex": t[f"{key}area"],
-            })  # fmt: skip
-            frame._run(prog, dst, DISK_PASS, method.samples)
+            for k, prog in enumerate(progs):
+                frame._bind(prog, {
+                    "colorTex": t["color"], "depthTex": t["depth"], "strengthTex": t["strength"],
+                    "noiseTex": t[f"{key}noise{f}"], "patternTex": t[f"{key}pattern"],
+                    "radialTex": t[f"{key}radial{k}"], "areaTex": t[f"{key}area"],
+                    "profileTex": t["profile_id"],
+                })  # fmt: skip
+                frame._run(prog, dst, DISK_PASS, method.samples)
     finally:
         ctx.disable(mgl.BLEND)
     return dst
@@ -262,6 +292,7 @@ def disk_schedule(frame: Frame, method, gbuffer: GBuffer, wt: bool) -> object:
     does not apply: the disk has no per-pixel width)."""
     if wt:
         raise GLMethodError("DiskSSS takes no per-pixel width (curvature modulation)")
+    check_profile_id(method, gbuffer)
     return draw_disk(frame, method)
 
 
@@ -274,7 +305,8 @@ def disk_pass(method, gbuffer: GBuffer) -> torch.Tensor:
             "the gl backend computes no gradients: run a DiskSSS that autograd records on "
             "backend 'native' or 'torch'"
         )
-    spec = disk_spec(method)
+    specs = disk_specs(method)
+    check_profile_id(method, gbuffer)
     glc = get_context()
     mask = gbuffer.mask_or_ones()
     method.last_counts = None  # the per-pixel counts stay on the device
@@ -287,9 +319,10 @@ def disk_pass(method, gbuffer: GBuffer) -> torch.Tensor:
                 gbuffer.depth[bi],
                 mask[bi],
                 gbuffer.fov_y,
+                profile_id=gbuffer.profile_id[bi] if method.per_pixel else None,
             )
             try:
-                results.append(glc.read(draw_disk(frame, method, spec)))
+                results.append(glc.read(draw_disk(frame, method, specs)))
             finally:
                 for tex in frame.textures.values():
                     tex.release()

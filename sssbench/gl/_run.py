@@ -134,6 +134,8 @@ class Frame:
     hardware_filter: bool = False
     textures: dict[str, object] = field(default_factory=dict)
     _fbos: dict[int, object] = field(default_factory=dict)
+    #: (1, H, W) int per-pixel profile index (the disk with a list of profiles), or None
+    profile_id: torch.Tensor | None = None
 
     def __post_init__(self) -> None:
         g = self.glc
@@ -147,6 +149,8 @@ class Frame:
         if self.rotation is not None:
             a = self.rotation.to(torch.float32)
             t["rotation"] = g.texture(torch.cat([torch.cos(a), torch.sin(a)], 0))
+        if self.profile_id is not None:  # small integers: exact in R32F
+            t["profile_id"] = g.texture(self.profile_id.to(torch.float32))
 
     def target(self, name: str) -> object:
         """A named RGBA32F render target of the frame's size (made once)."""
@@ -480,6 +484,7 @@ def make_frame(
     rot = None
     if getattr(method, "rotation", None) not in (None, *DISK_ROTATIONS):  # (the disk: its own)
         rot = random_rotation(gbuffer, method.rotation, method.seed).angles[bi]
+    per_pixel = getattr(method, "per_pixel", False) and gbuffer.profile_id is not None
     return Frame(
         glc,
         gbuffer.diffuse[bi],
@@ -489,4 +494,5 @@ def make_frame(
         None if width_map is None else width_map[bi],
         rot,
         timings,
+        profile_id=gbuffer.profile_id[bi] if per_pixel else None,
     )

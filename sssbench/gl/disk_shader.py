@@ -60,6 +60,7 @@ tolerance).
 
 Uniforms: ``colorTex`` RGBA32F irradiance, ``depthTex`` R32F linear depth (mm),
 ``strengthTex`` R32F mask (stencil and strength), ``areaTex`` R32F pixel surface areas (mm²),
+``profileTex`` R32F per-pixel profile index (a list of profiles: one draw per profile),
 ``pixelMmPerMm`` (and, float64, ``pixelMmPerMmD``) = ``2 tan(fov_y/2) / H`` (mm per pixel at
 1 mm depth), ``tanHalfFov`` and ``frameWeight`` (``1 / frames``: each frame's draw is summed
 into the target by additive blending). Float64 geometry: ``noiseTex`` RGBA32UI (rotation,
@@ -104,8 +105,13 @@ class DiskShader:
         min_pixel_mm: HDRP's floor on a pixel's footprint (mm).
         pixels_per_sample: HDRP's ``SSS_PIXELS_PER_SAMPLE``.
         fp64: form each sample's geometry in float64 as the torch disk does (GLSL 400:
-            ``#version 400``, :data:`GEOMETRY_FLOAT64`); ``False``: the float32 geometry of a
-            GLSL 330 driver without doubles (:data:`GEOMETRY_FLOAT32`).
+            ``#version 400``); ``False``: the float32 geometry of a
+            GLSL 330 driver without doubles.
+        per_pixel: the operator has a list of profiles: this draw scatters the pixels whose
+            ``profile_id`` is ``profile_index`` (the others are left to their profile's draw).
+        profile_index: the profile of this draw (``per_pixel``).
+        cross_accept: ``cross_profile="accept"``: a sample on another profile's pixel is
+            accepted (``"reject"``: rejected like a stencil miss).
     """
 
     hdrp: bool
@@ -122,6 +128,9 @@ class DiskShader:
     min_pixel_mm: float = 0.1
     pixels_per_sample: int = 4
     fp64: bool = False
+    per_pixel: bool = False
+    profile_index: int = 0
+    cross_accept: bool = False
 
 
 def disk_source(spec: DiskShader, header: Sequence[str] = ()) -> str:
@@ -139,6 +148,9 @@ def disk_source(spec: DiskShader, header: Sequence[str] = ()) -> str:
         "#version 400" if spec.fp64 else "#version 330",
         *(f"// {h}" if h else "//" for h in header),
         f"#define DISK_FP64 {int(spec.fp64)}",
+        f"#define DISK_PER_PIXEL {int(spec.per_pixel)}",
+        f"#define DISK_PROFILE_INDEX {int(spec.profile_index)}",
+        f"#define DISK_CROSS_ACCEPT {int(spec.cross_accept)}",
         f"#define DISK_HDRP {int(spec.hdrp)}",
         f"#define DISK_N_SAMPLES {int(spec.samples)}",
         f"#define DISK_NORMALISE {int(spec.normalise)}",
@@ -275,6 +287,7 @@ _BODY = r"""
 uniform sampler2D colorTex;     // RGBA32F irradiance
 uniform sampler2D depthTex;     // R32F linear depth, mm
 uniform sampler2D strengthTex;  // R32F mask: stencil (0) and strength
+uniform sampler2D profileTex;   // R32F per-pixel profile index (DISK_PER_PIXEL)
 #if DISK_FP64
 // exact doubles, each as its two 32-bit words (packDouble2x32): GLContext.texture_f64
 uniform usampler2D noiseTex;    // RGBA32UI (rotation turns, radial shift): DiskSSS.noise
@@ -297,7 +310,18 @@ const float FLT_MIN = 1.17549435e-38;   // HDRP: max(totalWeight, FLT_MIN)
 const float FLT_BIG = 3.4028234e38;
 const float NO_WEIGHT = 1e-30;          // disk.py _NO_WEIGHT: a total weight of no sample
 
-bool accepted(ivec2 p) { return texelFetch(strengthTex, p, 0).r > 0.0; }
+// the profile of pixel p (DiskSSS._groups: gbuffer.profile_id)
+int profileOf(ivec2 p) { return int(texelFetch(profileTex, p, 0).r); }
+
+// may a sample land on pixel p: on the stencil and, with a list of profiles and
+// cross_profile="reject", of this draw's profile (DiskSSS._groups)
+bool accepted(ivec2 p) {
+    bool on = texelFetch(strengthTex, p, 0).r > 0.0;
+#if DISK_PER_PIXEL && !DISK_CROSS_ACCEPT
+    on = on && profileOf(p) == DISK_PROFILE_INDEX;
+#endif
+    return on;
+}
 
 #if !DISK_FP64
 // ================================================================ float32 geometry (GLSL 330)
@@ -767,6 +791,9 @@ vec3 evaluateSssbench64(ivec2 pix, ivec2 size, vec3 colorM, float depthM, double
 void main() {
     ivec2 pix = ivec2(gl_FragCoord.xy);
     ivec2 size = textureSize(colorTex, 0);
+#if DISK_PER_PIXEL
+    if (profileOf(pix) != DISK_PROFILE_INDEX) discard;  // its own profile's draw computes it
+#endif
     vec3 colorM = texelFetch(colorTex, pix, 0).rgb;
     float strength = texelFetch(strengthTex, pix, 0).r;
     if (!(strength > 0.0)) {  // off the stencil: copied through

@@ -32,7 +32,7 @@ import torch
 
 import data_synth
 from sssbench import gl
-from sssbench.gbuffer import pixel_size_mm
+from sssbench.gbuffer import GBuffer, pixel_size_mm
 from sssbench.gl.disk_shader import double_math_source
 from sssbench.ops import DiskSSS, backend
 from sssbench.ops.disk import GOLDEN_RATIO, HDRP_MIN_PIXEL_MM, pattern_points
@@ -329,17 +329,63 @@ def test_float64_on_a_driver_without_doubles_is_refused_naming_the_fallback(monk
 
 
 # ---------------------------------------------------------------- refusals
-def test_options_without_a_shader_are_refused_naming_them():
+def test_adaptive_is_refused_naming_it():
     g = scene("flat")
-    cases = [
-        (DiskSSS(profile("burley"), adaptive=(4, 32)), "adaptive"),
-        (DiskSSS([profile("burley"), profile("skin_jg10")]), "list of profiles"),
-    ]
-    for m, word in cases:
-        with pytest.raises(gl.GLMethodError, match=word):
-            gl.run_method(m, g, repeats=0, warmup=0)
-        with backend("gl"), pytest.raises(gl.GLMethodError, match=word):
-            m(g)
+    m = DiskSSS(profile("burley"), adaptive=(4, 32))
+    with pytest.raises(gl.GLMethodError, match="adaptive"):
+        gl.run_method(m, g, repeats=0, warmup=0)
+    with backend("gl"), pytest.raises(gl.GLMethodError, match="adaptive"):
+        m(g)
+
+
+def _seamed(key: str):
+    """``scene(key)`` with three materials: columns from 20 on profile 1, rows from 30 on
+    profile 2 (seams through the face's depth steps)."""
+    g0 = scene(key)
+    ids = torch.zeros_like(g0.depth, dtype=torch.long)
+    ids[..., :, 20:] = 1
+    ids[..., 30:, :] = 2
+    return GBuffer(g0.diffuse, g0.depth, g0.fov_y, mask=g0.mask, profile_id=ids)
+
+
+LIST = [
+    lambda: profile("burley"),
+    lambda: profile("skin_jg10"),
+    lambda: BurleyNormalized([2.0, 1.0, 0.5], [0.7, 0.5, 0.3]),
+]
+
+
+@needs_fp64
+@pytest.mark.parametrize("estimator", ["sssbench", "hdrp"])
+def test_a_list_of_profiles_equals_torch(estimator):
+    """Per-pixel profiles (one draw per profile and frame): both ``cross_profile`` rules equal
+    torch on whole images, through ``backend("gl")`` and ``run_method``; the two rules differ
+    (the seams matter in this scene, so the comparison is not vacuous)."""
+    g = _seamed("discontinuity")
+    images = {}
+    for cross in ("reject", "accept"):
+        m = DiskSSS([p() for p in LIST], samples=16, estimator=estimator, cross_profile=cross,
+                    frames=2)  # fmt: skip
+        ref = torch_result(m, g)
+        check_whole(gl_result(m, g), ref)
+        run = gl.run_method(m, g, repeats=1, warmup=0)
+        check_whole(run.image, ref)
+        assert list(run.pass_times_ms) == ["disk"]
+        images[cross] = ref
+    assert rel_rms(images["accept"], images["reject"]) > 100 * TOL
+
+
+def test_a_list_of_profiles_needs_a_valid_profile_id():
+    m = DiskSSS([p() for p in LIST[:2]], samples=4)
+    g = scene("flat")
+    with backend("gl"), pytest.raises(ValueError, match="profile_id"):
+        m(g)
+    bad = GBuffer(g.diffuse, g.depth, g.fov_y, mask=g.mask,
+                  profile_id=torch.full_like(g.depth, 2, dtype=torch.long))  # fmt: skip
+    with backend("gl"), pytest.raises(ValueError, match="profile_id must index the 2"):
+        m(bad)
+    with pytest.raises(ValueError, match="profile_id must index the 2"):
+        gl.run_method(m, bad, repeats=0, warmup=0)
 
 
 @needs_fp64
