@@ -33,7 +33,7 @@ import torch
 import data_synth
 from sssbench import gl
 from sssbench.gbuffer import GBuffer, pixel_size_mm
-from sssbench.gl.disk_shader import double_math_source
+from sssbench.gl.disk_shader64 import double_math_source
 from sssbench.ops import DiskSSS, backend
 from sssbench.ops.disk import GOLDEN_RATIO, HDRP_MIN_PIXEL_MM, pattern_points
 from sssbench.profiles import BurleyNormalized
