@@ -50,8 +50,9 @@ HDRP's angles, per-pixel rotation and radial shift, the tabulated CDF — upload
 only for floats, in double (:func:`double_math_source`; Newton steps for the roots). Only
 colours and depths are float32, as in torch. A sample then lands in the same pixel as in
 torch unless it lies within ~1e-15 of its offset of a pixel boundary, and the weights round
-to the same float32: on llvmpipe the images are bitwise equal to torch's except for the
-frames' blend order (measured in ``tests/gl/test_gl_disk.py``, docs/gl.md).
+to the same float32: on llvmpipe most images are bitwise equal to torch's, the others within
+float32 rounding (the frames' blend order; measured in ``tests/gl/test_gl_disk.py``,
+docs/gl.md).
 The fallback for a driver without doubles (``fp64=False``, ``#version 330``, chosen
 explicitly with :func:`sssbench.gl.set_disk_geometry`) forms the geometry in float32: a
 sample within float32 rounding of a pixel boundary (1e-7 of its offset) can land on the
