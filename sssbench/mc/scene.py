@@ -50,6 +50,7 @@ import hashlib
 import json
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import torch
 
@@ -64,6 +65,7 @@ from sssbench.profiles.dipole import MATERIALS
 __all__ = [
     "PROFILE_MATERIALS",
     "SceneMC",
+    "check_options",
     "medium_for",
     "scene_mc",
     "noise_corrected_rel_rms",
@@ -429,6 +431,32 @@ def _sphere(model, medium, photons, batches, seed, workers, progress):  # noqa: 
     return out, covered, torch.zeros(3, dtype=_F64), batches * per, inter, secs
 
 
+def check_options(
+    material: str | tuple = "skin1",
+    *,
+    photons: int | None = None,
+    batches: int = 8,
+    seed: int = 0,
+    workers: int | None = None,
+) -> tuple[int, Any, int]:
+    """:func:`scene_mc`'s checks of its options that need no scene (it calls this on entry;
+    the app calls it before the first run): ``(seed, medium, batches)``.
+
+    Raises:
+        ValueError, TypeError: naming the option (``material``, ``photons``, ``batches``,
+            ``seed``, ``workers``) and what was expected.
+    """
+    seed = check_seed("seed", seed)
+    medium = medium_for(material)
+    _check_scatters(material, medium)
+    if photons is not None:
+        check_int("photons", photons, 6)
+    batches = check_int("batches", batches, 2)
+    if workers is not None:
+        check_int("workers", workers, 1)
+    return seed, medium, batches
+
+
 def scene_mc(
     scene: str,
     gbuffer: object,
@@ -467,16 +495,15 @@ def scene_mc(
     from data_synth.mc_scenes import SphereMC, mc_model
     from sssbench._digest import code_digest
 
-    seed = check_seed("seed", seed)
+    seed, medium, batches = check_options(
+        material, photons=photons, batches=batches, seed=seed, workers=workers
+    )
     model = mc_model(scene, gbuffer, params)
-    medium = medium_for(material)
-    _check_scatters(material, medium)
     if photons is None:
         sphere = isinstance(model, SphereMC)
         covered = int((sphere_pixel_area(model) > 0).sum()) if sphere else 0
         photons = SPHERE_PHOTONS_PER_PIXEL * covered if sphere else FLAT_PHOTONS
     photons = check_int("photons", photons, 6)
-    batches = check_int("batches", batches, 2)
     if workers is None:
         workers = 2 if photons >= PARALLEL_PHOTONS else 1
     workers = check_int("workers", workers, 1)
