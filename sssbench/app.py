@@ -36,7 +36,7 @@ from sssbench._console import quiet_third_party
 from sssbench.run import registry
 from sssbench.run.runner import execute, run_label
 from sssbench.run.spec import DEFAULT_SEEDS, REFERENCES, RunSpec
-from sssbench.store.tracking import RunRecord, RunStore, config_hash
+from sssbench.store.tracking import RunRecord, RunStore, check_journal_mode, config_hash
 
 log = logging.getLogger("sssbench")
 
@@ -147,6 +147,9 @@ def spec_from_cfg(cfg: Any, overridden: tuple[str, ...] = ()) -> RunSpec:
         raise ValueError(f"samples must be an integer >= 1 (taps per pass), got {samples!r}")
     if c.get("threads") is not None and c["threads"] < 1:
         raise ValueError(f"threads must be an integer >= 1 or null, got {c['threads']!r}")
+    if c.get("timeout_s") is not None and not c["timeout_s"] > 0:
+        raise ValueError(f"timeout_s must be seconds > 0 or null (no limit), got {c['timeout_s']}")
+    check_int("warm_workers", c.get("warm_workers", 0), 0)
     store = _store_path(c["store"])
     ignored: dict[str, Any] = {}
     if not registry.method_takes(method, "samples"):
@@ -236,7 +239,7 @@ def spec_from_cfg(cfg: Any, overridden: tuple[str, ...] = ()) -> RunSpec:
         threads=c.get("threads"),
         backend=c["backend"],
         store=store,
-        store_journal=c.get("store_journal", "wal"),
+        store_journal=check_journal_mode("store_journal", c.get("store_journal", "wal")),
         force=c.get("force", False),
         timeout_s=c.get("timeout_s"),
         reference_cache=Path(cache).expanduser().resolve() if cache else None,
@@ -386,7 +389,7 @@ def expand_grid(params: dict[str, str]) -> list[list[str]]:
                 and not any(fnmatch.fnmatch(o, e) for e in exclude)
             ]
         else:
-            options = [v.strip() for v in value.split(",")]
+            options = [v.strip() for v in _split_items(value)]  # ``[16,16],[32,32]``: 2 values
         axes.append([f"{key}={o}" for o in options])
     return [list(c) for c in itertools.product(*axes)]
 
@@ -629,7 +632,7 @@ def sweep_jobs(config: Any) -> list[list[str]]:
         key, _, value = str(o).partition("=")
         if key.lstrip("+~").startswith("hydra"):
             continue
-        if ("," in value and not value.startswith("[")) or value.startswith("glob("):
+        if _swept(value):
             params[key] = value
         elif key in params:  # replaces the preset's axis (Hydra's basic sweeper: same key)
             params[key] = value
@@ -722,7 +725,7 @@ def _sweep_size(config: Any) -> int:
         params = {str(k): str(v) for k, v in dict(config.hydra.sweeper.get("params") or {}).items()}
         for o in config.hydra.overrides.task:
             key, _, value = str(o).partition("=")
-            if "," in value or value.startswith("glob(") or key in params:
+            if _swept(value) or key in params:
                 params[key] = value
         return len(expand_grid(params))
     except Exception:
@@ -798,6 +801,12 @@ def check_overrides(argv: list[str]) -> str | None:
 
 #: Hydra flags that print or inspect rather than run (no value check before them)
 _INSPECT_FLAGS = ("--help", "-h", "--hydra-help", "--info", "-i", "--shell-completion", "-sc")
+
+
+def _swept(value: str) -> bool:
+    """Whether a command-line value sweeps (``a,b``, ``[1,2],[3,4]``, ``glob(...)``) — a list
+    value (``resolution=[16,16]``) is one value."""
+    return value.startswith("glob(") or len(_split_items(value)) > 1
 
 
 def _split_items(value: str) -> list[str]:
