@@ -22,6 +22,11 @@ conventions:
 - Lighting, shading and ``thickness``: :mod:`data_synth.render` (Lambert + Blinn–Phong,
   directional lights with cast shadows; ``thickness`` toward the first light, 001 §5.2).
   ``step_edge`` and ``light_dot`` paint their irradiance instead (a projected light pattern).
+- Checks first, images after: a builder checks every parameter before its first ``(H, W)``
+  image work, which starts in :func:`~data_synth.render.render`,
+  :func:`~data_synth.render.render_labelled`, :func:`~data_synth.render.flat_plane` or at an
+  explicit ``ctx.images_next()``; :func:`check_scene` stops the builder there (the app's check
+  of every job's scene parameters before its first run).
 - Normals and ``light_dir`` (unit, *toward* the light) are in G-buffer view space: ``+z`` points
   toward the camera. A ``light_dir`` parameter uses the same convention and need not be unit.
 """

@@ -141,7 +141,7 @@ def check_spec(spec: RunSpec, memo: dict[str, Any] | None = None) -> None:
         lambda: stage_pipeline(spec, method, profile),
     )
     if spec.reference == "mc":
-        from sssbench.mc.scene import check_options
+        from sssbench.mc.options import check_options
 
         mc = mc_options(spec)
         part("reference_params (mc_*)", "the Monte Carlo reference", mc,
