@@ -483,7 +483,7 @@ def task(cfg: Any) -> str | tuple[float, ...]:
         _record_invalid(cfg, run_dir, sweep_dir, message)
         _STATE["failed"] += 1
         return "failed"
-    _progress(spec, hc)
+    _progress(spec, hc, multirun)
     try:
         outcome = execute(spec, run_dir, sweep_dir)
     except Exception as exc:  # e.g. the store is unwritable: report, never abort the sweep
@@ -500,9 +500,10 @@ def task(cfg: Any) -> str | tuple[float, ...]:
     return outcome.status
 
 
-def _progress(spec: RunSpec, hc: Any) -> None:
-    """One progress line per run: ``[k/n] label`` and, in a sweep, the ETA."""
-    total = _STATE["total"]
+def _progress(spec: RunSpec, hc: Any, multirun: bool = True) -> None:
+    """One progress line per run: ``[k/n] label`` (``[1/1]`` for a single run) and, in a
+    sweep, the ETA."""
+    total = _STATE["total"] if multirun else 1
     k = _STATE["done"] + 1
     if total > 1 and _STATE["done"] > 0:
         per = (time.time() - _STATE["start"]) / _STATE["done"]

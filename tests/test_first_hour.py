@@ -554,3 +554,29 @@ console.log(a+' '+b);
     )
     proc = subprocess.run(["node", "-e", harness], capture_output=True, text=True, timeout=60)
     assert proc.stdout.strip() == "REFERENCE/reference RESULT/result", proc.stderr
+
+
+def test_the_native_library_build_is_announced(tmp_path, monkeypatch, caplog):
+    # the first run from an empty cache compiles the native gather (18 s of CPU with gcc 12):
+    # one line says so, instead of a silent pause (issue 28, point 6: nothing silent for long)
+    import logging
+
+    from sssbench.ops import native
+
+    monkeypatch.setenv("SSSBENCH_CACHE_DIR", str(tmp_path))
+    calls = []
+
+    def compile_nothing(cmd, **kwargs):
+        calls.append(cmd)
+        Path(cmd[cmd.index("-o") + 1]).write_bytes(b"")
+
+    monkeypatch.setattr(native.subprocess, "run", compile_nothing)
+    with caplog.at_level(logging.INFO, logger="sssbench"):
+        path = native._build("cc")
+    assert len(calls) == 1 and path.parent == tmp_path / "native"
+    (line,) = [r.getMessage() for r in caplog.records if "native" in r.getMessage()]
+    assert line.startswith("building the native gather library with cc")
+    with caplog.at_level(logging.INFO, logger="sssbench"):
+        caplog.clear()
+        assert native._build("cc") == path  # cached: built once, announced once
+    assert not caplog.records and len(calls) == 1
