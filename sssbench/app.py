@@ -4,9 +4,10 @@ One module because the app is one edge: the command-line checks, the Hydra compo
 callbacks read the same config schema; splitting them would spread that schema over files.
 
 :func:`main` checks the command line (one clear line and exit 2 for an unknown key, an empty
-value, a value of the wrong type or an unknown config-group option; every job's values; for
-every job of the grid, that each stage switched on can run on its scene and change its image:
-:func:`check_stages`), composes the config from
+value, a value of the wrong type or an unknown config-group option; every value of every job of
+the grid, by the run's own constructors without an image: :func:`check_values`; for every job,
+that each stage switched on can run on its scene and change its image: :func:`check_stages`),
+composes the config from
 the package's ``conf/`` (:data:`CONF_DIR`, shipped inside the package), reads it once into a
 plain :class:`~sssbench.run.spec.RunSpec` (:func:`spec_from_cfg`; DESIGN §7: nothing below the app
 sees ``cfg``) and hands it to :func:`sssbench.run.runner.execute`. A sweep always runs to the end;
