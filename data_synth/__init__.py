@@ -1,7 +1,8 @@
 """Synthetic scenes for sssbench: procedural G-buffers in millimetres (DESIGN §1, §5).
 
 ``make_scene(name, resolution, seed, fields=..., dtype=..., **params)`` builds one scene as a
-:class:`~sssbench.gbuffer.GBuffer`; :data:`SCENES` maps each name to its :class:`SceneSpec`
+:class:`~sssbench.gbuffer.GBuffer` (:func:`check_scene`: the same checks of its arguments,
+no image built); :data:`SCENES` maps each name to its :class:`SceneSpec`
 (builder, the optional fields it provides, parameter defaults). Every scene takes ``pixel_mm``,
 the skin footprint of one pixel at its focus (:mod:`data_synth.scale`, :data:`SCALES`);
 :func:`pixel_footprint_mm` reads it back from a G-buffer.
@@ -30,6 +31,7 @@ from data_synth.scenes import (
     SCENES,
     FaceBuild,
     SceneSpec,
+    check_scene,
     face_parts,
     make_scene,
 )
@@ -47,6 +49,7 @@ __all__ = [
     "SCALES",
     "SCENES",
     "SceneSpec",
+    "check_scene",
     "face_parts",
     "focus_depth",
     "head_object",

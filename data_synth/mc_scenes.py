@@ -186,6 +186,7 @@ def backlit_slab(
     z = _plane_depth(ctx, fov_y, z, pixel_mm, 0.2)
     thickness = _positive("thickness", thickness)
     gap = _positive("gap", gap)
+    _positive("window", window)  # read again by _window (thickness): checked before any image
     ambient = _ambient(ambient)
     light = _light((0.0, 0.0, -1.0), intensity)
     h, w = ctx.height, ctx.width

@@ -61,6 +61,7 @@ __all__ = [
     "image",
     "render",
     "render_labelled",
+    "ParamsChecked",
 ]
 
 #: optional G-buffer fields a scene may build (``diffuse`` and ``depth`` are always built)
@@ -69,15 +70,32 @@ SKIN_ALBEDO = (0.78, 0.52, 0.42)
 _BACKDROP_ALBEDO = (0.5, 0.5, 0.5)
 
 
+class ParamsChecked(Exception):
+    """Raised by :meth:`Ctx.images_next` under ``check_only``: the builder has checked every
+    parameter and is about to compute its first image (:func:`data_synth.scenes.check_scene`)."""
+
+
 @dataclass(frozen=True)
 class Ctx:
-    """What every builder gets: image size, random generator, fields to build, output dtype."""
+    """What every builder gets: image size, random generator, fields to build, output dtype.
+
+    ``check_only``: check the parameters, build no image — the builder runs as usual up to its
+    first image computation, where :meth:`images_next` raises :class:`ParamsChecked` (the same
+    checks as a build, so a check and a build never disagree)."""
 
     height: int
     width: int
     gen: torch.Generator
     want: frozenset[str]
     dtype: torch.dtype
+    check_only: bool = False
+
+    def images_next(self) -> None:
+        """Called by every builder (and by :func:`flat_plane`, :func:`render` and
+        :func:`render_labelled`) right before its first ``(H, W)`` image work: every
+        parameter has been checked by then. Under ``check_only`` it stops the build there."""
+        if self.check_only:
+            raise ParamsChecked
 
 
 @dataclass(frozen=True)
@@ -360,6 +378,7 @@ def gbuffer(ctx: Ctx, fov_y: float, light: torch.Tensor | None = None, **images)
 
 def flat_plane(ctx: Ctx, fov_y: float, z: float, irradiance: torch.Tensor) -> GBuffer:
     """A camera-facing plane at depth ``z`` with painted irradiance ``(1, 1, H, W)``."""
+    ctx.images_next()
     h, w = ctx.height, ctx.width
     depth = torch.full((1, 1, h, w), z, dtype=torch.float64)
     normal = torch.zeros(1, 3, h, w, dtype=torch.float64)
@@ -438,6 +457,7 @@ def render(
         lights: at least one; the first is stored as ``light_dir`` and defines ``thickness``.
         ambient: irradiance added everywhere, >= 0.
     """
+    ctx.images_next()
     return render_labelled(ctx, fov_y, objects, lights, ambient)[0]
 
 
@@ -450,6 +470,7 @@ def render_labelled(
 ) -> tuple[GBuffer, torch.Tensor]:
     """:func:`render` and the part label of each pixel ``(1, 1, H, W)`` long (the materials'
     ``labels``; 0 where a material gives none)."""
+    ctx.images_next()
     bounds = [obj.bound() for obj in objects]
     t, obj_id, n, part_id, rays = _primary(ctx, fov_y, objects, bounds)
     npx = t.shape[0]

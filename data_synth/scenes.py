@@ -22,6 +22,11 @@ conventions:
 - Lighting, shading and ``thickness``: :mod:`data_synth.render` (Lambert + Blinn–Phong,
   directional lights with cast shadows; ``thickness`` toward the first light, 001 §5.2).
   ``step_edge`` and ``light_dot`` paint their irradiance instead (a projected light pattern).
+- Checks first, images after: a builder checks every parameter before its first ``(H, W)``
+  image work, which starts in :func:`~data_synth.render.render`,
+  :func:`~data_synth.render.render_labelled`, :func:`~data_synth.render.flat_plane` or at an
+  explicit ``ctx.images_next()``; :func:`check_scene` stops the builder there (the app's check
+  of every job's scene parameters before its first run).
 - Normals and ``light_dir`` (unit, *toward* the light) are in G-buffer view space: ``+z`` points
   toward the camera. A ``light_dir`` parameter uses the same convention and need not be unit.
 """
@@ -30,7 +35,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from types import MappingProxyType
 
 import torch
@@ -53,6 +58,7 @@ from data_synth.render import (
     SKIN_ALBEDO,
     Ctx,
     Light,
+    ParamsChecked,
     SceneObject,
     Surface,
     axis_depth,
@@ -77,6 +83,7 @@ __all__ = [
     "RETIRED_SCENES",
     "SCENES",
     "SceneSpec",
+    "check_scene",
     "face_parts",
     "make_scene",
 ]
@@ -189,6 +196,42 @@ def make_scene(
     """
     spec, ctx = _context(name, resolution, seed, fields, dtype, params)
     return spec.builder(ctx, **{**spec.defaults, **params})
+
+
+def check_scene(
+    name: str,
+    resolution: Sequence[int] = DEFAULT_RESOLUTION,
+    seed: int = 0,
+    *,
+    fields: Iterable[str] | None = None,
+    dtype: torch.dtype = torch.float32,
+    **params: object,
+) -> bool:
+    """Check :func:`make_scene`'s arguments without building an image (a run's pre-check).
+
+    The scene's own builder runs exactly as :func:`make_scene` runs it, with a context that
+    stops it right before its first image computation (:meth:`~data_synth.render.Ctx.
+    images_next`): every parameter check of the build runs, and only those — the check and the
+    build share one set of rules. What only the images can show (e.g. geometry that leaves
+    pixels empty) is found by the build.
+
+    Returns:
+        ``True`` when the builder stopped before its first image (the usual case), ``False``
+        when it built the whole scene (a builder that never calls ``images_next``).
+
+    Raises:
+        ValueError, TypeError: as :func:`make_scene` would, naming the parameter.
+
+    Example:
+        >>> check_scene("step_edge", (4096, 4096), pixel_mm=0.1)
+        True
+    """
+    spec, ctx = _context(name, resolution, seed, fields, dtype, params)
+    try:
+        spec.builder(replace(ctx, check_only=True), **{**spec.defaults, **params})
+    except ParamsChecked:
+        return True
+    return False
 
 
 def _context(name, resolution, seed, fields, dtype, params) -> tuple[SceneSpec, Ctx]:
@@ -333,6 +376,7 @@ def step_edge(ctx: Ctx, *, fov_y, pixel_mm, z, edge, low, high) -> GBuffer:
     edge = ctx.width // 2 if edge is None else check_int("edge", edge, 0, ctx.width)
     low = check_scalar("low", low, 0.0)
     high = check_scalar("high", high, 0.0)
+    ctx.images_next()
     cols = torch.arange(ctx.width)
     irr = torch.where(cols < edge, _f64(low), _f64(high))
     return flat_plane(ctx, fov_y, z, irr.view(1, 1, 1, -1).expand(1, 1, ctx.height, ctx.width))
@@ -364,6 +408,7 @@ def light_dot(ctx: Ctx, *, fov_y, pixel_mm, z, radius, center, low, high) -> GBu
     c = _vec("center", center, 2, nonzero=False)
     low = check_scalar("low", low, 0.0)
     high = check_scalar("high", high, 0.0)
+    ctx.images_next()
     depth = torch.full((1, 1, ctx.height, ctx.width), z, dtype=torch.float64)
     pos = view_positions(depth, fov_y)
     r2 = (pos[:, 0:1] - c[0]) ** 2 + (pos[:, 1:2] - c[1]) ** 2
@@ -635,6 +680,7 @@ def pores(
     ambient = _ambient(ambient)
     ks = check_scalar("ks", ks, 0.0)
     shininess = _positive("shininess", shininess)
+    ctx.images_next()
 
     tex = texture("gravel")
     turns = int(torch.randint(4, (1,), generator=ctx.gen))

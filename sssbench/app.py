@@ -4,9 +4,10 @@ One module because the app is one edge: the command-line checks, the Hydra compo
 callbacks read the same config schema; splitting them would spread that schema over files.
 
 :func:`main` checks the command line (one clear line and exit 2 for an unknown key, an empty
-value, a value of the wrong type or an unknown config-group option; every job's values; for
-every job of the grid, that each stage switched on can run on its scene and change its image:
-:func:`check_stages`), composes the config from
+value, a value of the wrong type or an unknown config-group option; every value of every job of
+the grid, by the run's own constructors without an image: :func:`check_values`; for every job,
+that each stage switched on can run on its scene and change its image: :func:`check_stages`),
+composes the config from
 the package's ``conf/`` (:data:`CONF_DIR`, shipped inside the package), reads it once into a
 plain :class:`~sssbench.run.spec.RunSpec` (:func:`spec_from_cfg`; DESIGN §7: nothing below the app
 sees ``cfg``) and hands it to :func:`sssbench.run.runner.execute`. A sweep always runs to the end;
@@ -19,6 +20,7 @@ Adding a method = one YAML file in ``conf/method/`` plus one entry in
 from __future__ import annotations
 
 import copy
+import dataclasses
 import difflib
 import functools
 import json
@@ -35,7 +37,7 @@ from sssbench._console import quiet_third_party
 from sssbench.run import registry
 from sssbench.run.runner import execute, run_label
 from sssbench.run.spec import DEFAULT_SEEDS, REFERENCES, RunSpec
-from sssbench.store.tracking import RunRecord, RunStore, config_hash
+from sssbench.store.tracking import RunRecord, RunStore, check_journal_mode, config_hash
 
 log = logging.getLogger("sssbench")
 
@@ -146,6 +148,9 @@ def spec_from_cfg(cfg: Any, overridden: tuple[str, ...] = ()) -> RunSpec:
         raise ValueError(f"samples must be an integer >= 1 (taps per pass), got {samples!r}")
     if c.get("threads") is not None and c["threads"] < 1:
         raise ValueError(f"threads must be an integer >= 1 or null, got {c['threads']!r}")
+    if c.get("timeout_s") is not None and not c["timeout_s"] > 0:
+        raise ValueError(f"timeout_s must be seconds > 0 or null (no limit), got {c['timeout_s']}")
+    check_int("warm_workers", c.get("warm_workers", 0), 0)
     store = _store_path(c["store"])
     ignored: dict[str, Any] = {}
     if not registry.method_takes(method, "samples"):
@@ -235,7 +240,7 @@ def spec_from_cfg(cfg: Any, overridden: tuple[str, ...] = ()) -> RunSpec:
         threads=c.get("threads"),
         backend=c["backend"],
         store=store,
-        store_journal=c.get("store_journal", "wal"),
+        store_journal=check_journal_mode("store_journal", c.get("store_journal", "wal")),
         force=c.get("force", False),
         timeout_s=c.get("timeout_s"),
         reference_cache=Path(cache).expanduser().resolve() if cache else None,
@@ -298,6 +303,51 @@ def _compose_groups(groups: tuple[str, ...]) -> Any:
         return compose(config_name="config", overrides=["store=sssbench.sqlite", *groups])
 
 
+def _group_key(override: str) -> str:
+    return override.split("=", 1)[0].lstrip("+~")
+
+
+@functools.lru_cache(maxsize=256)
+def _own_package(fixed: tuple[str, ...], choice: str) -> bool:
+    """Whether the group choice ``choice`` (e.g. ``method=disk``), composed with the global
+    choices ``fixed`` (the ``experiment`` presets), changes nothing but its own group's node."""
+    from omegaconf import OmegaConf
+
+    key = _group_key(choice)
+    base = OmegaConf.to_container(_compose_groups(fixed), resolve=False)
+    alone = OmegaConf.to_container(_compose_groups((*fixed, choice)), resolve=False)
+    assert isinstance(base, dict) and isinstance(alone, dict)
+    base.pop(key, None)
+    alone.pop(key, None)
+    return base == alone
+
+
+def _assembled(groups: tuple[str, ...]) -> Any:
+    """A copy of the config Hydra composes for the group choices ``groups`` — one composition
+    per choice, not per combination: the composition of the global choices (``experiment``)
+    with each group's node taken from the composition of that choice alone. Exact because a
+    choice of a group other than ``experiment`` lives in its own package (checked per choice,
+    :func:`_own_package`; any other case is composed whole). A grid of 6 scenes × 7 methods
+    composes 14 times instead of 42 (:func:`check_values` reads every job of a sweep)."""
+    from omegaconf import OmegaConf
+
+    keys = [_group_key(g) for g in groups]
+    fixed = tuple(g for g, k in zip(groups, keys, strict=True) if k == "experiment")
+    rest = [g for g, k in zip(groups, keys, strict=True) if k != "experiment"]
+    whole = (
+        any(g.startswith("~") for g in groups)
+        or len(set(keys)) != len(keys)
+        or not all(_own_package(fixed, g) for g in rest)
+    )
+    if whole:
+        return copy.deepcopy(_compose_groups(groups))
+    cfg = copy.deepcopy(_compose_groups(fixed))
+    for g in rest:
+        node = _compose_groups((*fixed, g))[_group_key(g)]
+        cfg[_group_key(g)] = OmegaConf.to_container(node, resolve=False)
+    return cfg
+
+
 def compose_spec(*overrides: str, store: str | Path | None = None) -> RunSpec:
     """The :class:`RunSpec` the app would run for ``overrides`` — how the experiments and
     scripts build exactly the app's runs (same defaults, same validation).
@@ -309,7 +359,7 @@ def compose_spec(*overrides: str, store: str | Path | None = None) -> RunSpec:
 
     groups = tuple(o for o in overrides if o.split("=", 1)[0].lstrip("+~") in GROUPS)
     values = [o for o in overrides if o not in groups]
-    cfg = copy.deepcopy(_compose_groups(groups))
+    cfg = _assembled(groups)
     for o in [*values, *([f"store={store}"] if store is not None else [])]:
         if "=" not in o:
             raise ValueError(f"override must be key=value, got {o!r}")
@@ -340,7 +390,7 @@ def expand_grid(params: dict[str, str]) -> list[list[str]]:
                 and not any(fnmatch.fnmatch(o, e) for e in exclude)
             ]
         else:
-            options = [v.strip() for v in value.split(",")]
+            options = [v.strip() for v in _split_items(value)]  # ``[16,16],[32,32]``: 2 values
         axes.append([f"{key}={o}" for o in options])
     return [list(c) for c in itertools.product(*axes)]
 
@@ -434,7 +484,7 @@ def task(cfg: Any) -> str | tuple[float, ...]:
         _record_invalid(cfg, run_dir, sweep_dir, message)
         _STATE["failed"] += 1
         return "failed"
-    _progress(spec, hc)
+    _progress(spec, hc, multirun)
     try:
         outcome = execute(spec, run_dir, sweep_dir)
     except Exception as exc:  # e.g. the store is unwritable: report, never abort the sweep
@@ -451,9 +501,10 @@ def task(cfg: Any) -> str | tuple[float, ...]:
     return outcome.status
 
 
-def _progress(spec: RunSpec, hc: Any) -> None:
-    """One progress line per run: ``[k/n] label`` and, in a sweep, the ETA."""
-    total = _STATE["total"]
+def _progress(spec: RunSpec, hc: Any, multirun: bool = True) -> None:
+    """One progress line per run: ``[k/n] label`` (``[1/1]`` for a single run) and, in a
+    sweep, the ETA."""
+    total = _STATE["total"] if multirun else 1
     k = _STATE["done"] + 1
     if total > 1 and _STATE["done"] > 0:
         per = (time.time() - _STATE["start"]) / _STATE["done"]
@@ -583,7 +634,7 @@ def sweep_jobs(config: Any) -> list[list[str]]:
         key, _, value = str(o).partition("=")
         if key.lstrip("+~").startswith("hydra"):
             continue
-        if ("," in value and not value.startswith("[")) or value.startswith("glob("):
+        if _swept(value):
             params[key] = value
         elif key in params:  # replaces the preset's axis (Hydra's basic sweeper: same key)
             params[key] = value
@@ -676,7 +727,7 @@ def _sweep_size(config: Any) -> int:
         params = {str(k): str(v) for k, v in dict(config.hydra.sweeper.get("params") or {}).items()}
         for o in config.hydra.overrides.task:
             key, _, value = str(o).partition("=")
-            if "," in value or value.startswith("glob(") or key in params:
+            if _swept(value) or key in params:
                 params[key] = value
         return len(expand_grid(params))
     except Exception:
@@ -754,6 +805,12 @@ def check_overrides(argv: list[str]) -> str | None:
 _INSPECT_FLAGS = ("--help", "-h", "--hydra-help", "--info", "-i", "--shell-completion", "-sc")
 
 
+def _swept(value: str) -> bool:
+    """Whether a command-line value sweeps (``a,b``, ``[1,2],[3,4]``, ``glob(...)``) — a list
+    value (``resolution=[16,16]``) is one value."""
+    return value.startswith("glob(") or len(_split_items(value)) > 1
+
+
 def _split_items(value: str) -> list[str]:
     """``a,b,[1,2]`` -> ``["a", "b", "[1,2]"]``: a sweep's items (commas inside brackets kept)."""
     items, depth, cur = [], 0, ""
@@ -772,26 +829,84 @@ def check_values(argv: list[str]) -> str | None:
     """A one-line message for a value no run could take, else ``None`` — checked before the
     first run starts, so a bad value never gets a progress line, a ``failed`` row or exit 1.
 
-    Every job's config is composed and read into its :class:`RunSpec` exactly as a run reads it
-    (:func:`compose_spec`: resolution, ``scene.path``, samples, threads, the store's folder, …):
-    the first job of the sweep, and for each swept key each of its other values with the other
-    keys at their first (one composition per value, not per job). Values Hydra computes
-    (``range(...)``, a search's ``interval(...)``) are checked by each run."""
+    **Every job** of the command line's grid (the full product of its swept values, and under
+    ``-m`` of a preset's own grid: :func:`_grid_specs`, the walk :func:`check_stages` shares)
+    is read into its :class:`RunSpec` exactly as a run reads it (:func:`compose_spec`:
+    resolution, ``scene.path``, samples, dtype, threads, seeds, the store's folder, …), and
+    each distinct spec is checked by the run's own constructors, building no image
+    (:func:`sssbench.run.inputs.check_spec`: the scene's parameters, the profile's, the
+    method's with its samples and sampling, ``reference_params``, the stages' parameters, the
+    Monte Carlo options). So a bad combination (a method option another method of the grid
+    does not take, a scene parameter that does not fit a resolution) is found before the first
+    run too. Values Hydra computes (``range(...)``, a search's ``interval(...)``) are checked
+    by each run."""
     if _inspecting(argv):
         return None
-    axes = _axes(argv)
-    given = any(a[0].split("=", 1)[0].lstrip("+") == "store" for a in axes)
-    store = None if given else str(Path.cwd() / "sssbench.sqlite")  # the config's default
-    first = [a[0] for a in axes]
-    jobs = [first] + [
-        [*first[:i], v, *first[i + 1 :]] for i, axis in enumerate(axes) for v in axis[1:]
-    ]
-    for job in jobs:
+    from sssbench.run.inputs import check_spec
+
+    problem, specs = _grid_specs(argv)
+    if problem:
+        return problem
+    memo: dict[str, Any] = {}
+    for spec in specs:
         try:
-            compose_spec(*job, store=store)
-        except Exception as exc:
-            return str(exc).replace("\n", " ")
+            check_spec(spec, memo)
+        except (ValueError, TypeError) as exc:
+            return " ".join(str(exc).split())
     return None
+
+
+def _grid_specs(argv: list[str]) -> tuple[str | None, list[RunSpec]]:
+    """``(problem, specs)``: the :class:`RunSpec` of every job of the command line's grid (each
+    distinct spec once, in the grid's order), or the one-line error of the first job that
+    cannot be read. The grid: the product of the command line's values (:func:`_axes`) and,
+    under ``-m``, of a preset's (``+experiment=...``) swept keys the command line does not
+    set. Cached per command line and working directory: :func:`check_values` and
+    :func:`check_stages` walk the same grid once."""
+    import os
+
+    return _grid_specs_cached(tuple(argv), os.getcwd())
+
+
+@functools.lru_cache(maxsize=8)
+def _grid_specs_cached(argv: tuple[str, ...], cwd: str) -> tuple[str | None, list[RunSpec]]:
+    import itertools
+
+    axes = _grid_axes(list(argv))
+    given = any(a[0].split("=", 1)[0].lstrip("+") == "store" for a in axes)
+    store = None if given else str(Path(cwd) / "sssbench.sqlite")  # the config's default
+    specs: list[RunSpec] = []
+    seen: set[str] = set()
+    for job in itertools.product(*axes):
+        try:
+            spec = compose_spec(*job, store=store)
+        except Exception as exc:
+            return " ".join(str(exc).split()), []
+        key = json.dumps(dataclasses.asdict(spec), sort_keys=True, default=str)
+        if key not in seen:
+            seen.add(key)
+            specs.append(spec)
+    return None, specs
+
+
+def _grid_axes(argv: list[str]) -> list[list[str]]:
+    """The sweep axes of a command line (:func:`_axes`) and, under ``-m``, a preset's own
+    swept keys the command line does not set (a search space — ``choice(...)``,
+    ``interval(...)`` — is left to each run)."""
+    axes = _axes(argv)
+    presets = [a[0].split("=", 1)[1] for a in axes if a[0].split("=", 1)[0] == "+experiment"]
+    if presets and ("-m" in argv or "--multirun" in argv):
+        from omegaconf import OmegaConf
+
+        swept = {a[0].split("=", 1)[0].lstrip("+") for a in axes}
+        params = OmegaConf.to_container(preset_hydra(presets[0]).sweeper.get("params") or {})
+        for key, value in dict(params or {}).items():
+            value = str(value)
+            if "(" in value and not value.startswith("glob("):
+                continue  # a search space (``choice(...)``, ``interval(...)``): each run checks
+            if str(key).lstrip("+") not in swept:
+                axes.append([job[0] for job in expand_grid({str(key): value})])
+    return axes
 
 
 def _inspecting(argv: list[str]) -> bool:
@@ -820,14 +935,6 @@ def _axes(argv: list[str]) -> list[list[str]]:
     return axes
 
 
-def _stage_requested(item: str) -> bool:
-    """Whether the override ``item`` switches a pipeline stage on (or sets its options)."""
-    key, _, value = item.partition("=")
-    key = key.lstrip("+~")
-    top = key.split(".", 1)[0]
-    return top in STAGE_GROUPS and (key != top or value != "off")
-
-
 def check_stages(argv: list[str]) -> tuple[str | None, list[str]]:
     """Issue 28: ``(refusal, notes)`` for the stages the command line switches on, checked for
     **every** job of the grid before the first run (the full product of the swept values, and
@@ -847,49 +954,30 @@ def check_stages(argv: list[str]) -> tuple[str | None, list[str]]:
       runs — refusing it would change what ``on`` means, and the stage's cost and its small
       effect are real measurements — and gets one note line before the first run.
 
-    Returns ``(None, [])`` at once when no stage is switched on (no scene is built)."""
+    The grid is the one :func:`check_values` reads (:func:`_grid_specs`, cached); a job with
+    no stage switched on builds nothing here."""
     if _inspecting(argv):
         return None, []
-    axes = _axes(argv)
-    given = any(a[0].split("=", 1)[0].lstrip("+") == "store" for a in axes)
-    store = None if given else str(Path.cwd() / "sssbench.sqlite")
-    presets = [a[0].split("=", 1)[1] for a in axes if a[0].split("=", 1)[0] == "+experiment"]
-    if presets and ("-m" in argv or "--multirun" in argv):
-        from omegaconf import OmegaConf
-
-        swept = {a[0].split("=", 1)[0].lstrip("+") for a in axes}
-        params = OmegaConf.to_container(preset_hydra(presets[0]).sweeper.get("params") or {})
-        for key, value in dict(params or {}).items():
-            value = str(value)
-            if "(" in value and not value.startswith("glob("):
-                continue  # a search space (``choice(...)``, ``interval(...)``): each run checks
-            if str(key).lstrip("+") not in swept:
-                axes.append([job[0] for job in expand_grid({str(key): value})])
-    if not any(_stage_requested(item) for axis in axes for item in axis):
-        first = [a[0] for a in axes]
-        try:
-            if not any(v is not None for v in compose_spec(*first, store=store).stages.values()):
-                return None, []
-        except Exception as exc:  # check_values reports bad values; here only the stages
-            return str(exc).replace("\n", " "), []
-    import itertools
-
+    problem, specs = _grid_specs(argv)
+    if problem:
+        return problem, []
     from sssbench.run.inputs import check_stages as check_job
 
     notes: list[str] = []
     seen: set[str] = set()
-    for job in itertools.product(*axes):
+    timing_only = ("samples", "sampling", "seeds", "threads", "backend")
+    for spec in specs:
+        if not any(v is not None for v in spec.stages.values()):
+            continue  # no stage switched on: nothing to build
+        point = {k: v for k, v in spec.point().items() if k not in timing_only}
+        key = json.dumps(point, sort_keys=True, default=str)
+        if key in seen:
+            continue
+        seen.add(key)
         try:
-            spec = compose_spec(*job, store=store)
-            timing_only = ("samples", "sampling", "seeds", "threads", "backend")
-            point = {k: v for k, v in spec.point().items() if k not in timing_only}
-            key = json.dumps(point, sort_keys=True, default=str)
-            if key in seen:
-                continue
-            seen.add(key)
             notes += [n for n in check_job(spec) if n not in notes]
         except Exception as exc:
-            return str(exc).replace("\n", " "), []
+            return " ".join(str(exc).split()), []
     return None, notes
 
 

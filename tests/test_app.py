@@ -253,18 +253,19 @@ def test_joblib_sweep_resume_force_and_report(tmp_path):
 
 
 def test_failing_point_recorded_and_exit_status(tmp_path):
-    # a value no run could take (samples=0, translucency=on on a scene without thickness) is
-    # refused before the first run (exit 2, nothing stored: test_first_hour.py); a point that
-    # fails at run time — here an option only the run's exact reference reads, its tolerance
-    # outside (0, 1) — is stored failed and the other point must still succeed
-    proc = _sssbench(tmp_path, *TINY, "+reference_params.tol=1e-3,2.0", multirun=True)
+    # a value no run could take (samples=0, reference_params.tol=2, translucency=on on a
+    # scene without thickness) is refused before the first run (exit 2, nothing stored:
+    # test_first_hour.py, test_value_checks.py); a point that fails at run time — here the
+    # halo scene turned so far (tilt=80) that its render leaves pixels empty, which only the
+    # render finds — is stored failed and the other point must still succeed
+    halo = ["scene=halo", *TINY[1:]]
+    proc = _sssbench(tmp_path, *halo, "++scene.params.tilt=45,80", multirun=True)
     assert proc.returncode == 1, proc.stdout + proc.stderr
     rows = {
-        r["config"]["reference_params"]["tol"]: r
-        for r in RunStore(tmp_path / "store.sqlite").runs()
+        r["config"]["scene_params"]["tilt"]: r for r in RunStore(tmp_path / "store.sqlite").runs()
     }
-    assert rows[1e-3]["status"] == "ok"
-    assert rows[2.0]["status"] == "failed" and "tol" in rows[2.0]["error"]
+    assert rows[45]["status"] == "ok"
+    assert rows[80]["status"] == "failed" and "empty" in rows[80]["error"]
     assert "Traceback" not in proc.stderr
     (err,) = (tmp_path / "sweep").glob("*/error.txt")
     assert "Traceback" in err.read_text()

@@ -147,8 +147,9 @@ def test_a_stage_that_would_add_nothing_is_refused_and_adds_nothing(tmp_path):
     ],
 )
 def test_requested_stage_that_cannot_run_is_refused_for_the_whole_grid(args, words):
-    assert app.check_values(args) is None  # every value is fine on its own
-    problem, _ = app.check_stages([*args, *TINY])
+    # refused before the first run: by the value check when the stage cannot be built with the
+    # method (issue 28: every value of every job), else by the stage check on the scene
+    problem = app.check_values([*args, *TINY]) or app.check_stages([*args, *TINY])[0]
     assert problem is not None and "\n" not in problem
     assert all(w in problem for w in words), problem
 
@@ -553,3 +554,29 @@ console.log(a+' '+b);
     )
     proc = subprocess.run(["node", "-e", harness], capture_output=True, text=True, timeout=60)
     assert proc.stdout.strip() == "REFERENCE/reference RESULT/result", proc.stderr
+
+
+def test_the_native_library_build_is_announced(tmp_path, monkeypatch, caplog):
+    # the first run from an empty cache compiles the native gather (18 s of CPU with gcc 12):
+    # one line says so, instead of a silent pause (issue 28, point 6: nothing silent for long)
+    import logging
+
+    from sssbench.ops import native
+
+    monkeypatch.setenv("SSSBENCH_CACHE_DIR", str(tmp_path))
+    calls = []
+
+    def compile_nothing(cmd, **kwargs):
+        calls.append(cmd)
+        Path(cmd[cmd.index("-o") + 1]).write_bytes(b"")
+
+    monkeypatch.setattr(native.subprocess, "run", compile_nothing)
+    with caplog.at_level(logging.INFO, logger="sssbench"):
+        path = native._build("cc")
+    assert len(calls) == 1 and path.parent == tmp_path / "native"
+    (line,) = [r.getMessage() for r in caplog.records if "native" in r.getMessage()]
+    assert line.startswith("building the native gather library with cc")
+    with caplog.at_level(logging.INFO, logger="sssbench"):
+        caplog.clear()
+        assert native._build("cc") == path  # cached: built once, announced once
+    assert not caplog.records and len(calls) == 1

@@ -53,26 +53,24 @@ from dataclasses import dataclass
 
 import torch
 
-from sssbench._checks import check_int, check_seed, derive_seed
+from sssbench._checks import check_int, derive_seed
 from sssbench.mc.boundary import normal_specular
 from sssbench.mc.cache import cached_entry
+from sssbench.mc.options import PROFILE_MATERIALS, check_options, medium_for
 from sssbench.mc.parallel import cpu_seconds, run_jobs
 from sssbench.mc.transport import Ball, Medium, Slab, _norm, refract_in, transport, warm_up
 from sssbench.mc.walk import mean_stderr
-from sssbench.profiles.dipole import MATERIALS
 
 __all__ = [
     "PROFILE_MATERIALS",
     "SceneMC",
+    "check_options",
     "medium_for",
     "scene_mc",
     "noise_corrected_rel_rms",
 ]
 
 _F64 = torch.float64
-#: measured material (JMLH01, :data:`sssbench.profiles.MATERIALS`) simulated for a profile
-#: table: the skin tables are fits to skin, the marble table to marble
-PROFILE_MATERIALS = {"skin_jg10": "skin1", "skin_deon6": "skin1", "marble_jg10": "marble"}
 #: photons of the half-space walk that gives the normaliser ρ per channel
 ALBEDO_PHOTONS = 1_000_000
 #: sub-rays per pixel side for the sphere's per-pixel area
@@ -83,27 +81,6 @@ FLAT_PHOTONS = 4_000_000
 SPHERE_PHOTONS_PER_PIXEL = 8_000
 #: runs of at least this many photons use two worker processes by default
 PARALLEL_PHOTONS = 1_000_000
-
-
-def medium_for(material: str | tuple) -> Medium:
-    """The :class:`~sssbench.mc.transport.Medium` of a name of :data:`MATERIALS` (η = 1.3),
-    of a profile table name (:data:`PROFILE_MATERIALS`) or of ``(σs′, σa[, η])`` (mm⁻¹)."""
-    if isinstance(material, str):
-        key = PROFILE_MATERIALS.get(material, material).lower()
-        if key not in MATERIALS:
-            raise ValueError(
-                f"material must be one of {sorted(MATERIALS)} or a profile of "
-                f"{sorted(PROFILE_MATERIALS)}, got {material!r}"
-            )
-        ss, sa = MATERIALS[key]
-        return Medium(ss, sa, 1.3)
-    if isinstance(material, (tuple, list)) and len(material) in (2, 3):
-        ss, sa = (torch.as_tensor(v, dtype=_F64).expand(3).tolist() for v in material[:2])
-        return Medium(tuple(ss), tuple(sa), float(material[2]) if len(material) == 3 else 1.3)
-    raise TypeError(
-        f"material must be a material or profile name or a (sigma_s_prime, sigma_a[, eta]) "
-        f"tuple, got {type(material).__name__}"
-    )
 
 
 @dataclass
@@ -467,16 +444,15 @@ def scene_mc(
     from data_synth.mc_scenes import SphereMC, mc_model
     from sssbench._digest import code_digest
 
-    seed = check_seed("seed", seed)
+    seed, medium, batches = check_options(
+        material, photons=photons, batches=batches, seed=seed, workers=workers
+    )
     model = mc_model(scene, gbuffer, params)
-    medium = medium_for(material)
-    _check_scatters(material, medium)
     if photons is None:
         sphere = isinstance(model, SphereMC)
         covered = int((sphere_pixel_area(model) > 0).sum()) if sphere else 0
         photons = SPHERE_PHOTONS_PER_PIXEL * covered if sphere else FLAT_PHOTONS
     photons = check_int("photons", photons, 6)
-    batches = check_int("batches", batches, 2)
     if workers is None:
         workers = 2 if photons >= PARALLEL_PHOTONS else 1
     workers = check_int("workers", workers, 1)
@@ -515,19 +491,6 @@ def scene_mc(
 
 
 _CHANNELS = ("R", "G", "B")
-
-
-def _check_scatters(material: object, medium: Medium) -> None:
-    """Refuse a medium that scatters nothing back in some channel (σs′ = 0): its diffuse
-    albedo ρ is exactly 0, and the normalised exitance ``M/ρ`` of :class:`SceneMC` (what every
-    score divides by) is 0/0 — all-NaN images otherwise (docs/reliability.md, class 10)."""
-    dead = [c for c, s in zip(_CHANNELS, medium.sigma_s_prime, strict=True) if s == 0]
-    if dead:
-        raise ValueError(
-            f"material {material!r} has sigma_s_prime = 0 in channel(s) {', '.join(dead)}: no "
-            "light scatters back (albedo rho = 0), so the normalised exitance M/rho is "
-            "undefined; give sigma_s_prime > 0"
-        )
 
 
 def _no_albedo(material: object, rho: torch.Tensor) -> None:

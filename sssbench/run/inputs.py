@@ -5,14 +5,16 @@ left its G-buffer untouched."""
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import torch
 
+from sssbench.ops import ReferenceSSS
 from sssbench.run import registry, runmemo
-from sssbench.run.spec import RunSpec
+from sssbench.run.spec import RunSpec, mc_options
 from sssbench.store.refcache import cached_reference, reference_key
 
 __all__ = [
@@ -20,6 +22,7 @@ __all__ = [
     "baseline",
     "build",
     "check_requested",
+    "check_spec",
     "check_stages",
     "scene_label",
     "check_untouched",
@@ -57,6 +60,92 @@ def build(spec: RunSpec) -> Built:
     gbuffer = scene_gbuffer(spec, fields)
     check_requested(spec, pipeline, gbuffer)
     return Built(profile, pipeline, ref_pipeline, fields, gbuffer)
+
+
+def check_spec(spec: RunSpec, memo: dict[str, Any] | None = None) -> None:
+    """Check every value of ``spec`` a run reads, as the run reads it, building no image — what
+    the app runs for every job of a sweep before the first run (issue 28): the profile, the
+    method, the exact reference and the stages are constructed by the registry functions
+    :func:`build` uses (cheap: no image), the scene's parameters are checked by its own builder
+    stopped before its first image (:func:`sssbench.run.registry.check_scene`) and the Monte
+    Carlo options by the Monte Carlo reference's own check. One set of rules: the pre-check and
+    the run cannot disagree on a value.
+
+    Args:
+        spec: the run.
+        memo: a dict shared by the checks of one grid: each part (scene, profile, method, …)
+            is checked once per distinct set of the values it reads.
+
+    Raises:
+        ValueError: one line naming the config key (``scene.params``, ``profile.params``,
+            ``method.params``, ``reference_params``, a stage's ``params``), whose it is, and
+            the error of the constructor that refused it.
+    """
+    memo = {} if memo is None else memo
+
+    def part(key: str, where: str, reads: Any, make: Any) -> Any:
+        index = json.dumps([key, reads], sort_keys=True, default=str)
+        if index not in memo:
+            try:
+                memo[index] = make()
+            except (ValueError, TypeError) as exc:
+                message = " ".join(str(exc).split())
+                raise ValueError(
+                    f"{key} {'with' if '=on' in key else 'of'} {where}: {message}"
+                ) from exc
+        return memo[index]
+
+    scene = (spec.scene, spec.scene_params, spec.resolution, spec.seed, spec.dtype)
+    part(
+        "scene.params",
+        f"scene {scene_label(spec)}",
+        scene,
+        lambda: registry.check_scene(
+            spec.scene, spec.resolution, seed=spec.seed, dtype=spec.dtype, params=spec.scene_params
+        ),
+    )
+    kind = (spec.profile, spec.profile_kind, spec.profile_params)
+    profile = part(
+        "profile.params",
+        f"profile {spec.profile}",
+        kind,
+        lambda: registry.build_profile(spec.profile, spec.profile_kind, **spec.profile_params),
+    )
+    options = (spec.method, spec.method_params, spec.samples, spec.sampling, spec.seed)
+    method = part(
+        "method.params / samples / sampling",
+        f"method {spec.method}",
+        [kind, options],
+        lambda: registry.method_from_spec(spec, profile),
+    )
+    part(
+        "reference_params",
+        f"the exact reference of profile {spec.profile}",
+        [kind, spec.reference_params],
+        lambda: ReferenceSSS(profile, **spec.reference_params),
+    )
+    for stage, params in spec.stages.items():
+        if params is not None:
+            part(
+                f"{stage}=on ({stage}.params)",
+                f"method {spec.method}",
+                [kind, options, stage, params],
+                lambda stage=stage, params=params: registry.build_pipeline(
+                    method, profile, {stage: params}, auto=False
+                ),
+            )
+    part(
+        "stages",
+        f"method {spec.method}",
+        [kind, options, spec.stages],
+        lambda: stage_pipeline(spec, method, profile),
+    )
+    if spec.reference == "mc":
+        from sssbench.mc.options import check_options
+
+        mc = mc_options(spec)
+        part("reference_params (mc_*)", "the Monte Carlo reference", mc,
+             lambda: check_options(**mc))  # fmt: skip
 
 
 def stage_pipeline(spec: RunSpec, method: Any, profile: Any, *, for_reference: bool = False) -> Any:
@@ -253,8 +342,6 @@ def metric_mask(gbuffer: Any, dtype: torch.dtype) -> torch.Tensor | None:
 
 def pipelines(spec: RunSpec, profile: Any) -> tuple[Any, Any]:
     """The run's pipeline (its method and stages) and its reference's pipeline."""
-    from sssbench.ops import ReferenceSSS
-
     method = registry.method_from_spec(spec, profile)
     pipeline = stage_pipeline(spec, method, profile)
     reference = ReferenceSSS(profile, **spec.reference_params)

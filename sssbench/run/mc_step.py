@@ -7,7 +7,7 @@ from typing import Any
 import torch
 
 from sssbench.run.inputs import without_specular
-from sssbench.run.spec import RunSpec
+from sssbench.run.spec import RunSpec, mc_options
 
 __all__ = ["mc_metrics", "mc_verdicts", "TOL"]
 
@@ -42,18 +42,9 @@ def mc_metrics(
     its jackknife standard error."""
     from sssbench.mc.scene import noise_corrected_rel_rms, scene_mc
 
-    opts = spec.mc_params
-    material = opts.get("mc_material", spec.profile)
-    mc = scene_mc(
-        spec.scene,
-        gbuffer,
-        spec.scene_params,
-        material,
-        photons=opts.get("mc_photons"),
-        batches=opts.get("mc_batches", 8),
-        seed=opts.get("mc_seed", spec.seed),
-        workers=opts.get("mc_workers"),
-    )
+    options = mc_options(spec)
+    material = options["material"]
+    mc = scene_mc(spec.scene, gbuffer, spec.scene_params, **options)
     batches = mc.batches
     if spec.stages.get("texturing") is not None and gbuffer.albedo is not None:
         batches = batches * gbuffer.albedo[:1].double()

@@ -39,6 +39,7 @@ __all__ = [
     "method_from_spec",
     "build_profile",
     "build_scene",
+    "check_scene",
     "build_pipeline",
     "scene_names",
 ]
@@ -250,24 +251,63 @@ def build_scene(
 
     params = dict(params or {})
     if name == FILE_SCENE:
-        from sssbench.io import load_scene_file, scene_file_digest
+        from sssbench.io import load_scene_file
 
-        path = params.pop("path", None)
-        digest = params.pop("sha256", None)
-        if not path:
-            raise ValueError("scene file needs scene.path=<G-buffer .exr or .npz>")
-        if params:
-            raise ValueError(f"scene file takes only path (and sha256), got {sorted(params)}")
-        if digest is not None and scene_file_digest(path) != digest:
-            raise ValueError(f"scene file {path} changed since the run was configured (sha256)")
-        return load_scene_file(path, fields=fields, dtype=_dtype(dtype))
+        return load_scene_file(_file_scene_path(params), fields=fields, dtype=_dtype(dtype))
+    _synthetic_name(name)
+    return data_synth.make_scene(
+        name, resolution=resolution, seed=seed, fields=fields, dtype=_dtype(dtype), **params
+    )
+
+
+def check_scene(
+    name: str,
+    resolution: tuple[int, int],
+    *,
+    seed: int = 0,
+    dtype: str = "float32",
+    params: Mapping[str, Any] | None = None,
+) -> None:
+    """Check :func:`build_scene`'s arguments as it checks them, building no image (the app's
+    check before the first run): a synthetic scene's own builder stops before its first image
+    (:func:`data_synth.check_scene`); a file scene's path, its parameters and its digest.
+
+    Raises:
+        ValueError, TypeError: what :func:`build_scene` would raise for these arguments, naming
+            the parameter.
+    """
+    import data_synth
+
+    params = dict(params or {})
+    if name == FILE_SCENE:
+        _file_scene_path(params)
+        return
+    _synthetic_name(name)
+    data_synth.check_scene(name, resolution, seed, dtype=_dtype(dtype), **params)
+
+
+def _file_scene_path(params: dict[str, Any]) -> str:
+    """The path of a file scene's ``params`` (``path``, optional ``sha256``), checked."""
+    from sssbench.io import scene_file_digest
+
+    path = params.pop("path", None)
+    digest = params.pop("sha256", None)
+    if not path:
+        raise ValueError("scene file needs scene.path=<G-buffer .exr or .npz>")
+    if params:
+        raise ValueError(f"scene file takes only path (and sha256), got {sorted(params)}")
+    if digest is not None and scene_file_digest(path) != digest:
+        raise ValueError(f"scene file {path} changed since the run was configured (sha256)")
+    return str(path)
+
+
+def _synthetic_name(name: str) -> None:
+    import data_synth
+
     if name in data_synth.RETIRED_SCENES:
         raise ValueError(data_synth.RETIRED_SCENES[name])
     if name not in data_synth.SCENES:
         raise ValueError(f"scene must be one of {scene_names()}, got {name!r}")
-    return data_synth.make_scene(
-        name, resolution=resolution, seed=seed, fields=fields, dtype=_dtype(dtype), **params
-    )
 
 
 # ----------------------------------------------------------------------------- stages

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = ["RunSpec", "REFERENCES", "MC_OPTIONS", "DEFAULT_SEEDS"]
+__all__ = ["RunSpec", "REFERENCES", "MC_OPTIONS", "DEFAULT_SEEDS", "mc_options"]
 
 #: what a run's error is measured against: ``profile`` (the exact integral of the diffusion
 #: profile, :class:`~sssbench.ops.ReferenceSSS`) or ``mc`` (that and Monte Carlo light
@@ -118,3 +118,18 @@ class RunSpec:
             "threads": self.threads,
             "backend": self.backend,
         }
+
+
+def mc_options(spec: RunSpec) -> dict[str, Any]:
+    """The keyword arguments of :func:`sssbench.mc.scene.scene_mc` (and of its option check,
+    :func:`~sssbench.mc.scene.check_options`) a run with ``reference=mc`` passes: its
+    ``reference_params.mc_*`` (:data:`~sssbench.run.spec.MC_OPTIONS`), else the defaults (the
+    measured material of the run's profile table, 8 batches, the run's seed)."""
+    opts = spec.mc_params
+    return {
+        "material": opts.get("mc_material", spec.profile),
+        "photons": opts.get("mc_photons"),
+        "batches": opts.get("mc_batches", 8),
+        "seed": opts.get("mc_seed", spec.seed),
+        "workers": opts.get("mc_workers"),
+    }

@@ -67,11 +67,26 @@ __all__ = [
     "STATUSES",
     "METRIC_COLUMNS",
     "read_only_uri",
+    "check_journal_mode",
+    "JOURNAL_MODES",
 ]
 
 log = logging.getLogger(__name__)
 
 STATUSES = ("ok", "failed", "timeout")
+#: SQLite journal modes a store may use: ``wal`` (one host), ``delete`` or ``truncate``
+#: (a store on a network file system written from several nodes)
+JOURNAL_MODES = ("wal", "delete", "truncate")
+
+
+def check_journal_mode(name: str, value: object) -> str:
+    """``value`` lower-cased if it is one of :data:`JOURNAL_MODES`, else a ``ValueError`` naming
+    ``name`` (``journal_mode``; the app's ``store_journal``)."""
+    if not isinstance(value, str) or value.lower() not in JOURNAL_MODES:
+        raise ValueError(f"{name} must be one of {list(JOURNAL_MODES)}, got {value!r}")
+    return value.lower()
+
+
 #: metrics that get their own column (all metrics are also kept in ``metrics_json``)
 METRIC_COLUMNS = ("rmse", "rel_rms", "psnr", "ssim", "delta_e", "flip")
 #: config keys copied into their own columns for querying
@@ -242,14 +257,11 @@ class RunStore:
         journal_mode: str = "wal",
         readonly: bool = False,
     ) -> None:
-        if journal_mode.lower() not in ("wal", "delete", "truncate"):
-            raise ValueError(
-                f"journal_mode must be one of ['wal', 'delete', 'truncate'], got {journal_mode!r}"
-            )
+        journal_mode = check_journal_mode("journal_mode", journal_mode)
         self.path = Path(path).expanduser().resolve()
         self.timeout_s = float(timeout_s)
         self.retries = int(retries)
-        self.journal_mode = journal_mode.lower()
+        self.journal_mode = journal_mode
         self.readonly = bool(readonly)
         if self.readonly:
             if not self.path.is_file():

@@ -62,11 +62,14 @@ def _consistent(db: Path) -> list[sqlite3.Row]:
 
 
 def test_raising_and_timed_out_runs_are_recorded_and_the_sweep_goes_on(tmp_path):
-    # radius=-5 makes the scene builder raise inside the run; timeout_s=0.001 times out the
-    # good point, which the next job (timeout_s=600, same point: timeout_s is run control,
-    # not identity) then runs, because only 'ok' rows count as done
+    # the halo scene turned by tilt=80 leaves pixels empty: a valid value that only the
+    # render can find (the app's check before the first run accepts it: issue 28), so the scene
+    # builder raises inside the run; timeout_s=0.001 times out the good point (tilt=45), which
+    # the next job (timeout_s=600, same point: timeout_s is run control, not identity) then
+    # runs, because only 'ok' rows count as done
+    halo = ["scene=halo", *TINY[1:]]
     proc = subprocess.run(
-        _cmd(tmp_path, *TINY, "repeats=1", "samples=1,3", "+scene.params.radius=-5,70",
+        _cmd(tmp_path, *halo, "repeats=1", "samples=1,3", "++scene.params.tilt=80,45",
              "timeout_s=0.001,600"),  # fmt: skip
         cwd=tmp_path, env=_env(), capture_output=True, text=True, timeout=240,
     )  # fmt: skip
@@ -76,15 +79,15 @@ def test_raising_and_timed_out_runs_are_recorded_and_the_sweep_goes_on(tmp_path)
     store = RunStore(tmp_path / "store.sqlite")
     by_point: dict[tuple, list[str]] = {}
     for r in store.runs():
-        key = (r["samples"], r["config"]["scene_params"]["radius"])
+        key = (r["samples"], r["config"]["scene_params"]["tilt"])
         by_point.setdefault(key, []).append((r["status"], r["error"] or ""))
     assert len(rows) == 8
     for samples in (1, 3):
-        bad = by_point[(samples, -5)]
+        bad = by_point[(samples, 80)]
         # with timeout_s=0.001 the alarm may fire before the scene builder raises
         assert bad[0][0] in ("failed", "timeout") and bad[1][0] == "failed", bad
-        assert all("radius" in e and "ValueError" in e for s, e in bad if s == "failed"), bad
-        good = by_point[(samples, 70)]
+        assert all("empty" in e and "ValueError" in e for s, e in bad if s == "failed"), bad
+        good = by_point[(samples, 45)]
         assert [s for s, _ in good] == ["timeout", "ok"], good
         assert "timeout_s=0.001" in good[0][1]
     n_failed = sum(r["status"] == "failed" for r in rows)

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import ctypes
 import hashlib
+import logging
 import os
 import shutil
 import subprocess
@@ -49,6 +50,7 @@ _SOURCES = ("gather.c", "gather_body.h", "gather_simd.h", "pool.h", "disk.c", "d
 _FLAGS = ["-O3", "-fPIC", "-shared", "-ffp-contract=off", "-fno-math-errno", "-Wno-psabi"]
 _STATE: dict[str, object] = {"lib": None, "tried": False}
 _BUILD_TIMEOUT_S = 900
+log = logging.getLogger("sssbench")
 
 
 def cache_dir() -> Path:
@@ -92,6 +94,12 @@ def _build(cc: str, fresh: bool = False) -> Path:
     try:
         units = [str(_HERE / "gather.c"), str(_HERE / "disk.c")]  # disk.c: the disk's loop
         cmd = [cc, *_FLAGS, "-o", tmp, *units, "-lm", "-lpthread"]
+        log.info(  # the first run's longest silence otherwise (issue 28: nothing silent for long)
+            "building the native gather library with %s into %s (once per source version: "
+            "about 18 s of CPU with gcc 12)",
+            cc,
+            folder,
+        )
         # once per source version and user (cached): 18 s of CPU with gcc 12 (the scalar loop
         # and the AVX2 and AVX-512 loops, float32 and float64), 2.5 min of wall time measured
         # on this 2-core machine under a load of 20 (disk.c: 1.5 s of CPU more); the timeout
