@@ -698,3 +698,96 @@ def test_gaussian_pass_underflow_is_flushed_and_the_callers_fp_state_restored(si
     # centre's 0.5 · colour plus terms far below its last bit
     inner = odd & (torch.arange(w) < w - 4)
     assert torch.equal(got[..., inner], (0.5 * img)[..., inner])
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize(
+    "options",
+    [
+        {},
+        {"follow_surface": "lerp", "surface_scale": 4.0},
+        {"follow_surface": "lerp", "surface_scale": torch.tensor([1.0, 4.0, 20.0])},
+        {"follow_surface": "gaussian", "surface_scale": torch.tensor([1.0, 4.0, 20.0])},
+        {"stretch": Stretch(ssslevel=2.0, correction=50.0, maxdd=0.5)},
+        {"stretch": Stretch(), "follow_surface": "lerp", "surface_scale": 3.0},
+        {"use_mask": False},
+        {"width": "per-pixel"},
+    ],
+    ids=lambda o: "-".join(f"{k}" for k in o) or "plain",
+)
+def test_fused_step_equals_the_two_passes_and_the_blend(simd, dtype, options):
+    """``separable_step`` (issue 30: the sum of Gaussians' step in one sweep, the x pass's
+    image never written) against its specification, the native x pass into a temporary image
+    then the native y pass on it with the fused blend: bitwise (the gaussian's exp included:
+    the same loop computes it), result and blend target, at every instruction-set level; on
+    dense and sparse stencils, images wider than one column strip (strips cut the spans),
+    kernels narrow and wider than a strip, a batch of two, with ``copy`` (off-stencil pixels
+    from the image) and without (``out`` untouched off the stencil). Within the backends'
+    tolerance of the torch loop's two passes and ``torch.lerp``."""
+    from sssbench.ops.gather import separable_step
+
+    weight = torch.tensor([0.2, 0.5, 0.9], dtype=dtype)
+    opts = {k: (v.to(dtype) if isinstance(v, torch.Tensor) else v) for k, v in options.items()}
+    threads = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        for cover, h, w in ((0.9, 90, 150), (0.15, 37, 83)):
+            g = scene(seed=5, b=2, h=h, w=w, dtype=dtype, cover=cover)
+            if options.get("width") == "per-pixel":
+                gen = torch.Generator().manual_seed(3)
+                opts["width"] = (0.3 + 2 * torch.rand(2, 1, h, w, generator=gen)).to(dtype)
+            start = torch.rand(2, 3, h, w, generator=torch.Generator().manual_seed(8), dtype=dtype)
+            for wide in (0.5, 6.0):
+                k = Kernel1D(kernel().offsets * wide, kernel().weights)
+                with backend("native"):
+                    tmp = separable_pass(g.diffuse, k, "x", g, **opts)
+                    expected_t = start.clone()
+                    expected = separable_pass(tmp, k, "y", g, inplace=True,
+                                              blend_into=(expected_t, weight), **opts)  # fmt: skip
+                    target = start.clone()
+                    out = separable_step(g.diffuse, k, g, torch.empty_like(start),
+                                         (target, weight), **opts)  # fmt: skip
+                    assert out is not None
+                    assert torch.equal(out, expected), (cover, wide)
+                    assert torch.equal(target, expected_t), (cover, wide)
+                    # without copy: only the stencil's pixels are written
+                    stale = torch.full_like(start, -7.0)
+                    target2 = start.clone()
+                    separable_step(g.diffuse, k, g, stale, (target2, weight), copy=False, **opts)
+                    if opts.get("use_mask", True):
+                        on = (g.mask > 0).expand_as(stale)
+                        assert torch.equal(stale[on], expected[on])
+                        assert bool((stale[~on] == -7.0).all())
+                    else:
+                        assert torch.equal(stale, expected)
+                    assert torch.equal(target2, expected_t)
+                with backend("torch"):
+                    ref_t = start.clone()
+                    tmp = separable_pass(g.diffuse, k, "x", g, **opts)
+                    ref = separable_pass(tmp, k, "y", g, blend_into=(ref_t, weight), **opts)
+                torch.testing.assert_close(out, ref, **tol(dtype))
+                torch.testing.assert_close(target, ref_t, **tol(dtype))
+                assert not torch.equal(target, start)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def test_fused_step_declines_and_checks():
+    """``separable_step`` returns ``None`` (computing nothing) where it cannot fuse: the torch
+    backend, an input that requires a gradient; and refuses an ``out`` that is the image."""
+    from sssbench.ops.gather import separable_step
+
+    g = scene(seed=2)
+    w = torch.tensor([0.3, 0.3, 0.3], dtype=torch.float64)
+    target = g.diffuse.clone()
+    out = torch.zeros_like(target)
+    with backend("torch"):
+        assert separable_step(g.diffuse, kernel(), g, out, (target, w)) is None
+    needy = g.diffuse.clone().requires_grad_(True)
+    assert separable_step(needy, kernel(), g, out, (target, w)) is None
+    assert torch.equal(target, g.diffuse) and not bool(out.any())
+    image = g.diffuse.clone()
+    with pytest.raises(ValueError, match="out shares memory with image"):
+        separable_step(image, kernel(), g, image, (target, w))
+    with pytest.raises(ValueError, match="out must be a tensor"):
+        separable_step(image, kernel(), g, out.float(), (target, w))
