@@ -33,15 +33,7 @@ from sssbench.ops import native
 from sssbench.ops._gather_torch import gather_torch
 from sssbench.ops._stencil import image_spans
 
-__all__ = [
-    "gather",
-    "gather_",
-    "blend_",
-    "native_pass",
-    "native_step",
-    "run_pass",
-    "weights_overflow",
-]
+__all__ = ["gather", "gather_", "blend_", "native_pass", "run_pass", "weights_overflow"]
 
 Tensor = torch.Tensor
 
@@ -140,72 +132,6 @@ def native_pass(
             raise weights_overflow(weights, dtype)
         if status < 0:
             raise MemoryError(f"native gather: no memory for the line buffers of a {h}x{w} image")
-        n_total += status
-    return n_total
-
-
-def native_step(
-    lib: object,
-    image: Tensor,
-    out: Tensor,
-    args: tuple,
-    ddepth_y: Tensor | None,
-    copy: bool,
-    blend: tuple[Tensor, Tensor],
-) -> int:
-    """The x pass then the y pass of one kernel through the C loop's fused step
-    (``sss_step_`` in ``native/gather_body.h``), ``image`` -> ``out`` with the blend; the
-    active pixel count (of one pass). Bitwise :func:`native_pass` along x into a temporary
-    image, then along y on it in place with ``blend``, without the temporary image.
-
-    ``args`` as :func:`native_pass`'s for the x pass (its ``ddepth`` the x derivative, its
-    ``axis_y`` ignored); ``ddepth_y`` the y pass's (``None`` without the stretch). ``out``
-    ``(B, 3, H, W)`` contiguous must share no memory with ``image`` (the caller checks:
-    :func:`~sssbench.ops.gather.separable_step`); ``copy``: ``out`` gets ``image``'s pixels
-    off the stencil, otherwise it is written on the stencil only. ``blend``: ``(target,
-    weight)`` as :func:`native_pass`'s."""
-    depth, strength, width, ddepth, offsets, weights, inv_scale, *scalars = args
-    f_px, width_scalar, correction, maxdd, _, follow = scalars
-    b, _, h, w = image.shape
-    dtype = image.dtype
-    keep = []
-
-    def planes(t: Tensor | None, want: torch.dtype = dtype) -> tuple[int | None, int]:
-        if t is None:
-            return None, 0
-        if t.dtype != want or not t.is_contiguous():
-            t = t.detach().to(want).contiguous()
-            keep.append(t)
-        return t.data_ptr(), t.stride(0) * t.element_size()
-
-    def f64(t: Tensor | tuple[float, ...]) -> int:
-        if isinstance(t, Tensor):
-            return planes(t, torch.float64)[0]
-        keep.append(arr := (ctypes.c_double * len(t))(*t))
-        return ctypes.addressof(arr)
-
-    fn = lib.sss_step_f32 if dtype == torch.float32 else lib.sss_step_f64
-    for t, what in ((out, "out"), (blend[0], "the blend target")):
-        if t.dtype != dtype or not t.is_contiguous():
-            raise ValueError(f"{what} must be contiguous {dtype}, got {t.dtype} {t.stride()}")
-    fields = [planes(t) for t in (image, depth, strength, width, ddepth, ddepth_y, out, blend[0])]
-    taps = (f64(offsets), f64(weights), f64(inv_scale))
-    blend_w = planes(blend[1].reshape(3))[0]
-    n_total = 0
-    threads = torch.get_num_threads()
-    for bi, spans in enumerate(image_spans(strength, (b, h, w))):
-        src, z, mask, wid, ddx, ddy, dst, target = (
-            None if p is None else p + bi * step for p, step in fields
-        )
-        status = fn(
-            src, z, spans.data_ptr(), mask, wid, ddx, ddy, *taps, dst, f_px, width_scalar,
-            correction, maxdd, spans.shape[0], offsets.numel(), h, w, follow, int(copy), threads,
-            target, blend_w,
-        )  # fmt: skip
-        if status == -2:
-            raise weights_overflow(weights, dtype)
-        if status < 0:
-            raise MemoryError(f"native gather: no memory for the step buffers of a {h}x{w} image")
         n_total += status
     return n_total
 

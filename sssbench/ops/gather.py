@@ -75,11 +75,7 @@ from sssbench._memo import call_scoped, memo_scope
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.kernel1d import Kernel1D
 from sssbench.ops import native
-from sssbench.ops._gather_native import (  # registers torch.ops.sssbench.*
-    native_step,
-    run_pass,
-    weights_overflow,
-)
+from sssbench.ops._gather_native import run_pass, weights_overflow  # registers torch.ops.sssbench.*
 from sssbench.ops._gather_torch import SampleWeight, compiled_accumulate, gather_torch
 from sssbench.ops._overlap import has_internal_overlap, shares_memory
 from sssbench.ops._stencil import image_spans, image_stencils
@@ -88,7 +84,6 @@ from sssbench.ops.timing import PassRecord, add_record
 
 __all__ = [
     "separable_pass",
-    "separable_step",
     "blend_on_stencil",
     "backend",
     "get_backend",
@@ -565,110 +560,6 @@ def separable_pass(
             blend_on_stencil(target, out, blend_w, strength)
     ms = (time.perf_counter() - start) * 1e3
     add_record(PassRecord(name or f"pass.{direction}", len(kernel), n_total, ms))
-    return out
-
-
-def separable_step(
-    image: torch.Tensor,
-    kernel: Kernel1D,
-    gbuffer: GBuffer,
-    out: torch.Tensor,
-    blend_into: tuple[torch.Tensor, torch.Tensor],
-    *,
-    width: float | torch.Tensor = 1.0,
-    follow_surface: str | None = None,
-    surface_scale: float | torch.Tensor | None = None,
-    stretch: Stretch | None = None,
-    use_mask: bool = True,
-    name: str = "step",
-    copy: bool = True,
-) -> torch.Tensor | None:
-    """The x pass then the y pass of ``kernel`` with the blend of the result, fused: one step
-    of the sum of Gaussians (003 §7.3.3) in one sweep of the native loop, or ``None`` when it
-    cannot run fused (the caller then runs the two :func:`separable_pass` calls).
-
-    Bitwise what ``tmp = separable_pass(image, kernel, "x", ...)``, then
-    ``separable_pass(tmp, kernel, "y", ..., inplace=True, blend_into=blend_into)`` give on the
-    native backend (written into ``out`` instead of ``tmp``), at every instruction-set level:
-    the C loop fills each column strip's y window with the x pass's results computed there,
-    so the x pass's image is never written and read back (``sss_step_`` in
-    ``native/gather_body.h``). Runs on the native backend only, without autograd (nothing of
-    it requires a gradient), outside ``torch.compile``, with ``out`` and the blend target
-    contiguous; otherwise returns ``None`` having computed nothing.
-
-    Args:
-        image: ``(B, 3, H, W)`` the step's input (read only).
-        kernel, gbuffer, width, follow_surface, surface_scale, stretch, use_mask: as
-            :func:`separable_pass`, the same for both passes (the stretch's derivative is
-            each pass's own axis).
-        out: ``(B, 3, H, W)`` of the image's dtype, contiguous, sharing no memory with the
-            inputs or the blend target (``ValueError``): the result.
-        blend_into: ``(target, weight)`` as :func:`separable_pass`'s, required.
-        name: the two :class:`~sssbench.ops.timing.PassRecord`'s are ``name.x`` (with the
-            step's whole time) and ``name.y`` (0 ms: its time is in ``name.x``).
-        copy: ``out`` gets ``image``'s pixels off the stencil (a pass's copy); ``False``
-            when ``out`` already holds them (the caller knows), then only the stencil's
-            pixels are written.
-
-    Returns:
-        ``out`` or ``None``.
-    """
-    _check_pass_inputs(
-        image, kernel, "x", gbuffer, width, follow_surface, surface_scale, stretch, None,
-        None, None, False,
-    )  # fmt: skip
-    strength = gbuffer.mask if (use_mask and gbuffer.mask is not None) else None
-    per_pixel = width if isinstance(width, torch.Tensor) else None
-    target, blend_w = _check_blend_into(blend_into, image, {
-        "image": image, "gbuffer.depth": gbuffer.depth, "gbuffer.mask": strength,
-        "width": per_pixel,
-    })  # fmt: skip
-    if not isinstance(out, torch.Tensor) or out.shape != image.shape or out.dtype != image.dtype:
-        raise ValueError(
-            f"out must be a tensor of the image's shape {tuple(image.shape)} and dtype "
-            f"{image.dtype}"
-        )
-    check_writable("out", out, {
-        "image": image, "gbuffer.depth": gbuffer.depth, "gbuffer.mask": strength,
-        "width": per_pixel, "blend_into target": target,
-    })  # fmt: skip
-    scale_t = surface_scale if isinstance(surface_scale, torch.Tensor) else None
-    needs = (image, gbuffer.depth, strength, per_pixel, kernel.offsets, kernel.weights, scale_t,
-             target, blend_w)  # fmt: skip
-    if (
-        (torch.is_grad_enabled() and any(t is not None and t.requires_grad for t in needs))
-        or torch.compiler.is_compiling()
-        or _backend_for(image, None, None) != "native"
-        or not (out.is_contiguous() and target.is_contiguous())
-    ):
-        return None
-    _, _, h_, _ = image.shape
-    f_px = h_ / (2.0 * math.tan(gbuffer.fov_y / 2.0))  # pixels per mm at 1 mm depth
-    ddx = ddy = None
-    correction = maxdd = 0.0
-    if stretch is not None:  # 003 §7.3.1, each pass's own axis
-        f_px *= stretch.ssslevel
-        if not math.isfinite(f_px):
-            raise ValueError(
-                f"stretch.ssslevel={stretch.ssslevel:g} times the focal length "
-                f"{f_px / stretch.ssslevel:g} px overflows float64"
-            )
-        ddx, ddy = _axis_derivative(gbuffer.depth, 3), _axis_derivative(gbuffer.depth, 2)
-        correction, maxdd = float(stretch.correction), float(stretch.maxdd)
-    args = (gbuffer.depth, strength, per_pixel, ddx, kernel.offsets, kernel.weights,
-            _reciprocal(surface_scale), f_px, 0.0 if per_pixel is not None else float(width),
-            correction, maxdd, False, FOLLOW_SURFACE.index(follow_surface))  # fmt: skip
-    start = time.perf_counter()
-    with memo_scope():
-        n_total = native_step(
-            native.library(), image, out, args, ddy, copy, (target, blend_w.to(image.dtype))
-        )
-    for t in (out, target):
-        if not t.is_inference():
-            torch.autograd.graph.increment_version(t)
-    ms = (time.perf_counter() - start) * 1e3
-    add_record(PassRecord(f"{name}.x", len(kernel), n_total, ms))
-    add_record(PassRecord(f"{name}.y", len(kernel), n_total, 0.0))
     return out
 
 

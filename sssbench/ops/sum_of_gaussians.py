@@ -25,7 +25,7 @@ from sssbench.kernels.sampling import MAX_SAMPLES, METHOD_SAMPLINGS, OPTIMISED
 from sssbench.kernels.sources import check_optimised_sampling, use_optimised
 from sssbench.ops._stencil import image_spans
 from sssbench.ops.functional import functional
-from sssbench.ops.gather import Stretch, separable_pass, separable_step
+from sssbench.ops.gather import Stretch, separable_pass
 from sssbench.ops.method import SeparableMethod
 from sssbench.ops.timing import PassRecord, add_record
 from sssbench.profiles.sum_of_gaussians import SumOfGaussians
@@ -399,18 +399,6 @@ class SumOfGaussiansSSS(SeparableMethod):
             for axis, length in (("x", w), ("y", h))
         }
 
-    @staticmethod
-    def _fusable(per_axis: dict[str, dict], options: dict[str, object]) -> dict | None:
-        """The options of :func:`~sssbench.ops.gather.separable_step` when a step's two
-        passes may be fused (both axes with one stretch, no rotation, guide or sample
-        weight), else ``None``."""
-        if per_axis["x"]["stretch"] is not per_axis["y"]["stretch"]:
-            return None
-        if any(options.get(key) is not None for key in ("rotation", "guide", "sample_weight")):
-            return None
-        keys = ("width", "follow_surface", "surface_scale", "stretch")
-        return {key: per_axis["x"][key] for key in keys if key in per_axis["x"]}
-
     def scatter(self, gbuffer: GBuffer, options: dict[str, object]) -> torch.Tensor:
         if self.sampling == OPTIMISED and self.pixel_mm is None:
             use_optimised(self, gbuffer)
@@ -418,13 +406,6 @@ class SumOfGaussiansSSS(SeparableMethod):
         dtype = gbuffer.dtype
         rt1 = gbuffer.diffuse  # the widest Gaussian so far (003 Fig. 7.6: RT1)
         rtf = gbuffer.diffuse  # the blended result (RTF)
-        # each step's two passes fused (separable_step: bitwise the same, the x pass's image
-        # never written) when the native loop runs them: RT1 then alternates between two
-        # buffers of this call; None: the two passes of a step, as below
-        fused = self._fusable(per_axis, options)
-        spare = None  # the buffer the next fused step writes (the one before RT1)
-        written = set()  # ids of buffers whose pixels off the stencils are the image's
-        stencil0 = None  # the mask of the first step, while every step has it
         for i, step in enumerate(self.steps):
             blend = step.blend.to(dtype=dtype, device=gbuffer.device).view(1, 3, 1, 1)
             if step.kernel is None:  # the unblurred first Gaussian: w'_1 = 1, no pass
@@ -439,32 +420,13 @@ class SumOfGaussiansSSS(SeparableMethod):
                     add_record(PassRecord(f"{name}.{axis}", len(step.kernel), 0, 0.0))
                 continue
             g = gbuffer if mask is gbuffer.mask else gbuffer.replace(mask=mask)
-            if rtf is gbuffer.diffuse:
-                rtf = rtf.clone(memory_format=torch.contiguous_format)
-            if fused is not None:
-                if not written and rt1 is gbuffer.diffuse:
-                    stencil0 = mask  # the first fused step
-                elif stencil0 is not mask:
-                    stencil0 = None
-                dst = spare if spare is not None else torch.empty_like(rtf)
-                # off the stencil dst must hold RT1's pixels: true without a copy when every
-                # step so far had one mask (every buffer then holds the image's there)
-                copy = stencil0 is None or id(dst) not in written
-                out = separable_step(
-                    rt1, step.kernel, g, dst, (rtf, blend.view(3)), name=name, copy=copy,
-                    **fused,
-                )  # fmt: skip
-                if out is not None:
-                    written.add(id(dst))
-                    spare = rt1 if rt1 is not gbuffer.diffuse else None
-                    rt1 = out
-                    continue
-                fused = None  # not fusable in this call (e.g. autograd): the two passes
             # render targets owned by this call are overwritten (no full-image copy per pass)
             owned = rt1 is not gbuffer.diffuse
             tmp = separable_pass(
                 rt1, step.kernel, "x", g, name=f"{name}.x", inplace=owned, **per_axis["x"]
             )
+            if rtf is gbuffer.diffuse:
+                rtf = rtf.clone(memory_format=torch.contiguous_format)
             # 003 §7.3.3, Listing 7.2: rtf ← blend · rt1 + (1 − blend) · rtf, as one lerp, on
             # the stencil's pixels only (blend_on_stencil), done by the y pass as it writes
             # each pixel of rt1 (the native loop; after it otherwise)

@@ -109,9 +109,6 @@ def _declare(lib: ctypes.CDLL) -> None:
     for fn in (lib.sss_gather_f32, lib.sss_gather_f64):
         fn.restype = ctypes.c_int64  # active pixels, -1: out of memory
         fn.argtypes = [p] * 10 + [f64] * 4 + [i64] * 4 + [i32] * 4 + [p] * 2
-    for fn in (lib.sss_step_f32, lib.sss_step_f64):
-        fn.restype = ctypes.c_int64  # active pixels, -1: out of memory, -2: weights overflow
-        fn.argtypes = [p] * 11 + [f64] * 4 + [i64] * 4 + [i32] * 3 + [p] * 2
     for fn in (lib.sss_blend_f32, lib.sss_blend_f64):
         fn.restype = ctypes.c_int64  # active pixels
         fn.argtypes = [p] * 4 + [i64] * 3 + [i32]

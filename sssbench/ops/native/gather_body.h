@@ -226,10 +226,8 @@ static inline __attribute__((always_inline)) void CAT(line_window_, SUFFIX)(
     const int64_t s0 = ln->s0, s1 = ln->s1;
     const int64_t *head = j->spans + 3 * ln->ids[0], *tail = j->spans + 3 * ln->ids[ln->count - 1];
     int64_t lo, hi; /* the window along the axis */
-    /* an x line clipped to columns [s0, s1) (a fused step's row within its strip; a pass's
-     * x line is the whole row) reads around the clipped pixels only */
-    CAT(window_, SUFFIX)(j, max_abs, AXIS_Y ? head[0] : (head[1] > s0 ? head[1] : s0),
-                         AXIS_Y ? tail[0] : (tail[2] < s1 ? tail[2] : s1) - 1, n_axis, &lo, &hi);
+    CAT(window_, SUFFIX)(j, max_abs, AXIS_Y ? head[0] : head[1],
+                         AXIS_Y ? tail[0] : tail[2] - 1, n_axis, &lo, &hi);
     /* rows r0..r1 x columns c0..c1 (a y strip; an x row's window) */
     const int64_t r0 = AXIS_Y ? lo : q, r1 = AXIS_Y ? hi : q;
     const int64_t c0 = AXIS_Y ? s0 : lo, c1 = AXIS_Y ? s1 - 1 : hi;
@@ -294,86 +292,6 @@ static inline __attribute__((always_inline)) void CAT(lines_, SUFFIX)(
     }
 }
 
-/* A fused step (sss_step_ below): the x pass and the y pass of one kernel over column strips.
- * x: the rows' job (lines = rows, its own window buffer), y: the strips' job (lines = strips
- * of STEP_STRIP columns); for each strip the y window (rows lo..hi of its columns) is filled
- * with src, then its active pixels with the x pass's results, computed there from src (each
- * x result once: strips share no column), and the y pass runs on it: the x pass's image
- * never goes to memory. */
-typedef struct {
-    CAT(job_, SUFFIX) x, y;
-} CAT(step_job_, SUFFIX);
-
-/* the x line of row r clipped to the strip [s0, s1); returns 0 when no active pixel is there */
-static inline __attribute__((always_inline)) int CAT(strip_row_, SUFFIX)(
-    const CAT(job_, SUFFIX) *jx, int64_t r, int64_t s0, int64_t s1, CAT(line_, SUFFIX) *lx) {
-    const int64_t count = jx->lines[3 * r + 1];
-    const int64_t *ids = jx->ids + jx->lines[3 * r];
-    int any = 0;
-    for (int64_t e = 0; e < count && !any; ++e) {
-        const int64_t *sp = jx->spans + 3 * ids[e];
-        any = sp[1] < s1 && sp[2] > s0;
-    }
-    lx->ids = ids;
-    lx->count = count;
-    lx->s0 = s0;
-    lx->s1 = s1;
-    return any;
-}
-
-/* The scalar loop's fused step: lines_ of the x pass into each strip's y window, then lines_
- * of the y pass (the same operations on the same values: bitwise the two passes). */
-static inline __attribute__((always_inline)) void CAT(step_lines_, SUFFIX)(
-    const CAT(step_job_, SUFFIX) *sj, const int FOLLOW) {
-    const CAT(job_, SUFFIX) *jx = &sj->x, *j = &sj->y;
-    const int64_t w = j->w, h = j->h, hw = h * w;
-    for (int64_t q = j->first; q < j->last; ++q) {
-        CAT(line_, SUFFIX) ln;
-        if (!CAT(line_begin_, SUFFIX)(j, q, 1, &ln)) continue;
-        CAT(line_window_, SUFFIX)(j, q, 1, 0, CAT(line_scales_, SUFFIX)(j, &ln), &ln);
-        for (int64_t r = ln.lo; r <= ln.hi; ++r) { /* the x pass, into the window */
-            CAT(line_, SUFFIX) lx;
-            if (!CAT(strip_row_, SUFFIX)(jx, r, ln.s0, ln.s1, &lx)) continue;
-            CAT(line_window_, SUFFIX)(jx, r, 0, 0, CAT(line_scales_, SUFFIX)(jx, &lx), &lx);
-            int64_t idx = 0;
-            for (int64_t e = 0; e < lx.count; ++e) {
-                const int64_t *sp = jx->spans + 3 * lx.ids[e];
-                const int64_t a = sp[1] > ln.s0 ? sp[1] : ln.s0;
-                const int64_t b = sp[2] < ln.s1 ? sp[2] : ln.s1;
-                for (int64_t c = a; c < b; ++c) {
-                    const CAT(vec_, SUFFIX) acc = CAT(taps_, SUFFIX)(
-                        jx, jx->buf, 1, 0, lx.lo, (SCALAR)c, jx->scale[idx++], w, FOLLOW);
-                    SCALAR *o = j->buf + 4 * ((r - ln.lo) * ln.pitch + (c - ln.s0));
-                    o[0] = acc[0];
-                    o[1] = acc[1];
-                    o[2] = acc[2];
-                }
-            }
-        }
-        int64_t idx = 0;
-        for (int64_t e = 0; e < ln.count; ++e) { /* the y pass's taps, as lines_ */
-            const int64_t *sp = j->spans + 3 * ln.ids[e];
-            const int64_t row = sp[0];
-            const int64_t a = sp[1] > ln.s0 ? sp[1] : ln.s0, b = sp[2] < ln.s1 ? sp[2] : ln.s1;
-            for (int64_t c = a; c < b; ++c) {
-                const CAT(vec_, SUFFIX) acc =
-                    CAT(taps_, SUFFIX)(j, j->buf, ln.pitch, c - ln.s0, ln.lo, (SCALAR)row,
-                                       j->scale[idx++], h, FOLLOW);
-                const int64_t l = row * w + c;
-                j->dst[l] = acc[0];
-                j->dst[hw + l] = acc[1];
-                j->dst[2 * hw + l] = acc[2];
-                if (j->blend_out)
-                    for (int ch = 0; ch < 3; ++ch) {
-                        const SCALAR wt = j->blend_w[ch], e2 = acc[ch];
-                        SCALAR *o = j->blend_out + ch * hw + l;
-                        *o = BLEND_LERP(*o, e2, wt, FABSF(wt) < (SCALAR)0.5);
-                    }
-            }
-        }
-    }
-}
-
 #if SSS_SIMD /* the vectorised loops (gather_simd.h), one per instruction set */
 #define ISA avx2
 #define ISA_TARGET "avx2,fma"
@@ -421,16 +339,6 @@ static void *CAT(run_, SUFFIX)(void *arg) {
     else if (j->follow == 0) CAT(lines_, SUFFIX)(j, 1, 0);
     else if (j->follow == 1) CAT(lines_, SUFFIX)(j, 1, 1);
     else CAT(lines_, SUFFIX)(j, 1, 2);
-    FTZ_END();
-    return NULL;
-}
-
-static void *CAT(step_run_, SUFFIX)(void *arg) {
-    const CAT(step_job_, SUFFIX) *sj = (const CAT(step_job_, SUFFIX) *)arg;
-    FTZ_BEGIN(sj->y.follow == 2); /* the gaussian's underflow: see FTZ_BEGIN in gather.c */
-    if (sj->y.follow == 0) CAT(step_lines_, SUFFIX)(sj, 0);
-    else if (sj->y.follow == 1) CAT(step_lines_, SUFFIX)(sj, 1);
-    else CAT(step_lines_, SUFFIX)(sj, 2);
     FTZ_END();
     return NULL;
 }
@@ -571,129 +479,6 @@ int64_t CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const i
     workspace_release(block, owned);
     return n;
 }
-
-/* A fused step: the x pass then the y pass of one kernel (the sum of Gaussians' step, 003
- * §7.3.3), src -> dst with blend_out <- lerp(blend_out, result, blend_w) at every result:
- * bitwise sss_gather_ along x into a temporary image, then sss_gather_ along y on it with the
- * blend (each x result is computed from the same window values by the same operations, the
- * y window holds what the temporary image would), without the temporary image. dst must
- * not overlap src (a strip's x windows read its neighbours' columns); with copy, dst gets
- * src's pixels off the stencil (as a pass's copy), otherwise it is written on the stencil
- * only. ddepth_x / ddepth_y: each pass's |d depth / d axis| (NULL: no stretch). Column
- * strips of STEP_STRIP_BYTES per plane row keep a strip's four-plane y window of a 1080-row
- * image at 1.1 MB: within a core's L2 while the x pass fills it and the y pass reads it.
- * Returns the active pixels, -1 (no memory) or -2 (a weight not finite in SCALAR). */
-#define STEP_STRIP ((int64_t)(512 / sizeof(SCALAR)))
-int64_t CAT(sss_step_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const int64_t *spans,
-                               const SCALAR *mask, const SCALAR *width, const SCALAR *ddepth_x,
-                               const SCALAR *ddepth_y, const double *offsets,
-                               const double *weights, const double *inv_scale, SCALAR *dst,
-                               double focal_px, double width_scalar, double correction,
-                               double maxdd, int64_t n_spans, int64_t k, int64_t h, int64_t w,
-                               int follow, int copy, int threads, SCALAR *blend_out,
-                               const SCALAR *blend_w) {
-    enum { MAX_THREADS = 64, MIN_THREAD_WORK = 16384 };
-    for (int64_t i = 0; i < 3 * k; ++i)
-        if (!(FABSF((SCALAR)weights[i]) <= SCALAR_MAX)) return -2;
-    int64_t n = 0;
-    for (int64_t s = 0; s < n_spans; ++s) n += spans[3 * s + 2] - spans[3 * s + 1];
-    if (n == 0 && !copy) return 0;
-    if (threads < 1) threads = 1;
-    if (threads > MAX_THREADS) threads = MAX_THREADS;
-    const int64_t work = 2 * n + (copy ? h * w / 16 : 0); /* two passes' taps */
-    if (work < MIN_THREAD_WORK * (int64_t)threads)
-        threads = work < 2 * MIN_THREAD_WORK ? 1 : (int)(work / MIN_THREAD_WORK);
-    const int64_t strip = STEP_STRIP;
-    const int64_t n_lines = (w + strip - 1) / strip;
-    int64_t entries = n_spans;
-    for (int64_t s = 0; s < n_spans; ++s)
-        entries += (spans[3 * s + 2] - 1) / strip - spans[3 * s + 1] / strip;
-    /* per thread: the y window (4 planes) + scales of a strip, the x window + scales of a
-     * row, each with the vectorised loops' margin */
-    const size_t per_y = (size_t)(h * strip) * 5 + 64, per_x = (size_t)w * 5 + 64;
-    const size_t list_bytes =
-        ((size_t)(3 * n_lines + entries + 3 * h) * sizeof(int64_t) + 63) / 64 * 64;
-    int owned;
-    const size_t taps = ((size_t)k * 5 + 4 + 3) / 4 * 4;
-    char *block = (char *)workspace_acquire(
-        list_bytes + sizeof(SCALAR) * (taps + (per_y + per_x) * (size_t)threads), &owned);
-    if (!block) return -1;
-    SCALAR *memory = (SCALAR *)(block + list_bytes);
-    CAT(taps_in_, SUFFIX)(offsets, weights, inv_scale, k, memory);
-    int64_t *lists = (int64_t *)block;
-    memset(lists, 0, list_bytes);
-    int64_t *lines = lists, *ids = lists + 3 * n_lines, *rows = ids + entries;
-    for (int pass = 0; pass < 2; ++pass) { /* the strips' lists, as sss_gather_'s y pass */
-        for (int64_t s = 0; s < n_spans; ++s) {
-            const int64_t c0 = spans[3 * s + 1], c1 = spans[3 * s + 2];
-            for (int64_t q = c0 / strip; q <= (c1 - 1) / strip; ++q) {
-                if (pass) {
-                    ids[lines[3 * q] + lines[3 * q + 1]++] = s;
-                    continue;
-                }
-                const int64_t a = c0 < q * strip ? q * strip : c0;
-                const int64_t b = c1 > (q + 1) * strip ? (q + 1) * strip : c1;
-                ++lines[3 * q + 1];
-                lines[3 * q + 2] += 2 * (b - a);
-            }
-        }
-        if (!pass) {
-            if (copy)
-                for (int64_t q = 0; q < n_lines; ++q) lines[3 * q + 2] += (work - 2 * n) / n_lines;
-            for (int64_t q = 1; q < n_lines; ++q) lines[3 * q] = lines[3 * q - 3] + lines[3 * q - 2];
-            for (int64_t q = 0; q < n_lines; ++q) lines[3 * q + 1] = 0;
-        }
-    }
-    /* the rows' lists (x pass): spans are sorted by row, a row's spans consecutive; its ids
-     * are the span indices themselves (rows[3 r]: first span, rows[3 r + 1]: count) */
-    int64_t *xids = (int64_t *)malloc(sizeof(int64_t) * (size_t)(n_spans > 0 ? n_spans : 1));
-    if (!xids) {
-        workspace_release(block, owned);
-        return -1;
-    }
-    for (int64_t s = 0; s < n_spans; ++s) {
-        const int64_t r = spans[3 * s];
-        if (rows[3 * r + 1]++ == 0) rows[3 * r] = s;
-        xids[s] = s;
-    }
-    const SCALAR *weights4 = memory, *inv_s = memory + 4 * k, *offsets_s = memory + 4 * k + 4;
-    SCALAR max_offset = 0;
-    for (int64_t t = 0; t < k; ++t) {
-        const SCALAR a = FABSF(offsets_s[t]);
-        if (!(a <= max_offset)) max_offset = a == a ? a : (SCALAR)INFINITY;
-    }
-    CAT(step_job_, SUFFIX) jobs[MAX_THREADS];
-    int64_t q = 0, done = 0, total = 0;
-    for (int64_t l = 0; l < n_lines; ++l) total += lines[3 * l + 2];
-    for (int t = 0; t < threads; ++t) {
-        const int64_t first = q;
-        while (q < n_lines && (t == threads - 1 || done < total * (t + 1) / threads))
-            done += lines[3 * q++ + 2];
-        SCALAR *ym = memory + taps + (per_y + per_x) * (size_t)t, *xm = ym + per_y;
-        CAT(job_, SUFFIX) jy = {src, depth, spans, mask, width, ddepth_y, offsets_s, weights4,
-                                inv_s, dst, lines, ids, focal_px, width_scalar, correction,
-                                maxdd, max_offset, k, h, w, first, q, strip, 1, follow, copy,
-                                ym, ym + 4 * (size_t)(h * strip), blend_out, blend_w};
-        CAT(job_, SUFFIX) jx = {src, depth, spans, mask, width, ddepth_x, offsets_s, weights4,
-                                inv_s, NULL, rows, xids, focal_px, width_scalar, correction,
-                                maxdd, max_offset, k, h, w, 0, h, strip, 0, follow, 0,
-                                xm, xm + 4 * (size_t)w, NULL, NULL};
-        jobs[t].x = jx;
-        jobs[t].y = jy;
-    }
-    void *(*run)(void *) = CAT(step_run_, SUFFIX);
-#if SSS_SIMD
-    const int level = sss_get_simd();
-    if (h * strip < INT32_MAX && w < INT32_MAX && h < INT32_MAX)
-        run = level >= 2 ? CAT(CAT(step_run_, SUFFIX), _avx512)
-              : level == 1 ? CAT(CAT(step_run_, SUFFIX), _avx2) : run;
-#endif
-    pool_run(run, (char *)jobs, sizeof jobs[0], threads);
-    free(xids);
-    workspace_release(block, owned);
-    return n;
-}
-#undef STEP_STRIP
 
 /* out <- lerp(out, end, weight) per channel at the active pixels of spans [first, last): the
  * sum-of-Gaussians blend (003 §7.3.3), torch.lerp's formula with a separate multiply and add

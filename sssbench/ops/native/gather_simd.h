@@ -132,13 +132,10 @@ SIMD_FN SIMDN(vs_) SIMDN(exp_)(SIMDN(vs_) x) {
 
 /* The taps of the active pixels [a, b) of row `row` (within the line's strip), VW at a time;
  * `scale` holds their scales. The last vector of a run shorter than VW repeats its last pixel
- * in the spare lanes (computed, not written). Results go to out[at + c] (column c) and the
- * planes out_plane apart: j->dst, row * w, h * w for a pass; a fused step's x part writes
- * into its y window instead (step_lines_ below). */
+ * in the spare lanes (computed, not written). */
 SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX) *ln,
                              int64_t row, int64_t a, int64_t b, const SCALAR *scale,
-                             int64_t n_axis, const int AXIS_Y, const int FOLLOW, SCALAR *out,
-                             int64_t at, int64_t out_plane) {
+                             int64_t n_axis, const int AXIS_Y, const int FOLLOW) {
     typedef SIMDN(vs_) vec;
     typedef SIMDN(vm_) mask;
     typedef SIMDN(vi_) ivec;
@@ -301,16 +298,16 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
             acc1 = acc1 + w1 * v1;
             acc2 = acc2 + w2 * v2;
         }
-        SCALAR *o = out + at + c;
+        SCALAR *o = j->dst + row * w + c;
         if (n == VW) {
             __builtin_memcpy(o, &acc0, sizeof acc0);
-            __builtin_memcpy(o + out_plane, &acc1, sizeof acc1);
-            __builtin_memcpy(o + 2 * out_plane, &acc2, sizeof acc2);
+            __builtin_memcpy(o + hw, &acc1, sizeof acc1);
+            __builtin_memcpy(o + 2 * hw, &acc2, sizeof acc2);
         } else {
             for (int64_t l = 0; l < n; ++l) {
                 o[l] = acc0[l];
-                o[out_plane + l] = acc1[l];
-                o[2 * out_plane + l] = acc2[l];
+                o[hw + l] = acc1[l];
+                o[2 * hw + l] = acc2[l];
             }
         }
         if (j->blend_out) { /* lerp(blend_out, result, blend_w): BLEND_LERP, lane-wise */
@@ -408,55 +405,10 @@ SIMD_FN void SIMDN(lines_)(const CAT(job_, SUFFIX) *j, const int AXIS_Y, const i
         for (int64_t e = 0; e < ln.count; ++e) {
             const int64_t *sp = j->spans + 3 * ln.ids[e];
             const int64_t a = sp[1] > ln.s0 ? sp[1] : ln.s0, b = sp[2] < ln.s1 ? sp[2] : ln.s1;
-            SIMDN(segment_)(j, &ln, sp[0], a, b, j->scale + idx, n_axis, AXIS_Y, FOLLOW, j->dst,
-                            sp[0] * j->w, j->h * j->w);
+            SIMDN(segment_)(j, &ln, sp[0], a, b, j->scale + idx, n_axis, AXIS_Y, FOLLOW);
             idx += b - a;
         }
     }
-}
-
-/* The fused step (step_lines_ in gather_body.h), the taps VW pixels at a time: the x pass's
- * segments write into the strip's y window (planar) instead of the image. */
-SIMD_FN void SIMDN(step_lines_)(const CAT(step_job_, SUFFIX) *sj, const int FOLLOW) {
-    const CAT(job_, SUFFIX) *jx = &sj->x, *j = &sj->y;
-    for (int64_t q = j->first; q < j->last; ++q) {
-        CAT(line_, SUFFIX) ln;
-        if (!CAT(line_begin_, SUFFIX)(j, q, 1, &ln)) continue;
-        CAT(line_window_, SUFFIX)(j, q, 1, 1, SIMDN(scales_)(j, &ln), &ln);
-        for (int64_t r = ln.lo; r <= ln.hi; ++r) { /* the x pass, into the window */
-            CAT(line_, SUFFIX) lx;
-            if (!CAT(strip_row_, SUFFIX)(jx, r, ln.s0, ln.s1, &lx)) continue;
-            CAT(line_window_, SUFFIX)(jx, r, 0, 1, SIMDN(scales_)(jx, &lx), &lx);
-            int64_t idx = 0;
-            for (int64_t e = 0; e < lx.count; ++e) {
-                const int64_t *sp = jx->spans + 3 * lx.ids[e];
-                const int64_t a = sp[1] > ln.s0 ? sp[1] : ln.s0;
-                const int64_t b = sp[2] < ln.s1 ? sp[2] : ln.s1;
-                if (a >= b) continue;
-                SIMDN(segment_)(jx, &lx, r, a, b, jx->scale + idx, j->w, 0, FOLLOW, j->buf,
-                                (r - ln.lo) * ln.pitch - ln.s0, ln.plane);
-                idx += b - a;
-            }
-        }
-        int64_t idx = 0;
-        for (int64_t e = 0; e < ln.count; ++e) {
-            const int64_t *sp = j->spans + 3 * ln.ids[e];
-            const int64_t a = sp[1] > ln.s0 ? sp[1] : ln.s0, b = sp[2] < ln.s1 ? sp[2] : ln.s1;
-            SIMDN(segment_)(j, &ln, sp[0], a, b, j->scale + idx, j->h, 1, FOLLOW, j->dst,
-                            sp[0] * j->w, j->h * j->w);
-            idx += b - a;
-        }
-    }
-}
-
-__attribute__((target(ISA_TARGET))) static void *SIMDN(step_run_)(void *arg) {
-    const CAT(step_job_, SUFFIX) *sj = (const CAT(step_job_, SUFFIX) *)arg;
-    FTZ_BEGIN(sj->y.follow == 2); /* the gaussian's underflow: see FTZ_BEGIN in gather.c */
-    if (sj->y.follow == 0) SIMDN(step_lines_)(sj, 0);
-    else if (sj->y.follow == 1) SIMDN(step_lines_)(sj, 1);
-    else SIMDN(step_lines_)(sj, 2);
-    FTZ_END();
-    return NULL;
 }
 
 __attribute__((target(ISA_TARGET))) static void *SIMDN(run_)(void *arg) {
