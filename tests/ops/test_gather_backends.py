@@ -8,6 +8,7 @@ fixture: the scalar loop, and the vectorised AVX2 and AVX-512 loops of
 ``native/gather_simd.h`` where supported).
 """
 
+import math
 import subprocess
 import sys
 
@@ -650,3 +651,50 @@ def test_gaussian_follow_surface_exp_is_within_one_ulp(level):
         assert x.max() == 0
         lowest = min(lowest, float(x[normal].min()))
     assert lowest < -87  # the arguments of every normal factor are covered
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_gaussian_pass_underflow_is_flushed_and_the_callers_fp_state_restored(simd, dtype):
+    """Issue 30: a gaussian pass runs with flush-to-zero (the far taps' exp(-d²/2) across a
+    depth step underflows; subnormal arithmetic is slow). Every tap but the centre lands
+    across a depth step of d surface scales, d swept over the range where exp(-d²/2) passes
+    from normal through subnormal to 0 in the dtype, onto pixels of colour 0 (even columns)
+    or from them (odd columns): the torch loop's results there are subnormal; the native
+    ones are 0 there and no result is subnormal (BACKEND_AGREEMENT's tolerance holds),
+    the centre tap's weight (offset 0: exp(-0) = 1, not computed) is applied bit for bit,
+    and afterwards the calling thread still computes subnormals (its FP state restored)."""
+    tiny = torch.finfo(dtype).tiny
+    h, w = 15, 40
+    lo, hi = (12.5, 15.0) if dtype == torch.float32 else (37.0, 39.0)
+    step = torch.linspace(lo, hi, h, dtype=dtype).view(1, 1, h, 1)  # in surface scales
+    odd = torch.arange(w) % 2 == 1
+    depth = 100.0 + step * 2.0 * odd.to(dtype)  # surface scale 2.0 mm
+    img = torch.rand(1, 3, h, w, generator=torch.Generator().manual_seed(1), dtype=dtype)
+    img = img * odd.to(dtype)  # colour 0 on the even columns
+    g = GBuffer(img, depth.contiguous(), 0.7)
+    # taps at ±1 and ±3 pixels (at 100 mm depth): onto the other parity only, and the centre
+    f_px = h / (2.0 * math.tan(0.35))
+    off = torch.tensor([-3.0, -1.0, 0.0, 1.0, 3.0], dtype=torch.float64) * 100.0 / f_px
+    wts = torch.tensor([1e-3, 0.2, 0.5, 0.2, 1e-3], dtype=torch.float64)[:, None].repeat(1, 3)
+    k = Kernel1D(off, wts)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # the pass on the calling thread: its FP state is the caller's
+    try:
+        # width = depth / 100: every pixel's step is that of 100 mm depth (taps ~on pixels)
+        ref, got = both(g.diffuse, k, "x", g, follow_surface="gaussian", surface_scale=2.0,
+                        use_mask=False, width=g.depth / 100.0)  # fmt: skip
+        probe = torch.tensor([tiny], dtype=dtype) * 0.25
+    finally:
+        torch.set_num_threads(threads)
+    assert 0 < float(probe) < tiny  # the caller's subnormals survive the pass
+    even = ~odd
+    sub = ref[..., even]
+    assert bool(((sub != 0) & (sub.abs() < tiny)).any())  # the torch loop had subnormals
+    assert not bool(((got != 0) & (got.abs() < tiny)).any())  # no subnormal is produced
+    assert bool((got[ref.abs() < tiny] == 0).all())  # where torch's result is subnormal: 0
+    err = float((got - ref).abs().max()) / float(img.abs().max())
+    assert err <= (1e-6 if dtype == torch.float32 else 1e-14), err
+    # odd columns away from the right border (where taps clamp onto odd pixels): the
+    # centre's 0.5 · colour plus terms far below its last bit
+    inner = odd & (torch.arange(w) < w - 4)
+    assert torch.equal(got[..., inner], (0.5 * img)[..., inner])

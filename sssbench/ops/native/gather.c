@@ -25,6 +25,23 @@
 #define VMIN_F64(a, b) VSELECT((a) < (b), a, b)
 #define VMAX_F64(a, b) VSELECT((a) > (b), a, b)
 
+/* Flush-to-zero for the gaussian follow-surface passes only (000 eq. 7's exp(-d^2 / 2) of a
+ * sample far across a depth step underflows; a subnormal factor, or a weight times it, costs a
+ * microcode assist of ~100 cycles per lane on x86 and made the artist pass 1.3x slower, issue
+ * 30): the pass's threads set the x86 MXCSR FTZ bit for the pass and restore it after, so every
+ * result that would be subnormal is 0 instead (an absolute error below the smallest normal
+ * number, 1.2e-38 / 2.2e-308, inside BACKEND_AGREEMENT's tolerance). Inputs are not flushed
+ * (no DAZ); the lerp and plain passes never run with it (their bitwise claim). */
+#if defined(__SSE__)
+#define FTZ_BEGIN(on)                         \
+    const unsigned int csr_ = _mm_getcsr();   \
+    if (on) _mm_setcsr(csr_ | 0x8000u)
+#define FTZ_END() _mm_setcsr(csr_)
+#else
+#define FTZ_BEGIN(on) (void)(on)
+#define FTZ_END() ((void)0)
+#endif
+
 #include "pool.h"
 
 /* The vectorised tap loop (gather_simd.h): x86-64 with GCC or clang builds it for AVX2 and

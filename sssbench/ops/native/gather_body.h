@@ -106,7 +106,7 @@ static inline __attribute__((always_inline)) CAT(vec_, SUFFIX) CAT(taps_, SUFFIX
             if (FOLLOW == 1) { /* 002 appendix shader: lerp back by clamp(d, 0, 1) */
                 const vec s = VMAX(VMIN(d, one), zero);
                 v = v + s * (c - v);
-            } else { /* 000 eq. 7 */
+            } else if (j->offsets[t] != 0) { /* 000 eq. 7 (the centre tap: exp(-0) = 1) */
                 const vec e = {EXPF((SCALAR)-0.5 * d[0] * d[0]),
                                EXPF((SCALAR)-0.5 * d[1] * d[1]),
                                EXPF((SCALAR)-0.5 * d[2] * d[2]), 0};
@@ -332,12 +332,14 @@ static inline __attribute__((always_inline)) void CAT(lines_, SUFFIX)(
 /* One thread's lines, specialised per axis and follow-surface mode (constants there). */
 static void *CAT(run_, SUFFIX)(void *arg) {
     const CAT(job_, SUFFIX) *j = (const CAT(job_, SUFFIX) *)arg;
+    FTZ_BEGIN(j->follow == 2); /* the gaussian's underflow: see FTZ_BEGIN in gather.c */
     if (!j->axis_y && j->follow == 0) CAT(lines_, SUFFIX)(j, 0, 0);
     else if (!j->axis_y && j->follow == 1) CAT(lines_, SUFFIX)(j, 0, 1);
     else if (!j->axis_y) CAT(lines_, SUFFIX)(j, 0, 2);
     else if (j->follow == 0) CAT(lines_, SUFFIX)(j, 1, 0);
     else if (j->follow == 1) CAT(lines_, SUFFIX)(j, 1, 1);
     else CAT(lines_, SUFFIX)(j, 1, 2);
+    FTZ_END();
     return NULL;
 }
 

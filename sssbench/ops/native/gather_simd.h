@@ -286,7 +286,9 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
                     v0 = v0 + t0 * (c0 - v0);
                     v1 = v1 + t1 * (c1 - v1);
                     v2 = v2 + t2 * (c2 - v2);
-                } else {
+                } else if (j->offsets[t] != 0) {
+                    /* 000 eq. 7; a centre tap (offset 0) fetches its own pixel, dz = 0 and
+                     * exp(-0) = 1 exactly (here, in expf / exp and in torch): not computed */
                     w0 = w0 * SIMDN(exp_)((SCALAR)-0.5 * d0 * d0);
                     w1 = w1 * SIMDN(exp_)((SCALAR)-0.5 * d1 * d1);
                     w2 = w2 * SIMDN(exp_)((SCALAR)-0.5 * d2 * d2);
@@ -411,12 +413,14 @@ SIMD_FN void SIMDN(lines_)(const CAT(job_, SUFFIX) *j, const int AXIS_Y, const i
 
 __attribute__((target(ISA_TARGET))) static void *SIMDN(run_)(void *arg) {
     const CAT(job_, SUFFIX) *j = (const CAT(job_, SUFFIX) *)arg;
+    FTZ_BEGIN(j->follow == 2); /* the gaussian's underflow: see FTZ_BEGIN in gather.c */
     if (!j->axis_y && j->follow == 0) SIMDN(lines_)(j, 0, 0);
     else if (!j->axis_y && j->follow == 1) SIMDN(lines_)(j, 0, 1);
     else if (!j->axis_y) SIMDN(lines_)(j, 0, 2);
     else if (j->follow == 0) SIMDN(lines_)(j, 1, 0);
     else if (j->follow == 1) SIMDN(lines_)(j, 1, 1);
     else SIMDN(lines_)(j, 1, 2);
+    FTZ_END();
     return NULL;
 }
 
