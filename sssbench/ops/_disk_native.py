@@ -6,10 +6,14 @@ specification: the C loop runs, per centre pixel, the same samples in the same o
 same float operations — the sample's geometry in float64 whatever the image's dtype (the
 kilometre-depth guarantee of ``docs/reliability.md``), colours and sums in the image's dtype —
 and takes the per-pixel noise (rotation, radial shift) from the torch code, so the random
-rotation is identical by construction. What differs is libm's elementary functions against
+rotation is identical by construction (the hash rotation and radial shift are hashed in C from
+``disk.hash_key``'s keys: the same integers). What differs is libm's elementary functions against
 torch's (each within 1 ulp) and, for a sum of Gaussians, the order of the sum over the
-Gaussians (torch: a BLAS product): :data:`DISK_NATIVE_AGREEMENT`, measured by
-``tests/ops/test_disk_native.py``.
+Gaussians (torch: a BLAS product); at the AVX2 / AVX-512 levels the default point fetch runs a
+loop vectorised across pixels (``native/disk_simd.h``) whose exp is within
+:data:`DISK_EXP_ULP` of libm's, whose angles come from the addition theorem and whose few
+divisions are products by reciprocals: :data:`DISK_NATIVE_AGREEMENT`, measured by
+``tests/ops/test_disk_native.py`` at every level.
 
 When the C loop runs (:func:`usable`), else the torch loop, never a different answer:
 
@@ -44,13 +48,22 @@ from sssbench.profiles import burley as _burley
 from sssbench.profiles.burley import BurleyNormalized
 from sssbench.profiles.sum_of_gaussians import SumOfGaussians
 
-__all__ = ["DISK_NATIVE_AGREEMENT", "usable", "usable_profile", "gather", "gather_hdrp"]
+__all__ = [
+    "DISK_NATIVE_AGREEMENT",
+    "DISK_EXP_ULP",
+    "usable",
+    "usable_profile",
+    "gather",
+    "gather_hdrp",
+    "vexp",
+]
 
 #: how the C loop's results relate to the torch loop's, as a bound on the largest difference
 #: over the output's largest value (tests/ops/test_disk_native.py, every option combination of
-#: the disk tests): measured float64 at most 5e-14, float32 bitwise equal in every combination;
-#: the float32 bound allows a weight rounded to the other float32 neighbour after a 1-ulp
-#: difference of exp. Every SIMD level bitwise the same
+#: the disk tests, every SIMD level of an AVX-512 machine): measured float64 at most 5e-14 (the
+#: vectorised loop's few-ulp weights included), float32 bitwise equal in every combination;
+#: the float32 bound allows a weight rounded to the other float32 neighbour after a few-ulp
+#: difference of a float64 weight. AVX2 and AVX-512 bitwise the same
 DISK_NATIVE_AGREEMENT = {torch.float64: 1e-11, torch.float32: 2e-6}
 
 #: buckets of the tabulated sampler's guide table (a power of two: ``u · G`` is exact)
@@ -79,6 +92,8 @@ class DiskArgs(ctypes.Structure):
     ] + [
         (name, ctypes.c_int32)
         for name in ("sampler_kind", "profile_kind", "bilinear", "threads")
+    ] + [
+        (name, ctypes.c_int64) for name in ("turn_key", "shift_key")
     ]  # fmt: skip
 
 
@@ -184,16 +199,29 @@ def gather(
     u0: torch.Tensor,
     theta0: torch.Tensor,
     bilinear: bool,
+    *,
+    turn_key: int | None = None,
+    shift_key: int | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """:meth:`DiskSSS._gather <sssbench.ops.disk.DiskSSS._gather>` in C: ``Σ w E``, ``Σ w``
     ``(M, 3)`` and the moments ``(M, 3, 3)`` in the image dtype. ``pix`` ``(M,)`` the centre
     pixels (flat), ``turn`` ``(M,)`` 2π × their rotation (radians), ``shift`` ``(M,)`` their
     radial shift or ``None`` (no jitter), ``step`` ``(M,)`` pixels per mm at the centre,
-    ``u0``/``theta0`` ``(n,)`` the pattern (float64)."""
+    ``u0``/``theta0`` ``(n,)`` the pattern (float64). ``turn_key`` (with ``turn=None``) and
+    ``shift_key`` (with ``shift=None``): the C loop draws the rotation (``2π ×``) and the radial
+    shift of pixel ``p`` as ``disk.hash_uniform`` does, ``lowbias32((p mod H·W) ^ key) / 2³²``
+    (``disk.hash_key``): the same integers, so the same float64 values."""
+    if (turn is None) == (turn_key is None):
+        raise ValueError("gather needs exactly one of turn and turn_key")
+    if shift is not None and shift_key is not None:
+        raise ValueError("gather takes at most one of shift and shift_key")
     call = _Call(ctx, kernel, accept, pix)
     a = call.args
-    a.turn, a.step = call.ptr(turn), call.ptr(step)
+    a.turn = None if turn is None else call.ptr(turn)
+    a.step = call.ptr(step)
     a.shift = None if shift is None else call.ptr(shift)
+    a.turn_key = -1 if turn_key is None else turn_key
+    a.shift_key = -1 if shift_key is None else shift_key
     a.u0, a.theta0, a.n = call.ptr(u0), call.ptr(theta0), u0.numel()
     a.area = None if ctx.area is None else call.ptr(ctx.area, ctx.dtype)
     a.bilinear = int(bilinear)
@@ -221,9 +249,35 @@ def gather_hdrp(
     call = _Call(ctx, kernel, accept, pix)
     a = call.args
     a.turn, a.step = call.ptr(turn), call.ptr(ppm)
+    a.turn_key = a.shift_key = -1
     a.u0, a.rcp, a.theta0, a.n = call.ptr(r), call.ptr(rcp_pdf), call.ptr(phi), r.numel()
     lib = native.library()
     (lib.sss_disk_hdrp_f32 if ctx.dtype == torch.float32 else lib.sss_disk_hdrp_f64)(
         ctypes.byref(a)
     )
     return call.num, call.den
+
+
+#: the vectorised loop's exp (``native/disk_simd.h`` ``vexp_``) against the C library's, in
+#: units in the last place where the result is normal (below ``exp(-708.4)``, subnormal, it
+#: gives +0): the bound ``tests/ops/test_disk_native.py`` checks at every vector level
+DISK_EXP_ULP = 1
+
+
+def vexp(x: torch.Tensor, level: str) -> tuple[torch.Tensor, str]:
+    """``exp`` of float64 ``x`` (any shape) by the disk's vectorised exp at ``level``
+    (``"avx2"`` or ``"avx512"``, capped at the CPU's; ``"scalar"``: the C library's ``exp``)
+    and the level used: for its test against the C library (:data:`DISK_EXP_ULP`). Raises
+    ``RuntimeError`` without the C library and ``ValueError`` for an unknown level."""
+    lib = native.library()
+    if lib is None:
+        raise RuntimeError("vexp needs the native library (no C compiler?)")
+    if level not in native.SIMD_LEVELS:
+        raise ValueError(f"level must be one of {native.SIMD_LEVELS}, got {level!r}")
+    fn = lib.sss_disk_vexp
+    fn.restype = ctypes.c_int
+    fn.argtypes = [_P, _P, ctypes.c_int64, ctypes.c_int]
+    src = x.detach().to(torch.float64).contiguous()
+    out = torch.empty_like(src)
+    used = fn(src.data_ptr(), out.data_ptr(), src.numel(), native.SIMD_LEVELS.index(level))
+    return out, native.SIMD_LEVELS[used]

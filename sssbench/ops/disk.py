@@ -159,8 +159,10 @@ implementation of them (``tests/ops/test_disk_hdrp.py``):
 - result ``Σ w_c E_c / max(Σ w_c, FLT_MIN)`` over the accepted samples (0 if none is).
 
 **Loop**: the samples are gathered in C (:mod:`._disk_native`, ``native/disk.c``: the same
-operations in the same order, geometry in float64, noise from this module; float32 bitwise,
-float64 to 5e-14 of the torch loop, ``docs/numerics.md``); the torch loops below
+operations in the same order, geometry in float64, noise from this module or hashed in C from
+its keys, :func:`hash_key`; vectorised across pixels at AVX2/AVX-512, ``native/disk_simd.h``;
+float32 equal, float64 to 5e-14 of the torch loop in every tested combination,
+``docs/numerics.md``); the torch loops below
 (:meth:`DiskSSS._gather`, :meth:`DiskSSS._gather_hdrp`) are its specification and run instead
 under ``gather.backend("torch")``, without the C library, for a profile other than
 :class:`~sssbench.profiles.BurleyNormalized` / :class:`~sssbench.profiles.SumOfGaussians`, or
@@ -286,8 +288,13 @@ def hash_uniform(pixel: torch.Tensor, seed: int, frame: int, stream: int) -> tor
     image*, so an image's noise does not depend on where it sits in a batch), reproducible
     from ``(seed, frame, stream)``: a chain of :func:`_hash32` keyed in exact integer
     arithmetic (:func:`_seed_key`; distinct streams are independent draws)."""
-    key = _hash32_int(_seed_key(seed) ^ ((frame * 0x85EBCA77 + stream * 0xC2B2AE3D) & _MASK32))
-    return _hash32(pixel ^ key).double() / 2.0**32
+    return _hash32(pixel ^ hash_key(seed, frame, stream)).double() / 2.0**32
+
+
+def hash_key(seed: int, frame: int, stream: int) -> int:
+    """The 32-bit key :func:`hash_uniform` XORs into the pixel index before hashing (the
+    disk's C loop takes it to hash the pixels itself: ``native/disk.c``)."""
+    return _hash32_int(_seed_key(seed) ^ ((frame * 0x85EBCA77 + stream * 0xC2B2AE3D) & _MASK32))
 
 
 def _ign_frame(seed: int, frame: int, stream: int) -> int:
@@ -545,20 +552,24 @@ class DiskSSS(nn.Module):
         # pixels per mm at the centre, float64 whatever the dtype: which pixel a sample lands
         # in must not depend on the dtype (a sample on a pixel boundary would jump)
         step = 1.0 / pixel_size_mm(z_c.double(), ctx.fov_y, ctx.h)
+        u0, theta0 = pattern_points(self.pattern, n)
+        if _disk_native.usable(ctx, kernel):  # the same loop in C (module _disk_native)
+            # the hashes by their keys: the C loop hashes the pixels itself (same integers)
+            hashed = self.rotation == "hash"
+            turn = None if hashed else 2 * math.pi * self._phase(ctx, sel, frame, stream)
+            jitter = self.jitter_radius
+            return _disk_native.gather(
+                ctx, kernel, accept, pix, turn, None, step, u0, theta0,
+                self.fetch == "bilinear",
+                turn_key=hash_key(self.seed, frame, 2 * stream) if hashed else None,
+                shift_key=hash_key(self.seed, frame, 2 * stream + 1) if jitter else None,
+            )  # fmt: skip
         phase = self._phase(ctx, sel, frame, stream)
         shift = (
             hash_uniform(pix % ctx.hw, self.seed, frame, 2 * stream + 1)
             if self.jitter_radius
             else 0.0
         )
-        u0, theta0 = pattern_points(self.pattern, n)
-        if _disk_native.usable(ctx, kernel):  # the same loop in C (module _disk_native)
-            jitter = shift if self.jitter_radius else None
-            turn = 2 * math.pi * phase
-            bilinear = self.fetch == "bilinear"
-            return _disk_native.gather(
-                ctx, kernel, accept, pix, turn, jitter, step, u0, theta0, bilinear
-            )
         dt = ctx.dtype
         m = pix.numel()
         num = torch.zeros(m, 3, dtype=dt)

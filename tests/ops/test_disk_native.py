@@ -1,15 +1,18 @@
-"""The disk's C sample loop (``native/disk.c``) against its specification, the torch loop
-(``with gather.backend("torch")``), on every option the disk tests cover, both dtypes, both
-estimators, every SIMD level; its fallbacks (other profiles, autograd, no library)."""
+"""The disk's C sample loop (``native/disk.c``, vectorised in ``native/disk_simd.h``) against
+its specification, the torch loop (``with gather.backend("torch")``), on every option the disk
+tests cover, both dtypes, both estimators, every SIMD level of this CPU; the vectorised exp
+against the C library's; its fallbacks (other profiles, autograd, no library)."""
 
 from __future__ import annotations
+
+import math
 
 import pytest
 import torch
 
 from sssbench.gbuffer import GBuffer
 from sssbench.ops import DiskSSS, _disk_native, native
-from sssbench.ops._disk_native import DISK_NATIVE_AGREEMENT
+from sssbench.ops._disk_native import DISK_EXP_ULP, DISK_NATIVE_AGREEMENT
 from sssbench.ops.gather import backend
 from sssbench.profiles import BurleyNormalized, SumOfGaussians
 from sssbench.profiles.dipole import Dipole
@@ -69,13 +72,18 @@ def both(op, g):
     return a, ca, b, cb
 
 
+@pytest.mark.parametrize("level", native.simd_levels())
 @pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
 @pytest.mark.parametrize("name, profile, options", CASES)
-def test_native_disk_equals_the_torch_loop(name, profile, options, dtype):
+def test_native_disk_equals_the_torch_loop(name, profile, options, dtype, level):
+    """At every level: the scalar loop, and at AVX2 / AVX-512 the vectorised loop (point
+    fetch, estimator "sssbench"; the other options run the scalar loop compiled there)."""
     g = scene(dtype, ids=name == "two")
     kernel = DiskSSS(profile, 16, **options)
     assert _disk_native.usable_profile(kernel.kernels[0])
-    a, ca, b, cb = both(kernel, g)
+    with native.simd(level) as used:
+        assert used == level
+        a, ca, b, cb = both(kernel, g)
     assert a.dtype == b.dtype == dtype
     scale = float(b.abs().max())
     assert float((a - b).abs().max()) <= DISK_NATIVE_AGREEMENT[dtype] * scale
@@ -83,26 +91,92 @@ def test_native_disk_equals_the_torch_loop(name, profile, options, dtype):
         assert torch.equal(ca, cb)
 
 
-LEVEL_OPTIONS = [{}, {"fetch": "bilinear", "adaptive": (4, 16)}, {"estimator": "hdrp"}]
+LEVEL_OPTIONS = [
+    {},
+    {"jitter_radius": False, "surface_area": True},
+    {"fetch": "bilinear", "adaptive": (4, 16)},
+    {"estimator": "hdrp"},
+]
 
 
 @pytest.mark.parametrize("options", LEVEL_OPTIONS)
 @pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
-def test_every_simd_level_gives_bitwise_the_same_result(options, dtype):
-    g = scene(dtype, seed=3)
+def test_vector_levels_agree_bitwise_and_every_level_with_the_torch_loop(options, dtype):
+    """AVX2 and AVX-512 run the same lane-wise IEEE operations (4 or 8 pixels per vector, a
+    last partial vector padded): bitwise equal; the scalar level differs from them (the
+    vectorised loop's exp, addition theorem and reciprocals) within the torch bound. On a
+    64 x 50 image (3200 pixels: many full vectors and a partial one per thread)."""
+    g = scene(dtype, seed=3, h=64, w=50)
     op = DiskSSS(SKIN, 16, **options)
     levels = native.simd_levels()
-    outs = []
+    outs = {}
     for level in levels:
         with native.simd(level) as used:
             assert used == level
-            outs.append(op(g))
+            outs[level] = op(g)
     with backend("torch"):
         ref = op(g)
-    for level, out in zip(levels, outs, strict=True):
-        assert torch.equal(out, outs[0]), level
-        tol = DISK_NATIVE_AGREEMENT[dtype] * float(ref.abs().max())
-        assert float((out - ref).abs().max()) <= tol
+    vector = [lv for lv in levels if lv != "scalar"]
+    for level in vector[1:]:
+        assert torch.equal(outs[level], outs[vector[0]]), level
+    tol = DISK_NATIVE_AGREEMENT[dtype] * float(ref.abs().max())
+    for level, out in outs.items():
+        assert float((out - ref).abs().max()) <= tol, level
+
+
+@pytest.mark.parametrize("level", [lv for lv in native.simd_levels() if lv != "scalar"])
+def test_vectorised_disk_exp_against_libm(level):
+    """The vectorised loop's exp (disk_simd.h vexp_) is within DISK_EXP_ULP of the C
+    library's exp (Python's math.exp) at 10^6 uniform arguments in [-745, 0], 10^5 in
+    [-1e-3, 0] and the ends (0, -0, the normal / subnormal boundary, below the smallest
+    subnormal, -inf); +0 or within 2.3e-308 where exp is subnormal; NaN stays NaN."""
+    gen = torch.Generator().manual_seed(0)
+    ends = [0.0, -0.0, -1e-300, -708.39, -708.4, -709.78, -745.13, -745.2, -746.0, -1e308]
+    x = torch.cat([
+        -745 * torch.rand(1_000_000, dtype=torch.float64, generator=gen),
+        -1e-3 * torch.rand(100_000, dtype=torch.float64, generator=gen),
+        torch.tensor([*ends, -math.inf], dtype=torch.float64),
+    ])  # fmt: skip
+    want = torch.tensor([math.exp(v) for v in x.tolist()], dtype=torch.float64)
+    got, used = _disk_native.vexp(x, level)
+    assert used == level
+    normal = want >= torch.finfo(torch.float64).tiny
+    ulp = (got[normal].view(torch.int64) - want[normal].view(torch.int64)).abs()
+    assert int(ulp.max()) <= DISK_EXP_ULP
+    assert float((got[~normal] - want[~normal]).abs().max()) < 2.3e-308
+    assert (got[~normal] >= 0).all()
+    nan, _ = _disk_native.vexp(torch.tensor([math.nan, -1.0]), level)
+    assert math.isnan(float(nan[0])) and float(nan[1]) == pytest.approx(math.exp(-1.0), rel=1e-15)
+
+
+def test_hashed_noise_in_c_equals_the_torch_hash():
+    """The C loop hashes the rotation and radial shift from disk.hash_key itself: with the
+    rotation passed in as turns from disk.hash_uniform instead, the result is bitwise the
+    same (the same integers, the same float64 values); a wrong key would move every
+    sample."""
+    from sssbench.ops import disk as disk_mod
+
+    g = scene(torch.float64, seed=4)
+    op = DiskSSS(SKIN, 16, seed=2**40 + 7)
+    ctx = disk_mod._Pixels(g)
+    kernel, accept, sel = op._groups(g, ctx)[0]
+    pix = ctx.index[sel]
+    step = 1.0 / disk_mod.pixel_size_mm(ctx.pos[pix][:, 2].double(), ctx.fov_y, ctx.h)
+    u0, theta0 = disk_mod.pattern_points(op.pattern, 16)
+    turn = 2 * math.pi * disk_mod.hash_uniform(pix % ctx.hw, op.seed, 1, 0)
+    shift = disk_mod.hash_uniform(pix % ctx.hw, op.seed, 1, 1)
+    args = (ctx, kernel, accept, pix)
+    given = _disk_native.gather(*args, turn, shift, step, u0, theta0, False)
+    keys = {
+        "turn_key": disk_mod.hash_key(op.seed, 1, 0),
+        "shift_key": disk_mod.hash_key(op.seed, 1, 1),
+    }
+    hashed = _disk_native.gather(*args, None, None, step, u0, theta0, False, **keys)
+    for a, b in zip(given, hashed, strict=True):
+        assert torch.equal(a, b)
+    other = dict(keys, turn_key=keys["turn_key"] ^ 1)
+    moved = _disk_native.gather(*args, None, None, step, u0, theta0, False, **other)
+    assert not torch.equal(moved[0], given[0])
 
 
 def test_kilometre_float32_geometry_through_the_native_loop():

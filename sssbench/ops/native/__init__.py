@@ -9,8 +9,9 @@ compiler (``$CC``, else ``cc``/``gcc``) into a per-user cache
 the source and the compiler, written atomically so that parallel sweep workers may race. No
 Python package beyond the declared ones is needed; on a machine without a C compiler
 :func:`library` returns ``None`` once with a warning and the gather runs its torch loop.
-``disk.c`` (with ``disk_body.h``), the disk's sample loop (:mod:`sssbench.ops._disk_native`), is a
-second translation unit of the same command and library, at the same SIMD level.
+``disk.c`` (with ``disk_body.h`` and the vectorised ``disk_simd.h``), the disk's sample loop
+(:mod:`sssbench.ops._disk_native`), is a second translation unit of the same command and
+library, at the same SIMD level.
 The torch loop (:mod:`sssbench.ops._gather_torch`) is the specification: the native loop
 performs the same float operations in the same order and is tested bitwise equal to it (but
 for ``exp``); :mod:`sssbench.ops._gather_native` registers it as a torch operator.
@@ -46,7 +47,15 @@ __all__ = [
 ]
 
 _HERE = Path(__file__).resolve().parent
-_SOURCES = ("gather.c", "gather_body.h", "gather_simd.h", "pool.h", "disk.c", "disk_body.h")
+_SOURCES = (
+    "gather.c",
+    "gather_body.h",
+    "gather_simd.h",
+    "pool.h",
+    "disk.c",
+    "disk_body.h",
+    "disk_simd.h",
+)
 _FLAGS = ["-O3", "-fPIC", "-shared", "-ffp-contract=off", "-fno-math-errno", "-Wno-psabi"]
 _STATE: dict[str, object] = {"lib": None, "tried": False}
 _BUILD_TIMEOUT_S = 900

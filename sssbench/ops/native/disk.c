@@ -12,13 +12,17 @@
  * SLEEF ones: each within 1 ulp) and, for a sum of Gaussians, the order of the sum over the
  * Gaussians (torch: a BLAS matrix product); tests/ops/test_disk_native.py measures the effect.
  *
- * The per-pixel noise (rotation, radial shift: the 63-bit-seeded hash, interleaved gradient
- * noise, blue noise) is computed by the torch code and passed in: identical by construction.
+ * The per-pixel noise (rotation, radial shift) is computed by the torch code and passed in, or
+ * for the 63-bit-seeded hash hashed here from the torch code's 32-bit keys (disk.hash_key;
+ * disk_hash_uniform below: the same integer hash, the same float64 values).
  *
- * SIMD: the loop is compiled three times, for the baseline x86-64, AVX2 and AVX-512F, through
- * target attributes (no -march), and a call uses the level sss_get_simd() (gather.c) reports,
- * as the separable passes do. The arithmetic is the same sequence of IEEE operations at every
- * level (-ffp-contract=off: no fused multiply-add), so the levels agree bitwise. */
+ * SIMD: the loops are compiled three times, for the baseline x86-64, AVX2 and AVX-512F,
+ * through target attributes (no -march), and a call uses the level sss_get_simd() (gather.c)
+ * reports, as the separable passes do. At AVX2 and AVX-512 the default path (estimator
+ * "sssbench", point fetch) runs the loop vectorised across pixels (disk_simd.h: its few-ulp
+ * differences to this scalar loop are listed there); the bilinear fetch and HDRP's estimator
+ * run the scalar loop at every level. -ffp-contract=off: no fused multiply-add anywhere, so
+ * AVX2 and AVX-512 agree bitwise. */
 #include <float.h>
 #include <math.h>
 #include <pthread.h>
@@ -30,6 +34,7 @@
 #include "pool.h"
 
 int sss_get_simd(void); /* gather.c: 0 scalar, 1 AVX2, 2 AVX-512F */
+int sss_simd_best(void); /* gather.c: the widest level the CPU supports */
 
 /* One call's arguments (mirrored by _disk_native.DiskArgs; field order matters). Image arrays
  * are in the image's dtype, everything else double or int64. For estimator="hdrp" `step` is
@@ -63,7 +68,35 @@ typedef struct {
     int32_t sampler_kind; /* 0: tabulated, 1: Burley closed form */
     int32_t profile_kind; /* 0: sum of Gaussians, 1: Burley */
     int32_t bilinear, threads;
+    /* >= 0: the rotation (turn = NULL) / radial shift (shift = NULL) hashed here from the
+     * pixel, as disk.hash_uniform does with this 32-bit key (disk_hash_uniform) */
+    int64_t turn_key, shift_key;
 } disk_args;
+
+/* disk.hash_uniform: lowbias32 (Wellons) of (the pixel's index in its image) ^ key, / 2^32 */
+static inline double disk_hash_uniform(uint64_t pixel, int64_t key) {
+    uint32_t x = (uint32_t)(pixel ^ (uint64_t)key);
+    x ^= x >> 16;
+    x *= 0x7FEB352Du;
+    x ^= x >> 15;
+    x *= 0x846CA68Bu;
+    x ^= x >> 16;
+    return (double)x / 4294967296.0;
+}
+
+/* whether the samples' radii are jittered (a radial shift per pixel) */
+static inline int disk_jitter(const disk_args *a) { return a->shift != NULL || a->shift_key >= 0; }
+
+/* the rotation (2 pi x turns, radians) and the radial shift (or 0) of centre q (pixel pix):
+ * passed in, or hashed from the keys; 2 pi as the torch code rounds it (2 * math.pi) */
+static inline void disk_noise(const disk_args *a, int64_t q, int64_t pix, double *turn,
+                              double *shift) {
+    const uint64_t in_image = (uint64_t)(pix % a->hw);
+    *turn = a->turn ? a->turn[q] : 6.283185307179586 * disk_hash_uniform(in_image, a->turn_key);
+    *shift = a->shift       ? a->shift[q]
+             : a->shift_key >= 0 ? disk_hash_uniform(in_image, a->shift_key)
+                                 : 0.0;
+}
 
 #define TWO_PI (2.0 * 3.141592653589793)
 #define EIGHT_PI (8.0 * 3.141592653589793)
@@ -142,44 +175,171 @@ static inline __attribute__((always_inline)) double radial_sample(const disk_arg
 /* samples positioned (and their pixels prefetched) ahead of their fetches */
 enum { DISK_CHUNK = 16 };
 
+/* 2^(j/32), j = 0..31, correctly rounded (computed in 60-digit decimal arithmetic): the
+ * vectorised exp's table (disk_simd.h vexp_) */
+static const double disk_exp2_32[32] __attribute__((aligned(64))) = {
+    1.0, 1.0218971486541166, 1.0442737824274138, 1.0671404006768237,
+    1.0905077326652577, 1.1143867425958924, 1.1387886347566916, 1.1637248587775775,
+    1.189207115002721, 1.215247359980469, 1.241857812073484, 1.2690509571917332,
+    1.2968395546510096, 1.3252366431597413, 1.3542555469368927, 1.383909881963832,
+    1.4142135623730951, 1.4451808069770467, 1.4768261459394993, 1.5091644275934228,
+    1.5422108254079407, 1.5759808451078865, 1.6104903319492543, 1.645755478153965,
+    1.681792830507429, 1.718619298122478, 1.7562521603732995, 1.7947090750031072,
+    1.8340080864093424, 1.8741676341103, 1.9152065613971474, 1.9571441241754002};
+
+/* what the vectorised loop (disk_simd.h) computes once per call: per sample, per node of the
+ * tabulated sampler, per Gaussian or channel of the profile (disk_consts_make) */
+typedef struct {
+    double *cos0, *sin0;    /* (n,) cos / sin of the pattern's angles */
+    double *r, *inv_pdf;    /* (n,) without radial jitter: the samples' radii, 1 / pdf_area */
+    double *inv_slope;      /* (nodes - 1,) tabulated sampler: 1 / the slope (c1 - c0) / (r1 - r0),
+                               clamped as radial_sample does */
+    double *inv_2v, *coef;  /* Gaussians: (K,) 1 / (2 v_k), (K, 3) w_kc / (2 pi v_k total_c);
+                               Burley: coef (3,) albedo_c / (8 pi d_c total_c) */
+    double floor_[3], inv_d[3], inv_3d[3]; /* Burley: eps d_c, 1 / d_c, 1 / (3 d_c) */
+    void *block;            /* the one allocation holding the arrays */
+} disk_consts;
+
 /* the pixels [p0, p1) of one call, split over threads */
 typedef struct {
     const disk_args *a;
+    const disk_consts *k; /* the vectorised loop's constants, or NULL (the scalar loop) */
     int64_t p0, p1;
 } disk_job;
 
+#if (defined(__x86_64__) || defined(_M_X64)) && defined(__GNUC__)
+#define DISK_SIMD 1
+#include <immintrin.h>
+/* the vectorised loop's gathers, rounding, square root and any-lane test per instruction set
+ * (disk_simd.h): index vectors are int64 element offsets */
+#define VGATHER_F64_AVX512(base, idx) _mm512_i64gather_pd((__m512i)(idx), (base), 8)
+#define VGATHER_I64_AVX512(base, idx) \
+    _mm512_i64gather_epi64((__m512i)(idx), (const long long *)(base), 8)
+#define VGATHER_F32S_AVX512(base, idx) _mm512_i64gather_ps((__m512i)(idx), (base), 4)
+#define VGATHER_F64S_AVX512(base, idx) _mm512_i64gather_pd((__m512i)(idx), (base), 8)
+#define VFLOOR_AVX512(x) \
+    ((__typeof__(x))_mm512_roundscale_pd((__m512d)(x), _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC))
+#define VTRUNC_AVX512(x) \
+    ((__typeof__(x))_mm512_roundscale_pd((__m512d)(x), _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC))
+#define VSQRT_AVX512(x) ((__typeof__(x))_mm512_sqrt_pd((__m512d)(x)))
+#define VANY_AVX512(m) (_mm512_test_epi64_mask((__m512i)(m), (__m512i)(m)) != 0)
+#define VGATHER_F64_AVX2(base, idx) _mm256_i64gather_pd((base), (__m256i)(idx), 8)
+#define VGATHER_I64_AVX2(base, idx) \
+    _mm256_i64gather_epi64((const long long *)(base), (__m256i)(idx), 8)
+#define VGATHER_F32S_AVX2(base, idx) _mm256_i64gather_ps((base), (__m256i)(idx), 4)
+#define VGATHER_F64S_AVX2(base, idx) _mm256_i64gather_pd((base), (__m256i)(idx), 8)
+#define VFLOOR_AVX2(x) \
+    ((__typeof__(x))_mm256_round_pd((__m256d)(x), _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC))
+#define VTRUNC_AVX2(x) \
+    ((__typeof__(x))_mm256_round_pd((__m256d)(x), _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC))
+#define VSQRT_AVX2(x) ((__typeof__(x))_mm256_sqrt_pd((__m256d)(x)))
+#define VANY_AVX2(m) (_mm256_movemask_pd((__m256d)(m)) != 0)
+#else
+#define DISK_SIMD 0
+#endif
+
 #define SCALAR float
 #define SUFFIX f32
+#define VGATHER_S_AVX512 VGATHER_F32S_AVX512
+#define VGATHER_S_AVX2 VGATHER_F32S_AVX2
 #include "disk_body.h"
 #undef SCALAR
 #undef SUFFIX
+#undef VGATHER_S_AVX512
+#undef VGATHER_S_AVX2
 #define SCALAR double
 #define SUFFIX f64
+#define VGATHER_S_AVX512 VGATHER_F64S_AVX512
+#define VGATHER_S_AVX2 VGATHER_F64S_AVX2
 #include "disk_body.h"
 #undef SCALAR
 #undef SUFFIX
+#undef VGATHER_S_AVX512
+#undef VGATHER_S_AVX2
+
+/* the vectorised loop's per-call constants (disk_consts); 0 when out of memory (the caller
+ * then runs the scalar loop) */
+static int disk_consts_make(const disk_args *a, disk_consts *k) {
+    const int64_t n = a->n > 0 ? a->n : 0, g = a->n_gauss > 0 ? a->n_gauss : 0;
+    const int64_t nodes = a->sampler_kind == 0 && a->nodes > 1 ? a->nodes : 1;
+    double *m = malloc(sizeof(double) * (size_t)(4 * n + nodes + 4 * g + 3 + 1));
+    if (!m) return 0;
+    k->block = m;
+    k->cos0 = m, k->sin0 = m + n, k->r = m + 2 * n, k->inv_pdf = m + 3 * n;
+    k->inv_slope = m + 4 * n, k->inv_2v = k->inv_slope + nodes, k->coef = k->inv_2v + g;
+    for (int64_t i = 0; i < n; ++i) {
+        k->cos0[i] = cos(a->theta0[i]), k->sin0[i] = sin(a->theta0[i]);
+        if (!disk_jitter(a)) k->r[i] = radial_sample(a, a->u0[i], &k->inv_pdf[i]);
+    }
+    if (a->sampler_kind == 0)
+        for (int64_t j = 0; j + 1 < a->nodes; ++j) { /* radial_sample's slope */
+            const double s = (a->tab_cdf[j + 1] - a->tab_cdf[j]) / (a->tab_r[j + 1] - a->tab_r[j]);
+            k->inv_slope[j] = 1.0 / (s > TINY64 || s != s ? s : TINY64);
+        }
+    if (a->profile_kind == 1) { /* 002 eq. 3 (profiles/burley.py), over the channel's total */
+        for (int c = 0; c < 3; ++c) {
+            const double dc = a->prof_a[c];
+            k->floor_[c] = a->eps * dc, k->inv_d[c] = 1.0 / dc, k->inv_3d[c] = 1.0 / (3.0 * dc);
+            k->coef[c] = a->prof_b[c] / (EIGHT_PI * dc) / a->total[c];
+        }
+    } else { /* 001 eq. 7: w_kc / (2 pi v_k), over the channel's total */
+        for (int64_t j = 0; j < g; ++j) {
+            const double v = a->prof_a[j];
+            k->inv_2v[j] = 1.0 / (2.0 * v);
+            for (int c = 0; c < 3; ++c)
+                k->coef[3 * j + c] = a->prof_b[3 * j + c] / (TWO_PI * v) / a->total[c];
+        }
+    }
+    return 1;
+}
 
 enum { DISK_MAX_THREADS = 64, DISK_MIN_WORK = 1 << 16 };
 
 /* split the centre pixels over the threads (each at least DISK_MIN_WORK pixel-samples) and run */
-static void disk_split(const disk_args *a, void *(*run)(void *)) {
+static void disk_split(const disk_args *a, const disk_consts *k, void *(*run)(void *)) {
     int threads = a->threads < 1 ? 1 : (a->threads > DISK_MAX_THREADS ? DISK_MAX_THREADS : a->threads);
     const int64_t work = a->m * (a->n > 0 ? a->n : 1);
     if (work < (int64_t)DISK_MIN_WORK * threads)
         threads = work < 2 * (int64_t)DISK_MIN_WORK ? 1 : (int)(work / DISK_MIN_WORK);
     disk_job jobs[DISK_MAX_THREADS];
     for (int t = 0; t < threads; ++t)
-        jobs[t] = (disk_job){a, a->m * t / threads, a->m * (t + 1) / threads};
+        jobs[t] = (disk_job){a, k, a->m * t / threads, a->m * (t + 1) / threads};
     pool_run(run, (char *)jobs, sizeof jobs[0], threads);
 }
 
-#define DISK_ENTRY(name, fn)                                                     \
-    void name(const disk_args *a) {                                              \
-        const int level = sss_get_simd();                                        \
-        disk_split(a, level >= 2 ? fn##_avx512 : level == 1 ? fn##_avx2 : fn##_scalar); \
+/* estimator "sssbench": at the AVX2 and AVX-512 levels the point fetch runs the vectorised
+ * loop (disk_simd.h), the bilinear fetch and the scalar level the scalar loop */
+#define DISK_ENTRY(name, fn)                                                            \
+    void name(const disk_args *a) {                                                     \
+        const int level = sss_get_simd();                                               \
+        disk_consts k;                                                                  \
+        if (DISK_SIMD && level >= 1 && !a->bilinear && disk_consts_make(a, &k)) {       \
+            disk_split(a, &k, level >= 2 ? fn##_avx512 : fn##_avx2);                    \
+            free(k.block);                                                              \
+            return;                                                                     \
+        }                                                                               \
+        disk_split(a, NULL, level >= 2 ? fn##_avx512 : level == 1 ? fn##_avx2 : fn##_scalar); \
+    }
+#define HDRP_ENTRY(name, fn)                                                                \
+    void name(const disk_args *a) {                                                         \
+        const int level = sss_get_simd();                                                   \
+        disk_split(a, NULL, level >= 2 ? fn##_avx512 : level == 1 ? fn##_avx2 : fn##_scalar); \
     }
 
 DISK_ENTRY(sss_disk_f32, disk_run_f32)
 DISK_ENTRY(sss_disk_f64, disk_run_f64)
-DISK_ENTRY(sss_disk_hdrp_f32, hdrp_run_f32)
-DISK_ENTRY(sss_disk_hdrp_f64, hdrp_run_f64)
+HDRP_ENTRY(sss_disk_hdrp_f32, hdrp_run_f32)
+HDRP_ENTRY(sss_disk_hdrp_f64, hdrp_run_f64)
+
+/* y = exp(x) for n doubles by the vectorised loop's exp at `level` (1 AVX2, 2 AVX-512F,
+ * capped at the CPU's; 0: libm's exp): for its test against libm. Returns the level used. */
+int sss_disk_vexp(const double *x, double *y, int64_t n, int level) {
+    const int best = sss_get_simd() >= 0 ? sss_simd_best() : 0;
+    level = level > best ? best : (level < 0 ? 0 : level);
+#if DISK_SIMD
+    if (level >= 2) return vexp_array_f64_avx512(x, y, n), 2;
+    if (level == 1) return vexp_array_f64_avx2(x, y, n), 1;
+#endif
+    for (int64_t i = 0; i < n; ++i) y[i] = exp(x[i]);
+    return 0;
+}

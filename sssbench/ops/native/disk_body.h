@@ -67,8 +67,10 @@ static inline __attribute__((always_inline)) void DCAT(disk_pixels, SUFFIX)(cons
         const int64_t row = rem / a->w, col = rem % a->w;
         const SCALAR z_cs = pos[3 * pix + 2];
         const double x_c = (double)pos[3 * pix], y_c = (double)pos[3 * pix + 1];
-        const double z_c = (double)z_cs, step = a->step[p], turn = a->turn[p];
-        const double shift = a->shift ? a->shift[p] : 0.0;
+        const double z_c = (double)z_cs, step = a->step[p];
+        double turn, shift;
+        disk_noise(a, p, pix, &turn, &shift);
+        const int jitter = disk_jitter(a);
         /* the area factor's denominator: pixel_size_mm(z_c) ** 2 */
         const double psz = z_c * a->per_mm, psz2 = psz * psz;
         SCALAR s_num[3] = {0, 0, 0}, s_den[3] = {0, 0, 0}, s_mom[9] = {0};
@@ -81,7 +83,7 @@ static inline __attribute__((always_inline)) void DCAT(disk_pixels, SUFFIX)(cons
             const int64_t cnt = a->n - i0 < DISK_CHUNK ? a->n - i0 : DISK_CHUNK;
             for (int64_t t = 0; t < cnt; ++t) {
                 double u = a->u0[i0 + t];
-                if (a->shift) {
+                if (jitter) {
                     u = u + shift;
                     u = u - trunc(u); /* torch.frac */
                 }
@@ -176,8 +178,58 @@ static inline __attribute__((always_inline)) void DCAT(hdrp_pixels, SUFFIX)(cons
     }
 }
 
-/* the thread entry points at the three instruction-set levels (disk.c header) */
-#define DISK_LEVELS(kernel, runner)                                                      \
+/* the vectorised loop (disk_simd.h) for AVX2 and AVX-512F */
+#if DISK_SIMD
+#define ISA avx2
+#define ISA_TARGET "avx2,fma"
+#define VW 4
+#define VGATHER_F64 VGATHER_F64_AVX2
+#define VGATHER_I64 VGATHER_I64_AVX2
+#define VGATHER_S VGATHER_S_AVX2
+#define VFLOOR VFLOOR_AVX2
+#define VTRUNC VTRUNC_AVX2
+#define VSQRT VSQRT_AVX2
+#define VANY VANY_AVX2
+#include "disk_simd.h"
+#undef ISA
+#undef ISA_TARGET
+#undef VW
+#undef VGATHER_F64
+#undef VGATHER_I64
+#undef VGATHER_S
+#undef VFLOOR
+#undef VTRUNC
+#undef VSQRT
+#undef VANY
+#define ISA avx512
+#define ISA_TARGET "avx512f"
+#define VW 8
+#define VGATHER_F64 VGATHER_F64_AVX512
+#define VGATHER_I64 VGATHER_I64_AVX512
+#define VGATHER_S VGATHER_S_AVX512
+#define VFLOOR VFLOOR_AVX512
+#define VTRUNC VTRUNC_AVX512
+#define VSQRT VSQRT_AVX512
+#define VANY VANY_AVX512
+#include "disk_simd.h"
+#undef ISA
+#undef ISA_TARGET
+#undef VW
+#undef VGATHER_F64
+#undef VGATHER_I64
+#undef VGATHER_S
+#undef VFLOOR
+#undef VTRUNC
+#undef VSQRT
+#undef VANY
+#define DISK_VEC(isa, job) DCAT(DCAT(disk_vec_, SUFFIX), isa)((job)->a, (job)->k, (job)->p0, (job)->p1)
+#else
+#define DISK_VEC(isa, job) (void)0
+#endif
+
+/* the thread entry points at the three instruction-set levels (disk.c header); a job with
+ * constants (job->k, disk.c DISK_ENTRY) runs the vectorised loop */
+#define DISK_LEVELS(kernel, runner, vec)                                                 \
     static void *DCAT(runner, scalar)(void *arg) {                                      \
         const disk_job *job = (const disk_job *)arg;                                    \
         kernel(job->a, job->p0, job->p1);                                               \
@@ -185,17 +237,24 @@ static inline __attribute__((always_inline)) void DCAT(hdrp_pixels, SUFFIX)(cons
     }                                                                                   \
     __attribute__((target("avx2,fma"))) static void *DCAT(runner, avx2)(void *arg) {    \
         const disk_job *job = (const disk_job *)arg;                                    \
-        kernel(job->a, job->p0, job->p1);                                               \
+        if (vec && job->k)                                                              \
+            DISK_VEC(avx2, job);                                                        \
+        else                                                                            \
+            kernel(job->a, job->p0, job->p1);                                           \
         return NULL;                                                                    \
     }                                                                                   \
     __attribute__((target("avx512f"))) static void *DCAT(runner, avx512)(void *arg) {   \
         const disk_job *job = (const disk_job *)arg;                                    \
-        kernel(job->a, job->p0, job->p1);                                               \
+        if (vec && job->k)                                                              \
+            DISK_VEC(avx512, job);                                                      \
+        else                                                                            \
+            kernel(job->a, job->p0, job->p1);                                           \
         return NULL;                                                                    \
     }
 
-DISK_LEVELS(DCAT(disk_pixels, SUFFIX), DCAT(disk_run, SUFFIX))
-DISK_LEVELS(DCAT(hdrp_pixels, SUFFIX), DCAT(hdrp_run, SUFFIX))
+DISK_LEVELS(DCAT(disk_pixels, SUFFIX), DCAT(disk_run, SUFFIX), 1)
+DISK_LEVELS(DCAT(hdrp_pixels, SUFFIX), DCAT(hdrp_run, SUFFIX), 0)
 #undef DISK_LEVELS
+#undef DISK_VEC
 #undef DCAT
 #undef DCAT_

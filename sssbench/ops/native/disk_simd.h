@@ -1,0 +1,289 @@
+/* The disk's vectorised sample loop (estimator "sssbench", point fetch) for one image dtype
+ * (SCALAR, SUFFIX) and one instruction set: included by disk_body.h once per set, with ISA
+ * naming it, ISA_TARGET its target attribute, VW the pixels per vector (double lanes: 4 for
+ * AVX2, 8 for AVX-512F), and the set's gathers, rounding and square root (disk.c). The
+ * dispatch is the separable passes' (sss_get_simd, gather.c; disk.c DISK_ENTRY).
+ *
+ * One vector holds VW consecutive centre pixels (consecutive entries of the pixel list: on
+ * one row, mostly, so their samples land near each other); every sample of the pattern is
+ * taken for all VW pixels at once. What the scalar loop (disk_pixels_, disk_body.h) computes
+ * per pixel and sample is split into
+ *   - per call: each sample's (cos theta0, sin theta0), and without radial jitter its radius
+ *     and inverse density (radial_sample, once); the profile's constants (1 / (2 v_k),
+ *     w_kc / (2 pi v_k total_c) for a sum of Gaussians; 1 / d_c, 1 / (3 d_c),
+ *     albedo_c / (8 pi d_c total_c) for Burley);
+ *   - per pixel: cos and sin of its rotation (libm), its position, step, row and column;
+ *   - per sample and pixel, in double lanes: the jittered radius (the tabulated sampler's
+ *     guide table and binary search by gathers; Burley's closed form lane by lane through
+ *     libm), the angle by the addition theorem cos(theta0 + t) = cos theta0 cos t -
+ *     sin theta0 sin t (and likewise sin), the offset, the fetched pixel (hardware gathers of
+ *     the packed (r, g, b, z, accept, area) rows), the 3D distance and the profile, whose exp
+ *     is vexp_ below; the sums in the image dtype in the scalar loop's order.
+ * The differences to the scalar loop (and so to the torch loop) are the addition theorem
+ * (an absolute error of the unit offset below 3e-16 against libm's cos / sin of the rounded
+ * sum theta0 + t: the same size as that rounding), vexp_'s error, and products by
+ * reciprocals computed once in place of divisions (1 ulp each): a few ulp of each float64
+ * weight, measured against the torch loop by tests/ops/test_disk_native.py
+ * (_disk_native.DISK_NATIVE_AGREEMENT). All VW lanes run the same IEEE operations (no FMA:
+ * -ffp-contract=off), so AVX2 and AVX-512 agree bitwise. */
+
+#define DV(name) DCAT(DCAT(name, SUFFIX), ISA)
+#define DV_FN static inline __attribute__((always_inline, target(ISA_TARGET)))
+
+typedef double DV(vd_) __attribute__((vector_size(VW * 8)));
+typedef int64_t DV(vl_) __attribute__((vector_size(VW * 8)));
+typedef int32_t DV(vi_) __attribute__((vector_size(VW * 4)));
+typedef SCALAR DV(vs_) __attribute__((vector_size(VW * sizeof(SCALAR))));
+
+/* the set's gathers (disk.c) as this file's vector types */
+#define GF64(base, idx) ((DV(vd_))VGATHER_F64(base, idx))
+#define GI64(base, idx) ((DV(vl_))VGATHER_I64(base, idx))
+#define GS(base, idx) ((DV(vs_))VGATHER_S(base, idx))
+
+/* lane-wise m ? a : b (m: all-ones / all-zeros 64-bit lanes) */
+#define DSEL(m, a, b) \
+    ((__typeof__(a))((((DV(vl_))(a)) & (m)) | (((DV(vl_))(b)) & ~(m))))
+
+/* exp(x) for x <= 0 in every lane (NaN stays NaN): x = (32 n + j) ln 2 / 32 + r with
+ * 32 n + j = round(32 x / ln 2), |r| <= ln 2 / 64 (ln 2 / 32 as two doubles, the first with
+ * 17 trailing zero bits: its product by 32 n + j, |32 n + j| < 2^16, is exact), then
+ * exp(x) = 2^n 2^(j/32) (1 + q), 2^(j/32) from the correctly rounded table disk_exp2_32
+ * (disk.c) by a gather, q = e^r - 1 by its Taylor polynomial of degree 6 (truncation below
+ * 4e-18 relative), 2^n built in the exponent bits; +0 where 2^n is subnormal (x < -708.4:
+ * an absolute error below 2.3e-308 against libm's subnormal results). About 25 vector
+ * operations and one gather. Measured against libm's exp (tests/ops/test_disk_native.py,
+ * test_vectorised_disk_exp_against_libm): within DISK_EXP_ULP (_disk_native.py) where the
+ * result is normal. */
+DV_FN DV(vd_) DV(vexp_)(DV(vd_) x) {
+    typedef DV(vd_) vd;
+#ifdef DISK_PROF_NOEXP
+    return x * 0.5;
+#endif
+    typedef DV(vl_) vl;
+    typedef DV(vi_) vi;
+    const vd zero = {0};
+    const vl nan = x != x;
+    const vd x0 = x;
+    x = DSEL(x > zero - 746.0, x, zero - 746.0);
+    const vd t = x * 46.16624130844683 - 0.5; /* 32 x / ln 2 - 1/2 < 0: trunc = round */
+    const vi n32 = __builtin_convertvector(t, vi);
+    const vd nf = __builtin_convertvector(n32, vd);
+    const vd r = (x - nf * 0.021660849392446835) - nf * 5.145609244655338e-14;
+    vd q = r * (1.0 / 720) + 1.0 / 120;
+    q = q * r + 1.0 / 24;
+    q = q * r + 1.0 / 6;
+    q = q * r + 0.5;
+    q = q * r + 1.0;
+    q = q * r;
+    const vd tab = GF64(disk_exp2_32, __builtin_convertvector(n32 & 31, vl));
+    const vi biased = (n32 >> 5) + 1023; /* > 0: 2^n is normal */
+    const vl e = __builtin_convertvector(biased, vl) << 52;
+    const vl normal = __builtin_convertvector(biased > 0, vl);
+    const vd y = (tab + tab * q) * DSEL(normal, (vd)e, zero);
+    return DSEL(nan, x0, y); /* NaN in, NaN out (the scalar loop's exp) */
+}
+
+/* the exp of n doubles through vexp_ (a tail shorter than VW padded with 0): for the test of
+ * its error against libm (sss_disk_vexp, disk.c) */
+__attribute__((target(ISA_TARGET), unused)) static void DV(vexp_array)(const double *x, double *y,
+                                                                int64_t n) {
+    typedef DV(vd_) vd;
+    for (int64_t i = 0; i < n; i += VW) {
+        vd v = {0};
+        const int64_t k = n - i < VW ? n - i : VW;
+        for (int64_t l = 0; l < k; ++l) v[l] = x[i + l];
+        v = DV(vexp_)(v);
+        for (int64_t l = 0; l < k; ++l) y[i + l] = v[l];
+    }
+}
+
+/* the point fetch's pixel index (flat, in the batch) for offsets (drow, dcol) pixels from
+ * (row, col): _Pixels.fetch "point", the nearest pixel clamped to the image (row + floor(
+ * drow + 0.5) formed in double: exact for offsets below 2^52 pixels; NaN clamps to 0 as the
+ * scalar loop's integer conversion does) */
+DV_FN DV(vl_) DV(pixel_)(DV(vd_) row, DV(vd_) col, DV(vl_) base, DV(vd_) drow, DV(vd_) dcol,
+                         double hmax, double wmax, int64_t w) {
+    typedef DV(vd_) vd;
+    typedef DV(vl_) vl;
+    typedef DV(vi_) vi;
+    const vd zero = {0};
+    vd ri = row + VFLOOR(drow + 0.5), ci = col + VFLOOR(dcol + 0.5);
+    ri = DSEL(ri > zero, ri, zero), ci = DSEL(ci > zero, ci, zero); /* NaN: 0 */
+    ri = DSEL(ri < hmax, ri, zero + hmax), ci = DSEL(ci < wmax, ci, zero + wmax);
+    const vl r64 = __builtin_convertvector(__builtin_convertvector(ri, vi), vl);
+    const vl c64 = __builtin_convertvector(__builtin_convertvector(ci, vi), vl);
+    return base + r64 * w + c64;
+}
+
+/* the radii and inverse area densities of the samples u (radial_sample lane-wise): the
+ * tabulated sampler's search by gathers from the guide table (int64), the CDF and the
+ * radii; the divisions by the node's slope as products by its reciprocal (kc->inv_slope,
+ * once per call) */
+DV_FN DV(vd_) DV(radial_)(const disk_args *a, const disk_consts *kc, DV(vd_) u, DV(vd_) * inv) {
+    typedef DV(vd_) vd;
+    typedef DV(vl_) vl;
+    typedef DV(vi_) vi;
+    const vd zero = {0};
+    if (a->sampler_kind == 1) { /* Burley's closed form: libm lane by lane */
+        vd r;
+        for (int l = 0; l < VW; ++l) {
+            double ip;
+            r[l] = radial_sample(a, u[l], &ip);
+            (*inv)[l] = ip;
+        }
+        return r;
+    }
+    const int64_t nodes = a->nodes, gn = a->guide_n;
+    const vl izero = {0}, one = izero + 1;
+    vd bd = u * (double)gn;
+    bd = DSEL(bd > zero, bd, zero);
+    bd = DSEL(bd < (double)(gn - 1), bd, zero + (double)(gn - 1)); /* NaN: 0 */
+    const vl b = __builtin_convertvector(__builtin_convertvector(bd, vi), vl);
+    vl lo = GI64(a->guide, b) + 1, hi = GI64(a->guide + 1, b) + 1;
+    const vl inside = (u >= zero) & (u < zero + 1.0);
+    lo = DSEL(inside, lo, izero), hi = DSEL(inside, hi, izero + nodes);
+    for (vl act = lo < hi; VANY(act); act = lo < hi) { /* first index with cdf > u */
+        const vl mid = lo + ((hi - lo) >> 1);
+        const vl idx = DSEL(act, mid, izero); /* settled lanes read cdf[0] (unused) */
+        const vl le = GF64(a->tab_cdf, idx) <= u;
+        lo = DSEL(act & le, mid + one, lo);
+        hi = DSEL(act & ~le, mid, hi);
+    }
+    vl k = lo - one;
+    k = DSEL(k > izero, k, izero);
+    k = DSEL(k < izero + (nodes - 2), k, izero + (nodes - 2));
+    const vd c0 = GF64(a->tab_cdf, k), r0 = GF64(a->tab_r, k);
+    const vd r1 = GF64(a->tab_r + 1, k), s = GF64(kc->inv_slope, k);
+    const vd du = u - c0;
+    vd r = r0 + DSEL(du != zero, du * s, zero); /* 0 x inf: 0 (the scalar loop's 0 / tiny) */
+    r = DSEL((r < r1) | (r != r), r, r1); /* torch.minimum */
+    *inv = TWO_PI * r * s;
+    return r;
+}
+
+/* DiskSSS._gather (point fetch) for the centre pixels [p0, p1), VW at a time (a last vector
+ * shorter than VW repeats its last pixel in the spare lanes: computed, not written) */
+__attribute__((target(ISA_TARGET))) static void DV(disk_vec_)(const disk_args *a,
+                                                               const disk_consts *k, int64_t p0,
+                                                               int64_t p1) {
+    typedef DV(vd_) vd;
+    typedef DV(vl_) vl;
+    typedef DV(vs_) vs;
+    const SCALAR *pos = (const SCALAR *)a->pos, *px = (const SCALAR *)a->packed;
+    SCALAR *num = (SCALAR *)a->num, *den = (SCALAR *)a->den, *mom = (SCALAR *)a->mom;
+    const int64_t w = a->w;
+    const double hmax = (double)(a->h - 1), wmax = (double)(a->w - 1), per_mm = a->per_mm;
+    const int has_area = a->area != NULL, jitter = disk_jitter(a);
+    const vd zero = {0};
+    for (int64_t p = p0; p < p1; p += VW) {
+        const int64_t cnt = p1 - p < VW ? p1 - p : VW;
+        vd row, col, x_c, y_c, z_c, inv_zc, step, ct, st, shift = zero, inv_psz2 = zero;
+        vl base;
+        vs z_cs;
+        for (int l = 0; l < VW; ++l) { /* per pixel (disk_pixels_, disk_body.h) */
+            const int64_t q = p + (l < cnt ? l : cnt - 1), pix = a->pix[q];
+            const int64_t rem = pix % a->hw;
+            base[l] = pix - rem;
+            row[l] = (double)(rem / w), col[l] = (double)(rem % w);
+            z_cs[l] = pos[3 * pix + 2];
+            x_c[l] = (double)pos[3 * pix], y_c[l] = (double)pos[3 * pix + 1];
+            z_c[l] = (double)z_cs[l];
+            step[l] = a->step[q];
+            double turn;
+            disk_noise(a, q, pix, &turn, &shift[l]);
+            ct[l] = cos(turn), st[l] = sin(turn);
+            const double psz = z_c[l] * per_mm;
+            inv_psz2[l] = 1.0 / (psz * psz);
+            inv_zc[l] = 1.0 / z_c[l];
+        }
+        vs s_num[3] = {{0}}, s_den[3] = {{0}}, s_mom[9] = {{0}};
+        /* in chunks of DISK_CHUNK samples: first their offsets and pixels (each lane's pixel
+         * prefetched: the chunk's cache misses overlap), then the fetches and weights */
+        vd c_inv[DISK_CHUNK], c_dcol[DISK_CHUNK], c_drow[DISK_CHUNK];
+        vl c_j8[DISK_CHUNK];
+        for (int64_t i0 = 0; i0 < a->n; i0 += DISK_CHUNK) {
+            const int64_t chunk = a->n - i0 < DISK_CHUNK ? a->n - i0 : DISK_CHUNK;
+            for (int64_t t = 0; t < chunk; ++t) {
+                const int64_t i = i0 + t;
+                vd r, inv_pdf;
+                if (jitter) {
+                    vd u = a->u0[i] + shift;
+                    u = u - VTRUNC(u); /* torch.frac */
+                    r = DV(radial_)(a, k, u, &inv_pdf);
+                } else {
+                    r = zero + k->r[i], inv_pdf = zero + k->inv_pdf[i];
+                }
+                /* cos / sin (theta0_i + turn) by the addition theorem (header) */
+                const vd cs = k->cos0[i] * ct - k->sin0[i] * st;
+                const vd sn = k->sin0[i] * ct + k->cos0[i] * st;
+                c_inv[t] = inv_pdf;
+                c_dcol[t] = r * cs * step;
+                c_drow[t] = -r * sn * step; /* screen y is up, rows go down */
+                c_j8[t] = DV(pixel_)(row, col, base, c_drow[t], c_dcol[t], hmax, wmax, w) << 3;
+#ifdef DISK_PROF_CENTRE
+                c_j8[t] = (base + __builtin_convertvector(row, vl) * w +
+                           __builtin_convertvector(col, vl)) << 3;
+#endif
+                for (int l = 0; l < VW; ++l) __builtin_prefetch(px + c_j8[t][l]);
+            }
+            for (int64_t t = 0; t < chunk; ++t) {
+            const vd inv_pdf = c_inv[t], dcol = c_dcol[t], drow = c_drow[t];
+            const vl j8 = c_j8[t];
+            const vs ok = GS(px + 4, j8);
+            const vd dz = __builtin_convertvector(GS(px + 3, j8) - z_cs, vd);
+            const vd rel = dz * inv_zc;
+            const vd lateral = (z_c + dz) * per_mm;
+            const vd dx = x_c * rel + dcol * lateral;
+            const vd dy = y_c * rel - drow * lateral;
+            const vd dist = VSQRT(dx * dx + dy * dy + dz * dz);
+            vd wd[3] = {zero, zero, zero};
+            if (a->profile_kind == 1) { /* Burley (profile_eval) */
+                for (int c = 0; c < 3; ++c) {
+                    const vd fl = zero + k->floor_[c];
+                    const vd rr = DSEL((dist > fl) | (dist != dist), dist, fl);
+                    const vd e = DV(vexp_)(-rr * k->inv_d[c]) + DV(vexp_)(-rr * k->inv_3d[c]);
+                    wd[c] = k->coef[c] * e / rr;
+                }
+            } else { /* sum of Gaussians: the narrow ones vanish far out (no exp where every
+                        lane's argument is below EXP_ZERO: there exp is +0) */
+                const vd d2 = -(dist * dist);
+                for (int64_t g = 0; g < a->n_gauss; ++g) {
+                    const vd x = d2 * k->inv_2v[g];
+                    if (!VANY(~(x < zero + EXP_ZERO))) continue; /* (NaN: computed) */
+                    const vd e = DV(vexp_)(x);
+                    for (int c = 0; c < 3; ++c) wd[c] += e * k->coef[3 * g + c];
+                }
+            }
+            const vd fac = has_area ? __builtin_convertvector(GS(px + 5, j8), vd) *
+                                          inv_psz2
+                                    : zero;
+            for (int c = 0; c < 3; ++c) {
+                vd wdc = wd[c] * inv_pdf;
+                if (has_area) wdc = wdc * fac;
+                const vs wc = __builtin_convertvector(wdc, vs) * ok;
+                const vs f = wc * GS(px + c, j8);
+                s_num[c] += f;
+                s_den[c] += wc;
+                if (mom) {
+                    s_mom[3 * c] += f * f;
+                    s_mom[3 * c + 1] += wc * f;
+                    s_mom[3 * c + 2] += wc * wc;
+                }
+            }
+            }
+        }
+        for (int l = 0; l < cnt; ++l) {
+            for (int c = 0; c < 3; ++c)
+                num[3 * (p + l) + c] = s_num[c][l], den[3 * (p + l) + c] = s_den[c][l];
+            if (mom)
+                for (int c = 0; c < 9; ++c) mom[9 * (p + l) + c] = s_mom[c][l];
+        }
+    }
+}
+
+#undef DSEL
+#undef GF64
+#undef GI64
+#undef GS
+#undef DV_FN
+#undef DV
