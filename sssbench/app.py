@@ -641,7 +641,7 @@ def _warm_sweep(config: Any) -> None:
         if len(group_by_scene(specs)) < 2:
             return
         log.info(
-            "warming the reference cache of %d runs in %d processes (one scene per task)",
+            "warming the reference cache of %d runs in %d processes (two tasks per scene)",
             len(specs),
             workers,
         )
