@@ -25,6 +25,7 @@ from pathlib import Path
 
 from sssbench._checks import check_int
 from sssbench.run.spec import RunSpec
+from sssbench.store.tracking import config_hash
 
 __all__ = ["run_parallel"]
 
@@ -63,7 +64,8 @@ def run_parallel(
     this process, in order.
 
     Returns:
-        ``(config hash, status)`` per spec, in the order of ``specs``.
+        ``(config hash, status)`` per spec, in the order of ``specs`` (status ``"lost"`` for
+        the runs of a task whose worker process died: nothing of them is stored).
     """
     from sssbench.run import runner
     from sssbench.run.warm import scene_group
@@ -97,7 +99,12 @@ def run_parallel(
         futures = {pool.submit(_run_group, items, str(run_root), lock): items for items in tasks}
         done = 0
         for future in as_completed(futures):
-            for k, h, status in future.result():
+            try:
+                finished = future.result()
+            except Exception as exc:  # a worker died: its group's runs are not stored
+                print(f"  runs lost with their worker: {type(exc).__name__}: {exc}", flush=True)
+                finished = [(k, config_hash(s.point()), "lost") for k, s in futures[future]]
+            for k, h, status in finished:
                 results[k] = (h, status)
             done += len(futures[future])
             if progress:
