@@ -84,3 +84,24 @@ def test_parallel_runs_store_what_serial_runs_store(tmp_path):
         assert a.keys() == b.keys()
         for key in a.keys() - _TIME_KEYS:
             assert a[key] == b[key] or (a[key] != a[key] and b[key] != b[key]), key
+
+
+def test_a_joblib_sweeps_runs_hold_the_timing_lock(tmp_path):
+    """``sssbench -m ... hydra/launcher=joblib``: each job's run holds the sweep's timing lock
+    (its timed section alone); the basic launcher (one run at a time) and a single run don't."""
+    pytest.importorskip("hydra_plugins.hydra_joblib_launcher")
+    from hydra import compose, initialize_config_dir
+
+    from sssbench import app
+
+    with initialize_config_dir(config_dir=str(app.CONF_DIR), version_base="1.3"):
+        cfg = compose(
+            config_name="config", overrides=["hydra/launcher=joblib"], return_hydra_config=True
+        )
+    lock = tmp_path / ".timing.lock"
+    with app._timing_slot(str(cfg.hydra.launcher._target_), tmp_path):
+        assert lock.is_file() and _try_lock(lock, fcntl.LOCK_SH)
+        assert not _try_lock(lock, fcntl.LOCK_EX)
+    basic = "hydra._internal.core_plugins.basic_launcher.BasicLauncher"
+    with app._timing_slot(basic, tmp_path / "b"), app._timing_slot("", None):
+        assert not (tmp_path / "b" / ".timing.lock").exists()
