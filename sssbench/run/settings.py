@@ -95,9 +95,10 @@ def timing_slot(path: str | os.PathLike[str]) -> Iterator[None]:
     are timed as if they ran alone. A process leaves its shared lock while it waits for an
     exclusive one (Linux ``flock`` converts by releasing first), so two processes that both
     want to time cannot deadlock. A process that wants to time waits for the others' current
-    stretch of shared work to end (their build or scoring), so the overlap is partial: the
-    paper benchmark's runs at 128² took 0.48× the time of one process (measured under a load
-    of about 8). POSIX only (``fcntl``); nested slots are an error.
+    stretch of shared work to end (their build or scoring), so the overlap is partial (the
+    paper benchmark's runs at 128²: 233 s in 2 processes against 487 s one at a time, two
+    runs measured side by side under a load of 7–12, so only a rough ratio). POSIX only
+    (``fcntl``); nested slots are an error.
     """
     import fcntl
 
