@@ -8,7 +8,8 @@ function in the module of its job:
 2. **build** the profile, the pipelines and the scene with the fields they need
    (:func:`sssbench.run.inputs.build`);
 3. **time** the pipeline: ``warmup`` untimed runs, ``repeats`` timed ones (per pass: median /
-   min / max; run time = sum of the pass medians; :func:`sssbench.run.settings.time_runs`),
+   min / max; run time = sum of the pass medians; :func:`sssbench.run.settings.time_runs`;
+   alone among a sweep's processes: :func:`sssbench.run.settings.exclusive_timing`),
    then check that the method left its G-buffer as built (bit for bit against a pristine
    copy). From here to the record the G-buffer is sealed (:meth:`sssbench.gbuffer.GBuffer.sealed`):
    the memo trusts its stencils and masks in O(1) per call, and a write into it is an error
