@@ -1,7 +1,8 @@
 """Claim 9 — the benchmark: every method (and the do-nothing baseline) × scenes × scales × taps.
 
 Runs the app's ``paper_benchmark`` preset (``paper_benchmark_quick`` with ``--quick``): every
-job of the preset's grid goes through :func:`sssbench.run.runner.execute` — the run function of
+job of the preset's grid goes through :func:`sssbench.run.runner.execute` (in two processes,
+each run's timed section alone: :func:`sssbench.run.parallel.run_parallel`) — the run function of
 ``sssbench -m +experiment=paper_benchmark`` — into a fresh run store, with the app's shared
 reference cache. The section is then built from that store by :mod:`sssbench.report`: per
 scene and scale, the skill of every configuration against doing nothing, the Pareto front,
@@ -27,7 +28,7 @@ from sssbench import report
 from sssbench.app import compose_spec, preset_grid
 from sssbench.report import plots
 from sssbench.report.tables import budget_verdicts
-from sssbench.run import runner
+from sssbench.run.parallel import run_parallel
 from sssbench.run.warm import warm
 from sssbench.score.budget_verdict import PART_NAMES, PARTS
 
@@ -42,7 +43,8 @@ def run_preset(preset: str, store: Path, run_root: Path, *overrides: str) -> pd.
     fixed = [o for o in overrides if o not in sweeps]
     jobs = preset_grid(preset, *sweeps)
     specs = [compose_spec(*job, "previews=false", *fixed, store=store) for job in jobs]
-    # the references and budget limits in parallel (no timing), then each run timed alone
+    # the references and budget limits in parallel (no timing), then the runs in parallel,
+    # each timed alone
     load = os.getloadavg()
     print(
         f"warming the caches of {len(specs)} runs in {WARM_WORKERS} processes "
@@ -50,17 +52,9 @@ def run_preset(preset: str, store: Path, run_root: Path, *overrides: str) -> pd.
         flush=True,
     )
     warm_s = warm(specs, WARM_WORKERS)
-    hashes = []
     t0 = time.perf_counter()
-    for k, spec in enumerate(specs):
-        outcome = runner.execute(spec, run_root / f"{k}", sweep_dir=run_root)
-        hashes.append(outcome.config_hash)
-        per = (time.perf_counter() - t0) / (k + 1)
-        print(
-            f"  [{k + 1}/{len(jobs)}] {runner.run_label(spec)}: {outcome.status} "
-            f"(ETA {per * (len(jobs) - k - 1):.0f} s)",
-            flush=True,
-        )
+    # the runs in RUN_WORKERS processes; each run's timed section alone (the others wait)
+    hashes = [h for h, _ in run_parallel(specs, run_root, RUN_WORKERS)]
     runs, _ = report.load_runs(store, hashes)
     table = report.summary_table(runs)
     table.attrs["warm_s"], table.attrs["runs_s"] = warm_s, time.perf_counter() - t0
@@ -69,8 +63,11 @@ def run_preset(preset: str, store: Path, run_root: Path, *overrides: str) -> pd.
 
 
 #: processes that compute the references and budget limits before the timed runs (the
-#: machine's 2 cores; the runs themselves are timed one at a time, single-threaded)
+#: machine's 2 cores; no timing)
 WARM_WORKERS = 2
+#: processes that execute the runs (:func:`sssbench.run.parallel.run_parallel`): they build
+#: and score side by side, and each run's timed section runs while the others wait
+RUN_WORKERS = 2
 
 #: extra overrides for every job, e.g. ``SSSBENCH_BENCHMARK="resolution=[256,256]"`` to run
 #: the preset's grid at a lower resolution (the section states the resolution it ran at)
@@ -104,7 +101,8 @@ def measured_text(table: pd.DataFrame, recs: pd.DataFrame) -> str:
         f"{table['scene'].nunique()} scenes × {n_scales} scales, "
         f"{resolutions}), {failed} failed; the references and budget limits took "
         f"{table.attrs.get('warm_s', float('nan')):.0f} s in {WARM_WORKERS} processes, the "
-        f"timed runs {table.attrs.get('runs_s', float('nan')):.0f} s one at a time (load "
+        f"runs {table.attrs.get('runs_s', float('nan')):.0f} s in {RUN_WORKERS} processes, "
+        "each timed alone (load "
         f"average {table.attrs.get('load_start', float('nan')):.1f} at the start, "
         f"{table.attrs.get('load_end', float('nan')):.1f} at the end; 2 cores). "
         f"{len(hidden_groups)} of {n_groups} scene/scale "

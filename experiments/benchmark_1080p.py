@@ -6,9 +6,10 @@ reference cache, its time stated with the load average.
     python -m experiments.run benchmark_1080p [--quick]
 
 As :mod:`experiments.benchmark`: the references and budget limits are warmed in 2 processes
-(:func:`sssbench.run.warm.warm`, progress per scene group), then every run is timed alone
-through :func:`sssbench.run.runner.execute` (a line per run with an ETA); the section is built
-from that run's store. ``SSSBENCH_BENCHMARK_1080P`` adds overrides to every job (a comma
+(:func:`sssbench.run.warm.warm`, progress per task), then the runs go through
+:func:`sssbench.run.runner.execute` in 2 processes, each timed alone
+(:func:`sssbench.run.parallel.run_parallel`, a line per scene group with an ETA); the section
+is built from that run's store. ``SSSBENCH_BENCHMARK_1080P`` adds overrides to every job (a comma
 replaces a sweep axis), e.g. ``"scene=face,face method=identity,preintegrated"``. It takes
 long (the 1080p references: ~1.5 min each on an idle machine): run it on an idle machine.
 The same sweep from the app: ``sssbench -m +experiment=paper_benchmark_1080p``.

@@ -486,7 +486,9 @@ def task(cfg: Any) -> str | tuple[float, ...]:
         return "failed"
     _progress(spec, hc, multirun)
     try:
-        outcome = execute(spec, run_dir, sweep_dir)
+        launcher = str((hc.get("launcher") or {}).get("_target_", "")) if multirun else ""
+        with _timing_slot(launcher, sweep_dir):
+            outcome = execute(spec, run_dir, sweep_dir)
     except Exception as exc:  # e.g. the store is unwritable: report, never abort the sweep
         log.error("failed: could not run or record the point: %s: %s", type(exc).__name__, exc)
         _STATE["failed"] += 1
@@ -499,6 +501,25 @@ def task(cfg: Any) -> str | tuple[float, ...]:
     if _returns_objectives(hc) and outcome.status in ("ok", "skipped"):
         return objectives(spec.store, outcome.config_hash) or outcome.status
     return outcome.status
+
+
+#: launchers whose jobs run side by side in processes of this machine: each run's timed
+#: section holds the sweep's timing lock (:func:`sssbench.run.settings.timing_slot`)
+SLOT_LAUNCHERS = ("JoblibLauncher",)
+
+
+def _timing_slot(launcher_target: str, sweep_dir: Path | None) -> Any:
+    """The run's :func:`~sssbench.run.settings.timing_slot` on ``<sweep dir>/.timing.lock``
+    under a launcher of :data:`SLOT_LAUNCHERS` (joblib: its jobs build and score side by side,
+    and each run is timed while the others wait), else a no-op context."""
+    import contextlib
+
+    if sweep_dir is None or launcher_target.rsplit(".", 1)[-1] not in SLOT_LAUNCHERS:
+        return contextlib.nullcontext()
+    from sssbench.run.settings import timing_slot
+
+    sweep_dir.mkdir(parents=True, exist_ok=True)
+    return timing_slot(sweep_dir / ".timing.lock")
 
 
 def _progress(spec: RunSpec, hc: Any, multirun: bool = True) -> None:
@@ -692,7 +713,7 @@ def _warm_sweep(config: Any) -> None:
         if len(group_by_scene(specs)) < 2:
             return
         log.info(
-            "warming the reference cache of %d runs in %d processes (one scene per task)",
+            "warming the reference cache of %d runs in %d processes (two tasks per scene)",
             len(specs),
             workers,
         )

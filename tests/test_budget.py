@@ -20,6 +20,7 @@ from sssbench.ops import (
 )
 from sssbench.profiles import SumOfGaussians
 from sssbench.score.budget import (
+    budget_truth,
     converged,
     error_budget,
     flat_convolution,
@@ -147,6 +148,25 @@ def test_taps_error_vanishes_and_parts_add_up():
     # the parts are images summing to the error image: their projections on it sum to it
     assert sum(b.contributions.values()) == pytest.approx(b.total, rel=1e-9)
     assert b.quadrature > 0 and b.converged_samples > 9
+
+
+def test_a_given_truth_is_the_one_the_budget_computes():
+    # the runner passes the truth it computed once per scene (run.budget_step.budget_truth):
+    # the budget must be bit for bit the one that computes it itself
+    g = _scene("sphere")
+    truth = budget_truth(g, SKIN)
+    assert torch.equal(truth, flat_convolution(g, profile_kernel(SKIN), footprint_mm(g)))
+    ref = ReferenceSSS(SKIN)(g)
+
+    def build(n):
+        return PreintegratedSSS(SKIN, n, "uniform")
+
+    own = error_budget(build, 9, g, SKIN, reference=ref, tol=1e-3, recon=False)
+    given = error_budget(build, 9, g, SKIN, reference=ref, tol=1e-3, recon=False, truth=truth)
+    assert own.model > 0
+    a, b = own.as_dict(), given.as_dict()
+    assert a.keys() == b.keys()
+    assert all(a[k] == b[k] or (math.isnan(a[k]) and math.isnan(b[k])) for k in a)
 
 
 def test_converged_stops_at_the_cap():

@@ -11,7 +11,7 @@ from specs import small_spec
 
 from sssbench.run import runmemo, runner
 from sssbench.run.spec import RunSpec
-from sssbench.run.warm import group_by_scene, warm
+from sssbench.run.warm import group_by_scene, tasks, warm
 
 
 def _spec(tmp_path, scene: str, method: str, samples: int | None, cache: str) -> RunSpec:
@@ -39,6 +39,21 @@ def _grid(tmp_path, cache: str) -> list[RunSpec]:
 def test_grouped_by_scene(tmp_path):
     groups = group_by_scene(_grid(tmp_path, "c"))
     assert [[s.scene for s in g] for g in groups] == [["step_edge"] * 3, ["sphere"] * 3]
+
+
+def test_tasks_queue_the_bilinear_references_first(tmp_path):
+    # two tasks per scene: its bilinear reference (the larger half) and its box reference with
+    # the converged limits; every bilinear task before every box task
+    queue = tasks(_grid(tmp_path, "c"))
+    assert [(part, g[0].scene) for part, g in queue] == [
+        ("bilinear", "step_edge"),
+        ("bilinear", "sphere"),
+        ("reference", "step_edge"),
+        ("reference", "sphere"),
+    ]
+    # a group without a budgeted run (the baseline alone) has no bilinear task
+    alone = [s for s in _grid(tmp_path, "c") if s.method == "identity"]
+    assert [part for part, _ in tasks(alone)] == ["reference", "reference"]
 
 
 @pytest.mark.parametrize("workers", [1, 2])

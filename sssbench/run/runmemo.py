@@ -3,7 +3,8 @@
 A sweep runs many methods on one scene (the paper benchmark: 14 runs per scene and scale).
 Each run used to rebuild the scene's G-buffer (about 1 s for the 512² ``face``) and to score
 the do-nothing baseline against the reference (two FLIP evaluations, about 0.6 s each at 512²),
-although neither depends on the method. This module keeps both, in memory, for the runs that
+although neither depends on the method (nor does the error budget's flat-plane truth, an
+FFT convolution of the scene). This module keeps them, in memory, for the runs that
 follow in the same process (a joblib or SLURM worker keeps its own).
 
 It cannot go stale or be corrupted by a run:
@@ -31,9 +32,11 @@ from typing import Any, TypeVar
 
 __all__ = ["MAX_ENTRIES", "clear", "memo_key", "remembered"]
 
-#: values kept at most: a scene's G-buffer and its baseline for the current sweep group and
-#: the one before (a 1080p float64 G-buffer is ~0.25 GB: the memo stays under ~1 GB)
-MAX_ENTRIES = 4
+#: values kept at most: a scene's G-buffer, its baseline and its budget truth (the true
+#: kernel on the flat plane, :func:`sssbench.run.budget_step.budget_truth`) for the current
+#: sweep group and the one before (a 1080p float64 G-buffer is ~0.25 GB, a 1080p image
+#: 50 MB: the memo stays under ~1 GB)
+MAX_ENTRIES = 6
 
 T = TypeVar("T")
 

@@ -8,7 +8,8 @@ function in the module of its job:
 2. **build** the profile, the pipelines and the scene with the fields they need
    (:func:`sssbench.run.inputs.build`);
 3. **time** the pipeline: ``warmup`` untimed runs, ``repeats`` timed ones (per pass: median /
-   min / max; run time = sum of the pass medians; :func:`sssbench.run.settings.time_runs`),
+   min / max; run time = sum of the pass medians; :func:`sssbench.run.settings.time_runs`;
+   alone among a sweep's processes: :func:`sssbench.run.settings.exclusive_timing`),
    then check that the method left its G-buffer as built (bit for bit against a pristine
    copy). From here to the record the G-buffer is sealed (:meth:`sssbench.gbuffer.GBuffer.sealed`):
    the memo trusts its stencils and masks in O(1) per call, and a write into it is an error
@@ -42,7 +43,13 @@ from typing import Any
 
 import torch
 
-from sssbench.run.budget_step import budget_inputs, budget_metrics
+from sssbench._checks import check_choice
+from sssbench.run.budget_step import (
+    bilinear_reference,
+    budget_limit,
+    budget_metrics,
+    has_budget,
+)
 from sssbench.run.inputs import (
     Built,
     baseline,
@@ -66,6 +73,7 @@ from sssbench.run.record import (
 from sssbench.run.settings import (
     RunTimeout,
     backend_used,
+    exclusive_timing,
     gl_times,
     pass_stats,
     time_limit,
@@ -189,19 +197,33 @@ def _guarded_measure(
         return "failed", f"{type(exc).__name__}: {exc}", {}, []
 
 
-def prepare(spec: RunSpec) -> None:
+#: what :func:`prepare` computes: everything, or one of the two halves a warm-up runs as
+#: separate tasks (the box reference with the budget's converged limits; the bilinear reference)
+PREPARE_PARTS = ("all", "reference", "bilinear")
+
+
+def prepare(spec: RunSpec, part: str = "all") -> None:
     """Compute and cache what a run of ``spec`` reads from the reference cache — the
     reference, and with ``spec.budget`` the converged limit and the bilinear reference of
     its error budget — without timing anything. A sweep can warm its caches in parallel
     processes, then time its runs one at a time (``experiments/benchmark.py``); a run that
-    finds nothing cached computes the same entries itself."""
+    finds nothing cached computes the same entries itself.
+
+    ``part``: ``"all"``; ``"reference"`` (the reference and the converged limit, which is
+    scaled by the reference's RMS); ``"bilinear"`` (the bilinear reference alone: it needs
+    neither), so a warm-up can compute the two halves of a scene in two processes."""
+    check_choice("part", part, PREPARE_PARTS)
     with torch_settings(spec.threads, spec.backend), torch.inference_mode():
         built = build(spec)
-        reference, _, _ = reference_image(
-            spec, built.gbuffer, built.profile, built.ref_pipeline, spec.reference_cache
-        )
-        if spec.budget:
-            budget_inputs(spec, built.profile, built.gbuffer, reference)
+        budgeted = spec.budget and has_budget(spec)
+        if part != "bilinear":
+            reference, _, _ = reference_image(
+                spec, built.gbuffer, built.profile, built.ref_pipeline, spec.reference_cache
+            )
+            if budgeted:
+                budget_limit(spec, built.profile, built.gbuffer, reference)
+        if budgeted and part != "reference":
+            bilinear_reference(spec, built.profile, built.gbuffer)
 
 
 def measure(spec: RunSpec, run_dir: Path) -> tuple[dict[str, Any], list[PassStats]]:
@@ -228,16 +250,18 @@ def _measure_sealed(
 ) -> tuple[dict[str, Any], list[PassStats]]:
     """Steps 3.–6. of :func:`measure` on the run's sealed G-buffer (``pristine``: a separate
     copy of the scene as built)."""
-    t0 = time.perf_counter()
-    on_device = times_on_device(spec.backend, spec.method)  # GL: timed by the device
-    cpu_runs = (0, 1) if on_device else (warmup, repeats)  # the image once, not timed twice
-    out, stats = time_runs(built.pipeline, built.gbuffer, *cpu_runs)  # 3. time
-    device = None
-    if on_device:
-        device = gl_times(spec.method, built.pipeline, built.gbuffer, warmup, repeats)
-        stats = device[0] if device else stats
+    with exclusive_timing():  # alone among a sweep's processes (run.settings.timing_slot)
+        t0 = time.perf_counter()
+        on_device = times_on_device(spec.backend, spec.method)  # GL: timed by the device
+        cpu_runs = (0, 1) if on_device else (warmup, repeats)  # the image once, not timed twice
+        out, stats = time_runs(built.pipeline, built.gbuffer, *cpu_runs)  # 3. time
+        device = None
+        if on_device:
+            device = gl_times(spec.method, built.pipeline, built.gbuffer, warmup, repeats)
+            stats = device[0] if device else stats
+        wall_ms = (time.perf_counter() - t0) * 1e3
     if is_reference and not any(p.name == "reference" for p in stats):
-        stats = _reference_pass(stats, (time.perf_counter() - t0) * 1e3, built.gbuffer)
+        stats = _reference_pass(stats, wall_ms, built.gbuffer)
     result = out.image
     check_untouched(built.gbuffer, pristine, spec.method)
     with torch.inference_mode():  # 4. reference

@@ -52,6 +52,7 @@ __all__ = [
     "flat_convolution",
     "converged",
     "Budget",
+    "budget_truth",
     "error_budget",
     "CONVERGED_TOL",
 ]
@@ -424,6 +425,15 @@ def reference_with(profile: Profile, reconstruction: str) -> nn.Module | None:
     return ReferenceSSS(profile, reconstruction=reconstruction)
 
 
+def budget_truth(gbuffer: GBuffer, profile: Profile) -> torch.Tensor:
+    """The model part's truth: ``gbuffer.diffuse`` scattered by the true kernel
+    (:func:`profile_kernel`) on the flat plane of the scene's footprint (:func:`footprint_mm`),
+    ``(1, 3, H, W)`` float64. The same for every method on the scene."""
+    g = gbuffer.to(torch.float64)
+    with torch.no_grad():
+        return flat_convolution(g, profile_kernel(profile), footprint_mm(g))
+
+
 def error_budget(
     build: Callable[[int], nn.Module],
     samples: int,
@@ -435,6 +445,7 @@ def error_budget(
     tol: float = CONVERGED_TOL,
     limit: tuple[torch.Tensor, int, float] | None = None,
     recon: bool = True,
+    truth: torch.Tensor | None = None,
 ) -> Budget:
     """Split a method's error on ``gbuffer`` into taps, model, reconstruction and screen.
 
@@ -452,6 +463,9 @@ def error_budget(
             has it already (the runner caches it: it does not depend on ``samples``).
         recon: split off the reconstruction convention; ``False`` leaves ``recon`` NaN (its
             image stays in screen) without computing the bilinear reference.
+        truth: the true kernel on the flat plane, :func:`budget_truth` of ``gbuffer`` and
+            ``profile``, when the caller has it (it does not depend on the method: the runner
+            computes it once per scene), computed if ``None``.
 
     Returns:
         A :class:`Budget`.
@@ -474,7 +488,8 @@ def error_budget(
         m_inf, n_inf, residual = limit
         m_inf = m_inf.double()
         p = footprint_mm(g)
-        truth = flat_convolution(g, profile_kernel(profile), p)
+        if truth is None:
+            truth = budget_truth(g, profile)
         model = flat_convolution(g, method_kernel(method), p)
         if reference_bilinear is None and recon:
             op = reference_with(profile, "bilinear")
