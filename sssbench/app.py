@@ -148,8 +148,11 @@ def spec_from_cfg(cfg: Any, overridden: tuple[str, ...] = ()) -> RunSpec:
         raise ValueError(f"samples must be an integer >= 1 (taps per pass), got {samples!r}")
     if c.get("threads") is not None and c["threads"] < 1:
         raise ValueError(f"threads must be an integer >= 1 or null, got {c['threads']!r}")
-    if c.get("timeout_s") is not None and not c["timeout_s"] > 0:
-        raise ValueError(f"timeout_s must be seconds > 0 or null (no limit), got {c['timeout_s']}")
+    # 0 keeps its earlier meaning, no limit (as null); a negative or NaN limit is refused
+    if c.get("timeout_s") is not None and not c["timeout_s"] >= 0:
+        raise ValueError(
+            f"timeout_s must be seconds > 0, or 0 / null (no limit), got {c['timeout_s']}"
+        )
     check_int("warm_workers", c.get("warm_workers", 0), 0)
     store = _store_path(c["store"])
     ignored: dict[str, Any] = {}

@@ -96,6 +96,14 @@ def test_every_other_value_is_refused_in_one_line(args, words, capsys, monkeypat
     assert not list(tmp_path.iterdir())  # no store, no run folder
 
 
+def test_a_zero_timeout_keeps_its_meaning_no_limit():
+    # timeout_s=0 meant "no limit" before the pre-check existed (sssbench.run.settings.time_limit
+    # skips a limit <= 0): the check keeps that meaning for 0 and refuses only negatives
+    assert app.check_values([*TINY, "timeout_s=0"]) is None
+    assert app.check_values([*TINY, "timeout_s=null"]) is None
+    assert "timeout_s" in (app.check_values([*TINY, "timeout_s=-0.5"]) or "")
+
+
 # ----------------------------------------------------------------------------- a -m grid
 def test_bad_combination_in_a_grid_whose_first_values_are_fine(tmp_path):
     # edge=40 fits a 64-pixel-wide step edge, edge=0 any width; only the combination of the
