@@ -190,17 +190,7 @@ static inline __attribute__((always_inline)) void DCAT(hdrp_pixels, SUFFIX)(cons
 #define VTRUNC VTRUNC_AVX2
 #define VSQRT VSQRT_AVX2
 #define VANY VANY_AVX2
-#include "disk_simd.h"
-#undef ISA
-#undef ISA_TARGET
-#undef VW
-#undef VGATHER_F64
-#undef VGATHER_I64
-#undef VGATHER_S
-#undef VFLOOR
-#undef VTRUNC
-#undef VSQRT
-#undef VANY
+#include "disk_simd.h" /* undefines the level's macros at its end */
 #define ISA avx512
 #define ISA_TARGET "avx512f"
 #define VW 8
@@ -211,17 +201,7 @@ static inline __attribute__((always_inline)) void DCAT(hdrp_pixels, SUFFIX)(cons
 #define VTRUNC VTRUNC_AVX512
 #define VSQRT VSQRT_AVX512
 #define VANY VANY_AVX512
-#include "disk_simd.h"
-#undef ISA
-#undef ISA_TARGET
-#undef VW
-#undef VGATHER_F64
-#undef VGATHER_I64
-#undef VGATHER_S
-#undef VFLOOR
-#undef VTRUNC
-#undef VSQRT
-#undef VANY
+#include "disk_simd.h" /* undefines the level's macros at its end */
 #define DISK_VEC(isa, job) DCAT(DCAT(disk_vec_, SUFFIX), isa)((job)->a, (job)->k, (job)->p0, (job)->p1)
 #else
 #define DISK_VEC(isa, job) (void)0

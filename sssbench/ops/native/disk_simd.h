@@ -287,3 +287,14 @@ __attribute__((target(ISA_TARGET))) static void DV(disk_vec_)(const disk_args *a
 #undef GS
 #undef DV_FN
 #undef DV
+/* the instantiating level's macros (disk_body.h defines them before each include) */
+#undef ISA
+#undef ISA_TARGET
+#undef VW
+#undef VGATHER_F64
+#undef VGATHER_I64
+#undef VGATHER_S
+#undef VFLOOR
+#undef VTRUNC
+#undef VSQRT
+#undef VANY
