@@ -10,7 +10,7 @@ import json
 import os
 
 import pytest
-from specs import small_spec
+from specs import budget_grid
 
 from sssbench.run import runmemo, runner
 from sssbench.run.parallel import run_parallel
@@ -51,21 +51,7 @@ def test_exclusive_timing_outside_a_slot_is_a_no_op(tmp_path):
 
 
 def _grid(tmp_path, name: str):
-    return [
-        small_spec(
-            tmp_path,
-            scene=scene,
-            method=method,
-            sampling="importance" if method == "preintegrated" else None,
-            samples=samples,
-            resolution=(20, 20),
-            budget=True,
-            store=tmp_path / f"{name}.sqlite",
-            reference_cache=tmp_path / "cache",
-        )
-        for scene in ("step_edge", "sphere")
-        for method, samples in (("preintegrated", 5), ("identity", None))
-    ]
+    return budget_grid(tmp_path, name, "cache", (("preintegrated", 5), ("identity", None)))
 
 
 _TIME_KEYS = {"time_ms", "pass_times", "wall_s", "reference_ms", "versions", "reference_cache_hit"}

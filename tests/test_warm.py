@@ -7,7 +7,7 @@ import dataclasses
 import json
 
 import pytest
-from specs import small_spec
+from specs import budget_grid, budget_spec
 
 from sssbench.run import runmemo, runner
 from sssbench.run.spec import RunSpec
@@ -15,25 +15,11 @@ from sssbench.run.warm import group_by_scene, tasks, warm
 
 
 def _spec(tmp_path, scene: str, method: str, samples: int | None, cache: str) -> RunSpec:
-    return small_spec(
-        tmp_path,
-        scene=scene,
-        method=method,
-        sampling="importance" if method == "preintegrated" else None,
-        samples=samples,
-        resolution=(20, 20),
-        budget=True,
-        store=tmp_path / f"{cache}.sqlite",
-        reference_cache=tmp_path / cache,
-    )
+    return budget_spec(tmp_path, scene, method, samples, cache, cache)
 
 
 def _grid(tmp_path, cache: str) -> list[RunSpec]:
-    return [
-        _spec(tmp_path, scene, method, samples, cache)
-        for scene in ("step_edge", "sphere")
-        for method, samples in (("preintegrated", 5), ("preintegrated", 7), ("identity", None))
-    ]
+    return budget_grid(tmp_path, cache, cache)
 
 
 def test_grouped_by_scene(tmp_path):
