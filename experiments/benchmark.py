@@ -30,8 +30,8 @@ from sssbench.report import plots
 from sssbench.report.tables import budget_verdicts
 from sssbench.run.parallel import run_parallel
 from sssbench.run.warm import warm
-from sssbench.store.refcache import default_cache_dir
 from sssbench.score.budget_verdict import PART_NAMES, PARTS
+from sssbench.store.refcache import default_cache_dir
 
 TITLE = "9. The benchmark: error against run time, per scene and scale"
 
