@@ -141,7 +141,7 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
     typedef SIMDN(vi_) ivec;
     typedef SIMDN(vu_) uivec;
     const int64_t w = j->w, hw = j->h * w;
-    const SCALAR *p0 = j->buf, *p1 = p0 + ln->plane, *p2 = p1 + ln->plane, *p3 = p2 + ln->plane;
+    const SCALAR *p0 = ln->pl[0], *p1 = ln->pl[1], *p2 = ln->pl[2], *p3 = ln->pl[3];
     const vec zero = {0}, one = zero + 1, last = zero + (SCALAR)(n_axis - 1);
     const mask sign = (mask)(-zero); /* the sign bits (-0.0) */
     const ivec izero = {0}, ilast = izero + (int32_t)(n_axis - 1);
@@ -167,8 +167,18 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
         const ivec col = AXIS_Y ? lane + (int32_t)(c - ln->s0) : izero;
         const vec pos = __builtin_convertvector(posi, vec);
         const ivec centre = (posi - win0) * pitch + col;
-        const vec c0 = (vec)GATHER_RAW(p0, centre), c1 = (vec)GATHER_RAW(p1, centre),
-                  c2 = (vec)GATHER_RAW(p2, centre), cz = (vec)GATHER_RAW(p3, centre);
+        vec c0, c1, c2, cz; /* the pixels themselves: contiguous in a whole vector */
+        if (n == VW) {
+            __builtin_memcpy(&c0, p0 + centre[0], sizeof c0);
+            __builtin_memcpy(&c1, p1 + centre[0], sizeof c1);
+            __builtin_memcpy(&c2, p2 + centre[0], sizeof c2);
+            __builtin_memcpy(&cz, p3 + centre[0], sizeof cz);
+        } else {
+            c0 = (vec)GATHER_RAW(p0, centre);
+            c1 = (vec)GATHER_RAW(p1, centre);
+            c2 = (vec)GATHER_RAW(p2, centre);
+            cz = (vec)GATHER_RAW(p3, centre);
+        }
         vec acc0 = zero, acc1 = zero, acc2 = zero;
         for (int64_t t = 0; t < j->k; ++t) {
             vec p = pos + j->offsets[t] * sc;
