@@ -324,7 +324,11 @@ static inline __attribute__((always_inline)) void CAT(lines_, SUFFIX)(
 #define IANY IANY_AVX2
 #define SHUFFLE2 SHUFFLE2_AVX2
 #define VFMA FMA_AVX2
+#ifdef MAXPS_AVX2
+#define VMAXPS MAXPS_AVX2
+#endif
 #include "gather_simd.h"
+#undef VMAXPS
 #undef ISA
 #undef ISA_TARGET
 #undef VW
@@ -342,7 +346,11 @@ static inline __attribute__((always_inline)) void CAT(lines_, SUFFIX)(
 #ifdef SCALEF_AVX512
 #define VSCALEF SCALEF_AVX512
 #endif
+#ifdef MAXPS_AVX512
+#define VMAXPS MAXPS_AVX512
+#endif
 #include "gather_simd.h"
+#undef VMAXPS
 #undef VSCALEF
 #undef ISA
 #undef ISA_TARGET
