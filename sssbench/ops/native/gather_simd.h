@@ -9,8 +9,10 @@
  * row: along the row for an x pass, and for a y pass VW columns of the same row, so that the
  * pixels a vector holds are contiguous in memory in both passes (the y pass walks its strip of
  * columns row block by row block, as the spans list it). The line's window is kept as four
- * planes (r, g, b, depth; line_window_ with PLANAR = 1), each tap's two samples are fetched
- * per plane by a gather, and every pixel goes through the same float operations in the same
+ * planes (r, g, b, depth; line_window_ with PLANAR = 1: packed into the thread's buffer, or an
+ * x pass's row read in place when the pass writes elsewhere: ln->pl), the centre pixels of a
+ * whole vector are loaded, each tap's two samples are fetched per plane by loads and permutes
+ * or selects (or a gather), and every pixel goes through the same float operations in the same
  * order as in the scalar loop (lane-wise IEEE arithmetic, no FMA: the library is built with
  * -ffp-contract=off; min / max / clamp as the same selects): the results are bitwise those of
  * the scalar loop, so of the torch loop, but for the gaussian follow-surface's exp, computed
