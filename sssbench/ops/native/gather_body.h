@@ -231,7 +231,10 @@ static inline __attribute__((always_inline)) SCALAR CAT(line_scales_, SUFFIX)(
     return max_abs;
 }
 
-/* the window and its samples in j->buf (see above), given the largest |scale| */
+/* the window and its samples in j->buf (see above), given the largest |scale|; or, for an
+ * x pass of the vectorised loops that writes elsewhere (j->direct), the row's planes where
+ * they are (ln->pl; measured on the 1080p close-up, issue 30: 7.5 % less CPU time for the
+ * 7-tap two-pass with the copy of the inactive pixels only and the centre loads) */
 static inline __attribute__((always_inline)) void CAT(line_window_, SUFFIX)(
     const CAT(job_, SUFFIX) *j, int64_t q, const int AXIS_Y, const int PLANAR, SCALAR max_abs,
     CAT(line_, SUFFIX) *ln) {
