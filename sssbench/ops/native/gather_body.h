@@ -36,6 +36,8 @@ typedef struct {
     SCALAR max_offset;
     int64_t k, h, w, first, last, strip; /* this thread's lines [first, last); strip width */
     int axis_y, follow, copy; /* copy: dst starts as a copy of src, line by line */
+    int direct; /* dst shares no memory with src: an x pass of the vectorised loops may
+                   read its window in place instead of packing it (line_window_) */
     SCALAR *buf;   /* per thread: the line's interleaved (r, g, b, depth) window */
     SCALAR *scale; /* per thread: the scales of one line's active pixels */
     SCALAR *blend_out;      /* (3, H*W) NULL, or lerped toward each result as it is written */
@@ -169,6 +171,7 @@ static inline void CAT(prefetch_row_, SUFFIX)(const CAT(job_, SUFFIX) *j, int64_
 typedef struct {
     const int64_t *ids; /* the spans crossing the line */
     int64_t count, s0, s1, lo, hi, pitch, plane;
+    const SCALAR *pl[4]; /* PLANAR: the (r, g, b, depth) planes, window index 0 at pl[i][0] */
 } CAT(line_, SUFFIX);
 
 static inline __attribute__((always_inline)) int CAT(line_begin_, SUFFIX)(
@@ -177,7 +180,17 @@ static inline __attribute__((always_inline)) int CAT(line_begin_, SUFFIX)(
     const int64_t *ids = j->ids + j->lines[3 * q], count = j->lines[3 * q + 1];
     const int64_t s0 = AXIS_Y ? q * j->strip : 0;
     const int64_t s1 = AXIS_Y && s0 + j->strip < w ? s0 + j->strip : w;
-    if (j->copy) /* the line's pixels, before its results overwrite the active ones */
+    if (j->copy && !AXIS_Y) { /* the row's inactive pixels: its results write the others */
+        int64_t c = 0;
+        for (int64_t e = 0; e <= count; ++e) {
+            const int64_t end = e < count ? j->spans[3 * ids[e] + 1] : w;
+            if (end > c)
+                for (int ch = 0; ch < 3; ++ch)
+                    memcpy(j->dst + ch * hw + q * w + c, j->src + ch * hw + q * w + c,
+                           sizeof(SCALAR) * (size_t)(end - c));
+            if (e < count) c = j->spans[3 * ids[e] + 2];
+        }
+    } else if (j->copy) /* the line's pixels, before its results overwrite the active ones */
         for (int ch = 0; ch < 3; ++ch)
             for (int64_t r = AXIS_Y ? 0 : q; r < (AXIS_Y ? h : q + 1); ++r)
                 memcpy(j->dst + ch * hw + r * w + s0, j->src + ch * hw + r * w + s0,
@@ -218,7 +231,10 @@ static inline __attribute__((always_inline)) SCALAR CAT(line_scales_, SUFFIX)(
     return max_abs;
 }
 
-/* the window and its samples in j->buf (see above), given the largest |scale| */
+/* the window and its samples in j->buf (see above), given the largest |scale|; or, for an
+ * x pass of the vectorised loops that writes elsewhere (j->direct), the row's planes where
+ * they are (ln->pl; measured on the 1080p close-up, issue 30: 7.5 % less CPU time for the
+ * 7-tap two-pass with the copy of the inactive pixels only and the centre loads) */
 static inline __attribute__((always_inline)) void CAT(line_window_, SUFFIX)(
     const CAT(job_, SUFFIX) *j, int64_t q, const int AXIS_Y, const int PLANAR, SCALAR max_abs,
     CAT(line_, SUFFIX) *ln) {
@@ -233,6 +249,21 @@ static inline __attribute__((always_inline)) void CAT(line_window_, SUFFIX)(
     const int64_t c0 = AXIS_Y ? s0 : lo, c1 = AXIS_Y ? s1 - 1 : hi;
     const int64_t pitch = AXIS_Y ? s1 - s0 : 1; /* from one position to the next */
     const int64_t plane = (r1 - r0 + 1) * (c1 - c0 + 1);
+    ln->lo = lo;
+    ln->hi = hi;
+    ln->pitch = pitch;
+    ln->plane = plane;
+    /* an x pass that writes elsewhere reads its row's window where it is (the vectorised
+     * loops' loads may read up to 2 * VW_MAX SCALARs past the window: not past the image's
+     * last plane) */
+    if (PLANAR && !AXIS_Y && j->direct && q * w + hi + 64 < hw) {
+        ln->pl[0] = j->src + q * w + lo;
+        ln->pl[1] = ln->pl[0] + hw;
+        ln->pl[2] = ln->pl[0] + 2 * hw;
+        ln->pl[3] = j->depth + q * w + lo;
+        return;
+    }
+    for (int i = 0; i < 4; ++i) ln->pl[i] = j->buf + i * plane;
     for (int64_t r = r0; r <= r1; ++r) {
         const SCALAR *rgb = j->src + r * w, *z = j->depth + r * w;
         if (PLANAR) {
@@ -252,10 +283,6 @@ static inline __attribute__((always_inline)) void CAT(line_window_, SUFFIX)(
             o[4 * c + 3] = z[c];
         }
     }
-    ln->lo = lo;
-    ln->hi = hi;
-    ln->pitch = pitch;
-    ln->plane = plane;
 }
 
 /* This thread's lines: rows (x pass) or strips of j->strip columns (y pass). The spans
@@ -300,7 +327,11 @@ static inline __attribute__((always_inline)) void CAT(lines_, SUFFIX)(
 #define IANY IANY_AVX2
 #define SHUFFLE2 SHUFFLE2_AVX2
 #define VFMA FMA_AVX2
+#ifdef MAXPS_AVX2
+#define VMAXPS MAXPS_AVX2
+#endif
 #include "gather_simd.h"
+#undef VMAXPS
 #undef ISA
 #undef ISA_TARGET
 #undef VW
@@ -318,7 +349,11 @@ static inline __attribute__((always_inline)) void CAT(lines_, SUFFIX)(
 #ifdef SCALEF_AVX512
 #define VSCALEF SCALEF_AVX512
 #endif
+#ifdef MAXPS_AVX512
+#define VMAXPS MAXPS_AVX512
+#endif
 #include "gather_simd.h"
+#undef VMAXPS
 #undef VSCALEF
 #undef ISA
 #undef ISA_TARGET
@@ -453,6 +488,8 @@ int64_t CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const i
         const SCALAR a = FABSF(offsets_s[t]);
         if (!(a <= max_offset)) max_offset = a == a ? a : (SCALAR)INFINITY;
     }
+    /* src and dst disjoint (a new output, as a rule): no pass writes what it reads */
+    const int direct = dst + 3 * h * w <= src || src + 3 * h * w <= dst;
     CAT(job_, SUFFIX) jobs[MAX_THREADS];
     int64_t q = 0, done = 0, total = 0;
     for (int64_t l = 0; l < n_lines; ++l) total += lines[3 * l + 2];
@@ -464,6 +501,7 @@ int64_t CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const i
         CAT(job_, SUFFIX) jb = {src, depth, spans, mask, width, ddepth, offsets_s, weights4,
                                 inv_s, dst, lines, ids, focal_px, width_scalar,
                                 correction, maxdd, max_offset, k, h, w, first, q, strip, axis_y, follow, copy,
+                                direct,
                                 mine, mine + 4 * (size_t)line_len, blend_out, blend_w};
         jobs[t] = jb;
     }

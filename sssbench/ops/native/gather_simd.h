@@ -9,8 +9,10 @@
  * row: along the row for an x pass, and for a y pass VW columns of the same row, so that the
  * pixels a vector holds are contiguous in memory in both passes (the y pass walks its strip of
  * columns row block by row block, as the spans list it). The line's window is kept as four
- * planes (r, g, b, depth; line_window_ with PLANAR = 1), each tap's two samples are fetched
- * per plane by a gather, and every pixel goes through the same float operations in the same
+ * planes (r, g, b, depth; line_window_ with PLANAR = 1: packed into the thread's buffer, or an
+ * x pass's row read in place when the pass writes elsewhere: ln->pl), the centre pixels of a
+ * whole vector are loaded, each tap's two samples are fetched per plane by loads and permutes
+ * or selects (or a gather), and every pixel goes through the same float operations in the same
  * order as in the scalar loop (lane-wise IEEE arithmetic, no FMA: the library is built with
  * -ffp-contract=off; min / max / clamp as the same selects): the results are bitwise those of
  * the scalar loop, so of the torch loop, but for the gaussian follow-surface's exp, computed
@@ -34,7 +36,10 @@ typedef uint32_t SIMDN(vu_) __attribute__((vector_size(VW * 4)));
  * absolute error below 1.2e-38 / 2.3e-308). Not the C library's exp: a few ulp from it (the
  * measured bound is BACKEND_AGREEMENT's, sssbench/ops/gather.py). */
 #if EXP_TABLE
-/* float: exp(x) = 2^n 2^(j/16) e^r with round(x 16 / ln 2) = 16 n + j, |r| <= ln 2 / 32: the
+/* float: exp(x) = 2^n 2^(j/16) e^r with round(x 16 / ln 2) = 16 n + j, |r| <= ln 2 / 32 (the
+ * rounding by adding 1.5 2^23 in the first fused multiply-add, since issue 30's last round:
+ * to nearest even, where a truncation of x 16 / ln 2 - 1/2 and two conversions were before;
+ * the same r but at ties, the same bound): the
  * table entry as the sum of two floats (hi + lo: 2^(j/16) to ~2^-48), e^r - 1 by its Taylor
  * polynomial of degree 3 (truncation below 1e-8, 0.08 ulp), assembled as hi + (hi q + lo)
  * with fused multiply-adds (one rounding each; the bitwise-specified tap arithmetic stays
@@ -61,18 +66,20 @@ SIMD_FN SIMDN(vs_) SIMDN(exp_)(SIMDN(vs_) x) {
     typedef SIMDN(vm_) mask;
     typedef SIMDN(vi_) ivec;
     const vec zero = {0};
-    const vec lowest = zero + (SCALAR)-104.0;
-    x = VSELECT(x > lowest, x, lowest); /* also -inf; n stays within int32 */
-    /* x 16 / ln 2 - 1/2 <= 0: truncation rounds it to the nearest integer n16 = 16 n + j */
-    const vec t = VFMA(x, zero + (SCALAR)23.083120346069336, zero - (SCALAR)0.5);
-    const ivec n16 = __builtin_convertvector(t, ivec);
-    const vec nf = __builtin_convertvector(n16, vec);
+    x = VMAXPS(x, zero + (SCALAR)-104.0); /* max(x, -104): also -inf, NaN -> -104 */
+    /* tm = 1.5 2^23 + n16, n16 = x 16 / ln 2 rounded to the nearest integer (one rounding:
+     * |n16| < 2^22, so tm's ulp is 1 and n16 sits in its low mantissa bits, whence the
+     * permutes below read j = n16 mod 16 and the float n16 is one exact subtraction: no
+     * conversions) */
+    const vec magic = zero + (SCALAR)12582912.0;
+    const vec tm = VFMA(x, zero + (SCALAR)23.083120346069336, magic);
+    const vec nf = tm - magic;
     /* r = x - n16 ln 2 / 16, ln 2 / 16 as two floats */
     vec r = VFMA(nf, zero - (SCALAR)0.043321698904037476, x);
     r = VFMA(nf, zero - (SCALAR)-1.1904088825787085e-10, r);
     vec q = VFMA(r, zero + (SCALAR)(1.0 / 6), zero + (SCALAR)0.5);
     q = VFMA(q, r * r, r); /* e^r - 1 */
-    const mask j = (mask)(n16 & 15);
+    const mask j = (mask)tm; /* the permutes read the low 4 bits only */
     vec hi0, hi1, lo0, lo1;
     __builtin_memcpy(&hi0, SIMDN(exp_hi_), sizeof hi0);
     __builtin_memcpy(&hi1, SIMDN(exp_hi_) + (VW < 16 ? VW : 0), sizeof hi1);
@@ -80,10 +87,11 @@ SIMD_FN SIMDN(vs_) SIMDN(exp_)(SIMDN(vs_) x) {
     __builtin_memcpy(&lo1, SIMDN(exp_lo_) + (VW < 16 ? VW : 0), sizeof lo1);
     const vec hi = (vec)SHUFFLE2(hi0, hi1, j), lo = (vec)SHUFFLE2(lo0, lo1, j);
     const vec p = hi + VFMA(hi, q, lo);
-#ifdef VSCALEF /* AVX-512: p 2^n in one instruction (subnormal results rounded, not 0) */
-    return VSCALEF(p, __builtin_convertvector(n16 >> 4, vec));
+#ifdef VSCALEF /* AVX-512: p 2^floor(n16 / 16) in one instruction (subnormal results rounded) */
+    return VSCALEF(p, nf * (SCALAR)0.0625);
 #endif
-    const ivec biased = (n16 >> 4) + 127; /* n = floor(n16 / 16); > 0: 2^n is normal */
+    /* n = floor(n16 / 16) from tm's bits; biased > 0: 2^n is normal */
+    const ivec biased = (((ivec)tm - 0x4B400000) >> 4) + 127;
     const mask e = __builtin_convertvector(biased, mask) << 23;
     const vec scale = VSELECT(__builtin_convertvector(biased > 0, mask), (vec)e, zero);
     return p * scale;
@@ -141,7 +149,7 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
     typedef SIMDN(vi_) ivec;
     typedef SIMDN(vu_) uivec;
     const int64_t w = j->w, hw = j->h * w;
-    const SCALAR *p0 = j->buf, *p1 = p0 + ln->plane, *p2 = p1 + ln->plane, *p3 = p2 + ln->plane;
+    const SCALAR *p0 = ln->pl[0], *p1 = ln->pl[1], *p2 = ln->pl[2], *p3 = ln->pl[3];
     const vec zero = {0}, one = zero + 1, last = zero + (SCALAR)(n_axis - 1);
     const mask sign = (mask)(-zero); /* the sign bits (-0.0) */
     const ivec izero = {0}, ilast = izero + (int32_t)(n_axis - 1);
@@ -167,8 +175,18 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
         const ivec col = AXIS_Y ? lane + (int32_t)(c - ln->s0) : izero;
         const vec pos = __builtin_convertvector(posi, vec);
         const ivec centre = (posi - win0) * pitch + col;
-        const vec c0 = (vec)GATHER_RAW(p0, centre), c1 = (vec)GATHER_RAW(p1, centre),
-                  c2 = (vec)GATHER_RAW(p2, centre), cz = (vec)GATHER_RAW(p3, centre);
+        vec c0, c1, c2, cz; /* the pixels themselves: contiguous in a whole vector */
+        if (n == VW) {
+            __builtin_memcpy(&c0, p0 + centre[0], sizeof c0);
+            __builtin_memcpy(&c1, p1 + centre[0], sizeof c1);
+            __builtin_memcpy(&c2, p2 + centre[0], sizeof c2);
+            __builtin_memcpy(&cz, p3 + centre[0], sizeof cz);
+        } else {
+            c0 = (vec)GATHER_RAW(p0, centre);
+            c1 = (vec)GATHER_RAW(p1, centre);
+            c2 = (vec)GATHER_RAW(p2, centre);
+            cz = (vec)GATHER_RAW(p3, centre);
+        }
         vec acc0 = zero, acc1 = zero, acc2 = zero;
         for (int64_t t = 0; t < j->k; ++t) {
             vec p = pos + j->offsets[t] * sc;
