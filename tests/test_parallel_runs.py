@@ -12,7 +12,7 @@ import threading
 import time
 
 import pytest
-from specs import budget_grid
+from specs import budget_grid, budget_spec
 
 from sssbench.run import runmemo, runner
 from sssbench.run.parallel import run_parallel
@@ -157,3 +157,18 @@ def test_a_joblib_sweeps_runs_hold_the_timing_lock(tmp_path):
     basic = "hydra._internal.core_plugins.basic_launcher.BasicLauncher"
     with app._timing_slot(basic, tmp_path / "b"), app._timing_slot("", None):
         assert not (tmp_path / "b" / ".timing.lock").exists()
+
+
+def test_a_failing_run_is_stored_failed_and_its_group_goes_on(tmp_path):
+    """A run that raises (here: 0 taps, refused by the method) is stored ``failed`` in its
+    worker, which leaves the timing slot as it found it: the runs after it in its scene group,
+    and the other group's, still run and are stored ok."""
+    specs = [
+        budget_spec(tmp_path, "step_edge", "preintegrated", 0, "s", "cache"),
+        budget_spec(tmp_path, "step_edge", "preintegrated", 5, "s", "cache"),
+        budget_spec(tmp_path, "sphere", "identity", None, "s", "cache"),
+    ]
+    out = run_parallel(specs, tmp_path / "runs", 2, progress=False)
+    assert [status for _, status in out] == ["failed", "ok", "ok"]
+    error = (tmp_path / "runs" / "0" / "error.txt").read_text()
+    assert "samples" in error
