@@ -169,6 +169,24 @@ def test_a_given_truth_is_the_one_the_budget_computes():
     assert all(a[k] == b[k] or (math.isnan(a[k]) and math.isnan(b[k])) for k in a)
 
 
+def test_a_float64_gbuffer_is_budgeted_as_its_float32_original():
+    # error_budget casts its G-buffer to float64, and skips the copy when it already is
+    # (the runner passes float64): the same numbers either way
+    g = _scene("sphere")
+    g32 = g.to(torch.float32)
+    ref = ReferenceSSS(SKIN)(g32.to(torch.float64))
+
+    def build(n):
+        return PreintegratedSSS(SKIN, n, "uniform")
+
+    a = error_budget(build, 9, g32, SKIN, reference=ref, tol=1e-3, recon=False).as_dict()
+    b = error_budget(
+        build, 9, g32.to(torch.float64), SKIN, reference=ref, tol=1e-3, recon=False
+    ).as_dict()
+    assert a["err_total"] > 0 and a.keys() == b.keys()
+    assert all(a[k] == b[k] or (math.isnan(a[k]) and math.isnan(b[k])) for k in a)
+
+
 def test_converged_stops_at_the_cap():
     g = _scene("light_dot")
     _, n, change = converged(lambda n: PreintegratedSSS(SKIN, n), 7, g, tol=0.0, max_samples=30)

@@ -139,6 +139,35 @@ def test_compute_all_keys():
     assert all(isinstance(v, float) for v in out.values())
 
 
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_compute_all_checks_once_and_gives_each_metrics_own_number(dtype):
+    """compute_all validates the pair once and runs the metrics' bodies on it: every value
+    is bit for bit the public function's (float32 and float64 inputs, a mask, a batch of 2,
+    a negative pixel that the display metrics clamp)."""
+    ref = _ramp(b=2, dtype=dtype)
+    res = ref * 1.05
+    res[0, 1, 3, 3] = -0.2
+    mask = torch.zeros(2, 1, 16, 16, dtype=dtype)
+    mask[..., 2:12, 4:14] = 1.0
+    mask[1, 0, 0, 0] = 0.5
+    out = metrics.compute_all(res, ref, mask)
+    assert list(out) == list(metrics.METRICS)
+    for name, fn in metrics.METRICS.items():
+        assert out[name] == fn(res, ref, mask), name
+    fmap = metrics.flip_map(res, ref)
+    assert metrics.compute_all(res, ref, mask, fmap=fmap) == out
+
+
+def test_compute_all_still_names_a_bad_argument():
+    ref = _ramp()
+    with pytest.raises(ValueError, match="mask"):
+        metrics.compute_all(ref, ref, torch.zeros(1, 1, 16, 16, dtype=torch.float64))
+    bad = ref.clone()
+    bad[0, 0, 0, 0] = float("nan")
+    with pytest.raises(ValueError, match="result"):
+        metrics.compute_all(bad, ref)
+
+
 def test_display_metrics_clamp_negative_light():
     ref = _ramp()
     neg = ref.clone()

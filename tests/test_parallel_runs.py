@@ -8,13 +8,15 @@ from __future__ import annotations
 import fcntl
 import json
 import os
+import threading
+import time
 
 import pytest
-from specs import budget_grid
+from specs import budget_grid, budget_spec
 
 from sssbench.run import runmemo, runner
 from sssbench.run.parallel import run_parallel
-from sssbench.run.settings import exclusive_timing, timing_slot
+from sssbench.run.settings import checkpoint, exclusive_timing, timing_slot
 
 
 def _try_lock(path, kind: int) -> bool:
@@ -44,10 +46,74 @@ def test_timed_section_excludes_every_other_worker(tmp_path):
 
 def test_exclusive_timing_outside_a_slot_is_a_no_op(tmp_path):
     with exclusive_timing():
-        pass
+        checkpoint()
     with timing_slot(tmp_path / "l"), pytest.raises(RuntimeError, match="nested"):
         with timing_slot(tmp_path / "l"):
             pass
+
+
+def _eventually(condition, seconds: float = 20.0) -> bool:
+    """Whether ``condition()`` holds within ``seconds`` (polled; a deadline, not a speed)."""
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        if condition():
+            return True
+        time.sleep(0.01)
+    return False
+
+
+def _gate(lock) -> int:
+    return os.open(str(lock) + ".gate", os.O_RDWR | os.O_CREAT, 0o600)
+
+
+def test_a_worker_waiting_to_time_stops_the_others_at_their_next_checkpoint(tmp_path):
+    lock = tmp_path / "timing.lock"
+    gate = _gate(lock)
+    try:
+        with timing_slot(lock):
+            checkpoint()  # no worker waits: straight through, still at shared work
+            assert not _try_lock(lock, fcntl.LOCK_EX)
+            fcntl.flock(gate, fcntl.LOCK_EX)  # another worker now waits to time
+            passed = threading.Event()
+            worker = threading.Thread(target=lambda: (checkpoint(), passed.set()))
+            worker.start()
+            # at the checkpoint this worker lets the slot go, so the other one can time …
+            assert _eventually(lambda: _try_lock(lock, fcntl.LOCK_EX))
+            # … and it does not resume while the other one waits or times
+            assert not passed.is_set() and worker.is_alive()
+            fcntl.flock(gate, fcntl.LOCK_UN)
+            worker.join(20)
+            assert passed.is_set()
+            assert not _try_lock(lock, fcntl.LOCK_EX)  # back at shared work
+    finally:
+        os.close(gate)
+
+
+def test_a_worker_waiting_to_time_holds_back_new_shared_work(tmp_path):
+    """Writer preference: while a worker waits for the others' current stretch of work to
+    end, none of them starts a new one (else two workers that score all the time would keep a
+    timed run waiting forever)."""
+    lock = tmp_path / "timing.lock"
+    other = os.open(lock, os.O_RDWR | os.O_CREAT, 0o600)
+    fcntl.flock(other, fcntl.LOCK_SH)  # another worker is at shared work
+    timed = threading.Event()
+
+    def timer() -> None:
+        with timing_slot(lock), exclusive_timing():
+            timed.set()
+
+    worker = threading.Thread(target=timer)
+    worker.start()
+    try:
+        # the timer waits (the other worker still works) and closes the gate meanwhile
+        assert _eventually(lambda: not _try_lock(str(lock) + ".gate", fcntl.LOCK_SH))
+        assert not timed.is_set()
+        fcntl.flock(other, fcntl.LOCK_UN)  # the other worker reaches a checkpoint
+        worker.join(20)
+        assert timed.is_set()
+        assert _try_lock(str(lock) + ".gate", fcntl.LOCK_SH)  # the gate is open again
+    finally:
+        os.close(other)
 
 
 def _grid(tmp_path, name: str):
@@ -91,3 +157,18 @@ def test_a_joblib_sweeps_runs_hold_the_timing_lock(tmp_path):
     basic = "hydra._internal.core_plugins.basic_launcher.BasicLauncher"
     with app._timing_slot(basic, tmp_path / "b"), app._timing_slot("", None):
         assert not (tmp_path / "b" / ".timing.lock").exists()
+
+
+def test_a_failing_run_is_stored_failed_and_its_group_goes_on(tmp_path):
+    """A run that raises (here: 0 taps, refused by the method) is stored ``failed`` in its
+    worker, which leaves the timing slot as it found it: the runs after it in its scene group,
+    and the other group's, still run and are stored ok."""
+    specs = [
+        budget_spec(tmp_path, "step_edge", "preintegrated", 0, "s", "cache"),
+        budget_spec(tmp_path, "step_edge", "preintegrated", 5, "s", "cache"),
+        budget_spec(tmp_path, "sphere", "identity", None, "s", "cache"),
+    ]
+    out = run_parallel(specs, tmp_path / "runs", 2, progress=False)
+    assert [status for _, status in out] == ["failed", "ok", "ok"]
+    error = (tmp_path / "runs" / "0" / "error.txt").read_text()
+    assert "samples" in error

@@ -73,6 +73,7 @@ from sssbench.run.record import (
 from sssbench.run.settings import (
     RunTimeout,
     backend_used,
+    checkpoint,
     exclusive_timing,
     gl_times,
     pass_stats,
@@ -263,17 +264,24 @@ def _measure_sealed(
     if is_reference and not any(p.name == "reference" for p in stats):
         stats = _reference_pass(stats, wall_ms, built.gbuffer)
     result = out.image
+    # from here on, untimed: a process of the sweep waiting to time goes first at each
+    # checkpoint (settings.timing_slot), so the scoring overlaps the other processes' scoring
     check_untouched(built.gbuffer, pristine, spec.method)
+    checkpoint()
     with torch.inference_mode():  # 4. reference
         reference, hit, ref_ms = reference_image(
             spec, built.gbuffer, built.profile, built.ref_pipeline, spec.reference_cache
         )
     mask = metric_mask(built.gbuffer, result.dtype)  # 5. score
     identity, *base = baseline(spec, built.gbuffer, built.profile, reference, mask)
+    checkpoint()
     fmap = flip_map(result, reference)  # one FLIP evaluation for the mean and the local
+    checkpoint()
     values = compute_all(result, reference, mask, fmap=fmap)
     _, values["error_flip_window"], _ = verdict.error_visibility(result, reference, mask, fmap)
+    checkpoint()
     extra = _budget_or_noise(spec, built, result, reference, identity, mask)  # 6.
+    checkpoint()
     if "rel_rms" in extra:  # a stochastic method: its rel RMS is the mean over the seeds
         values["rel_rms"] = extra.pop("rel_rms")
     scores = _verdicts(values, *base) | extra
@@ -329,8 +337,10 @@ def _budget_or_noise(
     out: dict[str, Any] = {}
     if spec.budget:
         out |= budget_metrics(spec, built.profile, built.gbuffer, reference)
+        checkpoint()
     if spec.reference == "mc":
         out |= mc_metrics(spec, built.gbuffer, result, reference, identity)
+        checkpoint()
     with torch.inference_mode():
         method = built.pipeline.method
         out |= seed_split(spec, method, built.profile, built.gbuffer, result, reference, mask)

@@ -23,6 +23,7 @@ from sssbench.store.tracking import PassStats
 __all__ = [
     "RunTimeout",
     "backend_used",
+    "checkpoint",
     "exclusive_timing",
     "timing_slot",
     "pass_stats",
@@ -79,8 +80,9 @@ def time_runs(
     return out, pass_stats(records)
 
 
-#: the open lock file of :func:`timing_slot` in this process (``None``: not in a slot)
-_SLOT: dict[str, int | None] = {"fd": None}
+#: the open lock files of :func:`timing_slot` in this process (``None``: not in a slot): the
+#: slot itself and its gate (``<slot>.gate``)
+_SLOT: dict[str, int | None] = {"fd": None, "gate": None}
 
 
 @contextlib.contextmanager
@@ -92,41 +94,76 @@ def timing_slot(path: str | os.PathLike[str]) -> Iterator[None]:
     an *exclusive* one and back. So any number of processes may build scenes and score at once,
     but a timed section starts only when every other process of the slot has stopped its work
     (each is blocked in its own lock call, sleeping) and none resumes before it ends: the passes
-    are timed as if they ran alone. A process leaves its shared lock while it waits for an
-    exclusive one (Linux ``flock`` converts by releasing first), so two processes that both
-    want to time cannot deadlock. A process that wants to time waits for the others' current
-    stretch of shared work to end (their build or scoring), so the overlap is partial (the
-    paper benchmark's runs at 128²: 233 s in 2 processes against 487 s one at a time, two
-    runs measured side by side under a load of 7–12, so only a rough ratio). POSIX only
-    (``fcntl``); nested slots are an error.
+    are timed as if they ran alone.
+
+    A process that wants to time first closes a second lock file, the *gate* (``<path>.gate``,
+    held exclusive while it waits for the slot), so no other process starts new shared work;
+    the others stop at their next :func:`checkpoint` (the runner calls one between the steps
+    of its scoring: reference, FLIP, metrics, budget, …) or at the end of their run, not at the
+    end of their whole scoring. So the scoring of one run overlaps the scoring of the other
+    processes' runs, and a timed section waits for at most one scoring step of each other
+    process. No process ever waits for the gate while it holds the slot, so the locks cannot
+    deadlock. POSIX only (``fcntl``); nested slots are an error.
     """
     import fcntl
 
     if _SLOT["fd"] is not None:
         raise RuntimeError("timing_slot is already held by this process (nested slots)")
     fd = os.open(os.fspath(path), os.O_RDWR | os.O_CREAT, 0o600)
+    gate = os.open(os.fspath(path) + ".gate", os.O_RDWR | os.O_CREAT, 0o600)
     try:
+        _pass_gate(gate)
         fcntl.flock(fd, fcntl.LOCK_SH)
-        _SLOT["fd"] = fd
+        _SLOT["fd"], _SLOT["gate"] = fd, gate
         yield
     finally:
-        _SLOT["fd"] = None
+        _SLOT["fd"] = _SLOT["gate"] = None
         os.close(fd)  # releases the lock
+        os.close(gate)
+
+
+def _pass_gate(gate: int) -> None:
+    """Wait until no process of the slot is waiting to time (the gate is free), then go on."""
+    import fcntl
+
+    fcntl.flock(gate, fcntl.LOCK_SH)
+    fcntl.flock(gate, fcntl.LOCK_UN)
 
 
 @contextlib.contextmanager
 def exclusive_timing() -> Iterator[None]:
     """The block runs with no other process of this process's :func:`timing_slot` at work
     (the exclusive lock; back to shared after it); a no-op outside a slot."""
-    fd = _SLOT["fd"]
-    if fd is None:
+    fd, gate = _SLOT["fd"], _SLOT["gate"]
+    if fd is None or gate is None:
         yield
         return
     import fcntl
 
-    fcntl.flock(fd, fcntl.LOCK_EX)
+    fcntl.flock(fd, fcntl.LOCK_UN)  # never wait for the gate while holding the slot
     try:
+        fcntl.flock(gate, fcntl.LOCK_EX)  # no process of the slot starts new shared work
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)  # the others stop at their next checkpoint
+        finally:
+            fcntl.flock(gate, fcntl.LOCK_UN)
         yield
+    finally:
+        fcntl.flock(fd, fcntl.LOCK_SH)
+
+
+def checkpoint() -> None:
+    """A point between two steps of untimed work where a process of this process's
+    :func:`timing_slot` that waits to time may go first: returns at once when none waits,
+    after that process's timed section otherwise; a no-op outside a slot."""
+    fd, gate = _SLOT["fd"], _SLOT["gate"]
+    if fd is None or gate is None:
+        return
+    import fcntl
+
+    fcntl.flock(fd, fcntl.LOCK_UN)
+    try:
+        _pass_gate(gate)
     finally:
         fcntl.flock(fd, fcntl.LOCK_SH)
 

@@ -10,6 +10,7 @@ import torch
 from sssbench._checks import MAX_SEED
 from sssbench.run import registry
 from sssbench.run.inputs import stage_pipeline
+from sssbench.run.settings import checkpoint
 from sssbench.run.spec import RunSpec
 from sssbench.score.bias_noise import bias_noise
 
@@ -52,4 +53,5 @@ def seed_split(
             params["seed"] = s_k
         other = registry.method_from_spec(spec, profile, seed=s_k, params=params)
         images.append(stage_pipeline(spec, other, profile).run(gbuffer).image)
+        checkpoint()  # a process waiting to time goes first (settings.timing_slot)
     return bias_noise(images, reference, mask)

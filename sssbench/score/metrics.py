@@ -121,9 +121,13 @@ def tonemap(image: torch.Tensor, exposure: float = 1.0) -> torch.Tensor:
     """
     check_tensor("image", image, ndim=4, channels=3)
     check_range("image", image, 0.0)
-    e = check_scalar("exposure", exposure, 0.0, low_inclusive=False)
-    x = image * e
-    y = x / (1.0 + x)
+    return _tonemap(image, check_scalar("exposure", exposure, 0.0, low_inclusive=False))
+
+
+def _tonemap(image: torch.Tensor, exposure: float) -> torch.Tensor:
+    """:func:`tonemap` of an image and exposure already checked."""
+    x = image * exposure
+    y = x / (1.0 + x)  # Reinhard
     return kornia.color.linear_rgb_to_rgb(y).clamp(0.0, 1.0)
 
 
@@ -139,7 +143,10 @@ def rmse(result: torch.Tensor, reference: torch.Tensor, mask: torch.Tensor | Non
     Returns:
         ``sqrt(Σ m (x - y)² / (3 Σ m))`` per image, averaged over the batch; >= 0.
     """
-    res, ref, m = _check_pair(result, reference, mask)
+    return _rmse(*_check_pair(result, reference, mask))
+
+
+def _rmse(res: torch.Tensor, ref: torch.Tensor, m: torch.Tensor | None) -> float:
     return float(_mse(res, ref, m).sqrt().mean())
 
 
@@ -150,7 +157,10 @@ def rel_rms(
 
     Raises ``ValueError`` when the reference is zero on the mask (the ratio is undefined).
     """
-    res, ref, m = _check_pair(result, reference, mask)
+    return _rel_rms(*_check_pair(result, reference, mask))
+
+
+def _rel_rms(res: torch.Tensor, ref: torch.Tensor, m: torch.Tensor | None) -> float:
     num = _mse(res, ref, m).sqrt()
     den = _weighted_mean(ref**2, m).sqrt()
     if bool((den <= 0).any()):
@@ -170,7 +180,10 @@ def psnr(result: torch.Tensor, reference: torch.Tensor, mask: torch.Tensor | Non
     Returns:
         dB per image, averaged over the batch (``inf`` if any image is exact).
     """
-    res, ref, m = _check_pair(result, reference, mask)
+    return _psnr(*_check_pair(result, reference, mask))
+
+
+def _psnr(res: torch.Tensor, ref: torch.Tensor, m: torch.Tensor | None) -> float:
     peaks = _peak(ref, m)
     if bool((peaks <= 0).any()):
         raise ValueError("reference must have a positive peak on the mask for psnr")
@@ -200,7 +213,10 @@ def ssim(result: torch.Tensor, reference: torch.Tensor, mask: torch.Tensor | Non
     Returns:
         SSIM in ``[-1, 1]`` (1 for identical images), averaged over the batch.
     """
-    res, ref, m = _check_pair(result, reference, mask)
+    return _ssim(*_check_pair(result, reference, mask))
+
+
+def _ssim(res: torch.Tensor, ref: torch.Tensor, m: torch.Tensor | None) -> float:
     _, _, h, w = ref.shape
     win = min(7, h, w)
     win = win if win % 2 == 1 else win - 1
@@ -244,9 +260,20 @@ def delta_e(
     """
     res, ref, m = _check_pair(result, reference, mask)
     check_choice("formula", formula, ("cie76", "ciede2000"))
+    exposure = check_scalar("exposure", exposure, 0.0, low_inclusive=False)
+    return _delta_e(res, ref, m, formula, exposure)
+
+
+def _delta_e(
+    res: torch.Tensor,
+    ref: torch.Tensor,
+    m: torch.Tensor | None,
+    formula: str = "cie76",
+    exposure: float = 1.0,
+) -> float:
     res, ref = res.clamp(min=0.0), ref.clamp(min=0.0)  # a display shows no negative light
-    lab_res = kornia.color.rgb_to_lab(tonemap(res, exposure))
-    lab_ref = kornia.color.rgb_to_lab(tonemap(ref, exposure))
+    lab_res = kornia.color.rgb_to_lab(_tonemap(res, exposure))
+    lab_ref = kornia.color.rgb_to_lab(_tonemap(ref, exposure))
     fn = deltaE_cie76 if formula == "cie76" else deltaE_ciede2000
     de = fn(lab_ref.numpy(), lab_res.numpy(), channel_axis=1)  # (B, H, W)
     return float(_weighted_mean(torch.from_numpy(np.ascontiguousarray(de))[:, None], m).mean())
@@ -273,8 +300,9 @@ def flip_map(
     res, ref, _ = _check_pair(result, reference, None)
     res, ref = res.clamp(min=0.0), ref.clamp(min=0.0)  # a display shows no negative light
     ppd = check_scalar("ppd", ppd, 0.0, low_inclusive=False)
-    t_res = tonemap(res, exposure)
-    t_ref = tonemap(ref, exposure)
+    exposure = check_scalar("exposure", exposure, 0.0, low_inclusive=False)
+    t_res = _tonemap(res, exposure)
+    t_ref = _tonemap(ref, exposure)
     maps = []
     for i in range(ref.shape[0]):
         a = np.ascontiguousarray(t_ref[i].permute(1, 2, 0).numpy(), dtype=np.float32)
@@ -315,7 +343,11 @@ def flip(
     _, _, m = _check_pair(result, reference, mask)
     if fmap is None:
         fmap = flip_map(result, reference, exposure=exposure, ppd=ppd)
-    fmap = check_flip_map(fmap, result)
+    return _flip_mean(check_flip_map(fmap, result), m)
+
+
+def _flip_mean(fmap: np.ndarray, m: torch.Tensor | None) -> float:
+    """The mask-weighted mean of a checked float64 FLIP map (:func:`flip`)."""
     if m is None:
         return float(fmap.mean())
     wgt = m[:, 0].numpy()
@@ -354,6 +386,14 @@ def compute_all(
 ) -> dict[str, float]:
     """Every metric of :data:`METRICS` as ``{name: value}``; ``fmap``: the images'
     :func:`flip_map` if the caller has it (see :func:`flip`)."""
-    out = {name: fn(result, reference, mask) for name, fn in METRICS.items() if name != "flip"}
-    out["flip"] = flip(result, reference, mask, fmap=fmap)
+    res, ref, m = _check_pair(result, reference, mask)  # checked once for every metric
+    if fmap is None:
+        fmap = flip_map(result, reference)
+    out = {name: fn(res, ref, m) for name, fn in _CHECKED.items()}
+    out["flip"] = _flip_mean(check_flip_map(fmap, result), m)
     return {name: out[name] for name in METRICS}
+
+
+#: the bodies of :data:`METRICS` but FLIP, on inputs :func:`_check_pair` returned (the public
+#: functions are ``body(*_check_pair(...))``, so :func:`compute_all` gives their numbers)
+_CHECKED = {"rmse": _rmse, "rel_rms": _rel_rms, "psnr": _psnr, "ssim": _ssim, "delta_e": _delta_e}
