@@ -23,6 +23,11 @@ rule the box reference uses for the cell:
 - an int ``n`` (Gauss–Legendre): the hat weights have a kink at the cell centre, so each cell is
   split into its four quadrants (where they are linear) with an ``n``-point rule per half axis:
   the integrand per quadrant is as smooth as the box rule's on the whole cell.
+
+The reference uses :func:`hat_cell_sums`: the same weights, contracted with the neighbours'
+values block by block in cache, with the per-quadrant hat sums factorised over the two axes.
+:func:`hat_cell_weights` (all nine weights of every cell, one (27, nodes) product) is the
+direct form, kept as its oracle (equal to rounding, tests/ops/test_reference_near.py).
 """
 
 from __future__ import annotations
@@ -35,7 +40,7 @@ import torch
 from sssbench.profiles.base import _gauss_legendre
 from sssbench.profiles.sum_of_gaussians import SumOfGaussians, interval_mass
 
-__all__ = ["HAT_OFFSETS", "hat_masses", "hat_cell_weights"]
+__all__ = ["HAT_OFFSETS", "hat_masses", "hat_cell_weights", "hat_cell_sums"]
 
 #: the nine neighbour offsets ``(a, b)`` of the bilinear reconstruction, in the order of the
 #: weights' second axis (column offset ``a``, row offset ``−b``: ``t`` runs upward)
@@ -263,13 +268,17 @@ def hat_cell_sums(
     nodes and closed forms) and the neighbours' stencil ``s`` and irradiance · stencil ``q``.
 
     ``values`` ``(N, 4)``: stencil and irradiance · stencil of every cell of the padded
-    surface (one row per cell); ``cells`` ``(M,)``: each cell's flat index there; ``hat`` ``(9,)``: the flat
-    shifts of the nine neighbours in the order of :data:`HAT_OFFSETS`; the other arguments as
-    :func:`hat_cell_weights`. Equal to contracting :func:`hat_cell_weights` with the gathered
-    neighbours, computed block by block of :data:`_CELL_BLOCK` cells so that the nine weights
-    and the 36 gathered neighbour values stay in cache, and with the Gauss–Legendre
-    hat sums factorised over the two axes (:func:`_quadrant_tables`): 3 + 18 / (2n) products
-    per node instead of 27 (the same terms summed in another order: rounding).
+    surface (one row per cell); ``cells`` ``(M,)``: each cell's flat index there; ``hat``
+    ``(9,)``: the flat shifts of the nine neighbours in the order of :data:`HAT_OFFSETS`; the
+    other arguments (``(M,)``, mm) as :func:`hat_cell_weights`.
+
+    Equal to contracting :func:`hat_cell_weights` with the gathered neighbours, computed block
+    by block of :data:`_CELL_BLOCK` cells so that the nine weights and the 36 gathered
+    neighbour values stay in cache, and with the Gauss–Legendre hat sums factorised over the
+    two axes (:func:`_quadrant_tables`): per Gaussian 3 products per node (the ``t`` sums)
+    and 9 per ``s`` node and ``t`` hat (the ``s`` sums) instead of 27 per node. The same
+    terms summed in another order: equal to rounding (tested to 1e-13 relative; measured
+    2.5e-15 on the reference of the 128² face at 0.3 mm/px, float64).
     """
     m = dx.shape[0]
     out = dx.new_empty(6, m)

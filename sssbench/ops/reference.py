@@ -621,7 +621,9 @@ def _gather_sog(
     ``reconstruction="bilinear"``: each neighbour cell contributes the nine hat-weighted
     integrals of :func:`~sssbench.ops._reference_near.hat_cell_weights` (same rules, a
     Gauss–Legendre rule per quadrant) times the values of its 3×3 neighbours, which
-    ``table`` must hold (one ring of padding beyond the ``k`` the offsets reach)."""
+    ``table`` must hold (one ring of padding beyond the ``k`` the offsets reach); computed
+    and contracted block by block by :func:`~sssbench.ops._reference_near.hat_cell_sums`
+    (equal to contracting ``hat_cell_weights`` to rounding, tested)."""
     e = centre.numel()
     acc = torch.zeros(e, 3, dtype=torch.float64)
     wsum = torch.zeros_like(acc)
@@ -706,8 +708,19 @@ def _sog_chunk(
                 cells = idx[0].view(c, e)
                 if len(rows) < c:
                     cells = cells.index_select(0, sel)
-                geom = (t.reshape(-1) for t in sub[:6])
-                part = hat_cell_sums(profile, rule, *geom, values, cells.reshape(-1), hat)
+                geom = [t.reshape(-1) for t in sub[:6]]
+                cells = cells.reshape(-1)
+                # cells off the surface (zero size) have weight exactly 0 in every rule:
+                # only the others are integrated, their sums put back among zeros
+                on = torch.nonzero(geom[3] > 0).squeeze(1)
+                if on.numel() == cells.numel():
+                    part = hat_cell_sums(profile, rule, *geom, values, cells, hat)
+                else:
+                    part = geom[0].new_zeros(6, cells.numel())
+                    if on.numel():
+                        geom = [t.index_select(0, on) for t in geom]
+                        got = hat_cell_sums(profile, rule, *geom, values, cells[on], hat)
+                        part.index_copy_(1, on, got)
                 part = part.view(6, -1, e).sum(1)
                 acc += part[:3].t()
                 wsum += part[3:].t()

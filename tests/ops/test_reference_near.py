@@ -137,12 +137,56 @@ def test_hat_cell_sums_equal_the_contracted_nine_weights(tilted, monkeypatch):
         torch.testing.assert_close(got, want, rtol=1e-13, atol=1e-15 * float(want.abs().max()))
 
 
+def _old_sog_chunk(profile, v, fields, centre, shift, radius_mm, hat=None, values=None):
+    """The bilinear branch of ``reference._sog_chunk`` before issue 30 (every cell of an
+    offset, on the surface or not, through ``hat_cell_weights``, nine gathers per batch),
+    kept as the oracle of the reference's near field."""
+    import math
+
+    from sssbench.ops.reference import _BATCH_ELEMS, _SOG_SKIP
+
+    e = centre.numel()
+    acc = torch.zeros(e, 3, dtype=torch.float64)
+    wsum = torch.zeros_like(acc)
+    xc, yc, zc = fields[0, centre], fields[1, centre], fields[2, centre]
+    per = max(1, _BATCH_ELEMS // e)
+    for a in range(0, shift.numel(), per):
+        sh = shift[a : a + per]
+        c = sh.numel()
+        idx = (centre[None, :] + sh[:, None]).reshape(1, -1).expand(fields.shape[0], -1)
+        nb = torch.gather(fields, 1, idx).view(-1, c, e)
+        dx, dy, dz = nb[0] - xc, nb[1] - yc, nb[2] - zc
+        hh, sx, sy = nb[3], nb[4], nb[5]
+        near2 = (dx.abs() - hh).clamp_min(0) ** 2 + (dy.abs() - hh).clamp_min(0) ** 2
+        near2_min = near2.amin(1).tolist()
+        near_on = near2.masked_fill(hh <= 0, math.inf).amin(1).tolist()
+        h_max = hh.amax(1).tolist()
+        tilted = (torch.count_nonzero(sx, 1) + torch.count_nonzero(sy, 1)).tolist()
+        groups = {}
+        for j in range(c):
+            if near_on[j] > radius_mm**2:
+                continue
+            rule = cell_rules(v, near2_min[j], h_max[j], tilted[j] > 0, 2.0 * _SOG_SKIP)
+            if any(r is not None for r in rule):
+                groups.setdefault(rule, []).append(j)
+        for rule, rows in groups.items():
+            sel = torch.tensor(rows)
+            sub = [t.index_select(0, sel) for t in (dx, dy, dz, hh, sx, sy)]
+            cells = idx[0].view(c, e).index_select(0, sel)
+            wgt = hat_cell_weights(profile, rule, *(t.reshape(-1) for t in sub))
+            wgt = wgt.view(3, 9, -1, e)
+            for j, off in enumerate(hat.tolist()):
+                qn = fields[6:10, cells + off]
+                acc += (wgt[:, j] * qn[1:]).sum(1).t()
+                wsum += (wgt[:, j] * qn[0]).sum(1).t()
+    return acc, wsum
+
+
 def test_reference_equals_the_unfused_near_field(monkeypatch):
     # the whole bilinear reference (curved, masked, a depth step and a shadow edge; and the
     # face at three scales with the six-Gaussian skin) with the old near field as the oracle
-    from data_synth import make_scene
-
     import sssbench.ops.reference as ref
+    from data_synth import make_scene
 
     cases = [(scene(), NARROW)]
     skin = SumOfGaussians.from_table("skin_deon6")
@@ -151,6 +195,6 @@ def test_reference_equals_the_unfused_near_field(monkeypatch):
     for g, prof in cases:
         new = reference_sss(g, prof, reconstruction="bilinear")
         with monkeypatch.context() as m:
-            m.setattr(ref, "hat_cell_sums", _unfused_hat_cell_sums)
+            m.setattr(ref, "_sog_chunk", _old_sog_chunk)
             old = reference_sss(g, prof, reconstruction="bilinear")
         assert float((new - old).abs().max()) < 1e-13 * float(old.abs().max())
