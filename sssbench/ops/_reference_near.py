@@ -318,12 +318,21 @@ def hat_cell_sums(
     return out
 
 
-def _quadrant_sums(a_mat, per, dx, dy, dz, sx, sy, hh) -> torch.Tensor:
+def _quadrant_sums(
+    a_mat: torch.Tensor,
+    per: list[tuple[int, int, torch.Tensor, torch.Tensor]],
+    dx: torch.Tensor,
+    dy: torch.Tensor,
+    dz: torch.Tensor,
+    sx: torch.Tensor,
+    sy: torch.Tensor,
+    hh: torch.Tensor,
+) -> torch.Tensor:
     """Per Gauss–Legendre Gaussian the nine hat-weighted sums ``(G, 9·M)`` (order of
     :data:`HAT_OFFSETS`) over the nodes of :func:`_quadrant_tables`, times the area element:
-    the exponents as :func:`node_sums` (one product with the six cell features, one exp),
-    then the ``t`` reduction (one product over the node rows of each ``s`` node) and the
-    ``s`` reduction."""
+    the exponents as :func:`node_sums` (one product with the six cell features, one exp, in
+    blocks of about :data:`_NODE_ELEMS` node values), then the ``t`` reduction (one product
+    over the node rows of each ``s`` node) and the ``s`` reduction."""
     two_h, h2 = 2 * hh, hh * hh
     sx2, sy2 = sx * sx, sy * sy
     feats = torch.stack(
@@ -337,13 +346,17 @@ def _quadrant_sums(a_mat, per, dx, dy, dz, sx, sy, hh) -> torch.Tensor:
         ]
     )
     m = dx.shape[0]
-    vals = torch.exp(a_mat @ feats)  # (rows, M)
+    out = dx.new_empty(len(per), 3, 3, m)
+    # node values in sub-blocks of about _NODE_ELEMS elements (they stay in cache)
+    sub = max(1, _NODE_ELEMS // a_mat.shape[0])
+    for lo in range(0, m, sub):
+        hi = min(m, lo + sub)
+        vals = torch.exp(a_mat @ feats[:, lo:hi])  # (rows, hi − lo)
+        for g, (start, stop, red_t, red_s) in enumerate(per):
+            n2 = red_t.shape[1]
+            # Σ_t: (3_b, 2n_t) @ (2n_t, 2n_s · M) -> (3_b, 2n_s, M); Σ_s: (3_a, 2n_s) batched
+            part = (red_t @ vals[start:stop].view(n2, n2 * (hi - lo))).view(3, n2, hi - lo)
+            out[g, :, :, lo:hi] = torch.matmul(red_s, part)  # (3_b, 3_a, M)
     area = torch.sqrt(1 + sx2 + sy2) * h2  # dA = sqrt(1 + |∇z|²) dx dy
-    out = dx.new_empty(len(per), 9 * m)
-    for g, (start, stop, red_t, red_s) in enumerate(per):
-        n2 = red_t.shape[1]
-        # Σ_t: (3_b, 2n_t) @ (2n_t, 2n_s · M) -> (3_b, 2n_s, M); Σ_s: (3_a, 2n_s) batched
-        part = (red_t @ vals[start:stop].view(n2, n2 * m)).view(3, n2, m)
-        out[g].view(3, 3, m).copy_(torch.matmul(red_s, part))  # (3_b, 3_a, M)
-        out[g].view(9, m).mul_(area)
-    return out
+    out.view(len(per), 9, m).mul_(area)
+    return out.view(len(per), 9 * m)
