@@ -237,8 +237,10 @@ def reference_sss(
     - ``"multipole"`` (sums of Gaussians): Gaussians narrower than ``WIDE_PIXELS`` times the largest
       footprint by the cell gather within their own (small) support, with nine hat-weighted cell
       integrals per neighbour cell for the bilinear reconstruction (the same closed forms,
-      Gauss–Legendre per quadrant: :mod:`sssbench.ops._reference_near`; about 2.4× the box
-      reference's time on the face and the sphere at 128², measured); wider Gaussians from the
+      Gauss–Legendre per quadrant: :mod:`sssbench.ops._reference_near`, contracted with the
+      neighbours block by block; about 2.0× the box reference's CPU time on the face and the
+      sphere at 128², 0.3 mm/px, and 1.2–1.4× less than before issue 30 on the 512² face,
+      head_cheek and sphere at 0.1 and 0.3 mm/px, measured); wider Gaussians from the
       moments of the reconstructed ``q dA`` (mass, dipole, quadrupole; exact for both
       reconstructions) of the coarsest pixel blocks whose patches fit in a ball of radius ``σ /
       FAR_RATIO``, by the second-order Taylor expansion of the Gaussian about the block centre;
