@@ -108,8 +108,10 @@ def _unfused_hat_cell_sums(profile, rule, dx, dy, dz, hh, sx, sy, values, cells,
 
 @pytest.mark.parametrize("tilted", [False, True])
 def test_hat_cell_sums_equal_the_contracted_nine_weights(tilted, monkeypatch):
-    # several blocks, every rule: flat or narrow (σ = 0.01 mm) and Gauss–Legendre orders 2..10
+    # several blocks and node sub-blocks, every rule: flat or narrow (σ = 0.01 mm) and
+    # Gauss–Legendre orders 3..10
     monkeypatch.setattr(near, "_CELL_BLOCK", 40)
+    monkeypatch.setattr(near, "_NODE_ELEMS", 3000)
     rng = np.random.default_rng(3)
     prof = SumOfGaussians(
         torch.tensor([0.01, 0.1, 0.2, 0.3, 0.6]) ** 2,
