@@ -239,7 +239,7 @@ def reference_sss(
       integrals per neighbour cell for the bilinear reconstruction (the same closed forms,
       Gauss–Legendre per quadrant: :mod:`sssbench.ops._reference_near`, contracted with the
       neighbours block by block; about 2.0× the box reference's CPU time on the face and the
-      sphere at 128², 0.3 mm/px, and 1.2–1.4× less than before issue 30 on the 512² face,
+      sphere at 128², 0.3 mm/px, and 1.2–2.0× less than before issue 30 on the 512² face,
       head_cheek and sphere at 0.1 and 0.3 mm/px, measured); wider Gaussians from the
       moments of the reconstructed ``q dA`` (mass, dipole, quadrupole; exact for both
       reconstructions) of the coarsest pixel blocks whose patches fit in a ball of radius ``σ /
