@@ -23,7 +23,7 @@ from sssbench._console import bar as progress_bar
 from sssbench.gbuffer import GBuffer, pixel_size_mm
 from sssbench.ops._reference_far import Surface, gather, map_threads, with_border
 from sssbench.ops._reference_flat import flat_kernel
-from sssbench.ops._reference_near import HAT_OFFSETS, hat_cell_weights, node_sums
+from sssbench.ops._reference_near import HAT_OFFSETS, hat_cell_sums, node_sums
 from sssbench.ops.timing import timed_pass
 from sssbench.profiles.base import Profile, _gauss_legendre
 from sssbench.profiles.sum_of_gaussians import (
@@ -237,8 +237,10 @@ def reference_sss(
     - ``"multipole"`` (sums of Gaussians): Gaussians narrower than ``WIDE_PIXELS`` times the largest
       footprint by the cell gather within their own (small) support, with nine hat-weighted cell
       integrals per neighbour cell for the bilinear reconstruction (the same closed forms,
-      Gauss–Legendre per quadrant: :mod:`sssbench.ops._reference_near`; about 2.4× the box
-      reference's time on the face and the sphere at 128², measured); wider Gaussians from the
+      Gauss–Legendre per quadrant: :mod:`sssbench.ops._reference_near`, contracted with the
+      neighbours block by block; about 2.0× the box reference's CPU time on the face and the
+      sphere at 128², 0.3 mm/px, and 1.2–2.0× less than before issue 30 on the 512² face,
+      head_cheek and sphere at 0.1 and 0.3 mm/px, measured); wider Gaussians from the
       moments of the reconstructed ``q dA`` (mass, dipole, quadrupole; exact for both
       reconstructions) of the coarsest pixel blocks whose patches fit in a ball of radius ``σ /
       FAR_RATIO``, by the second-order Taylor expansion of the Gaussian about the block centre;
@@ -621,7 +623,9 @@ def _gather_sog(
     ``reconstruction="bilinear"``: each neighbour cell contributes the nine hat-weighted
     integrals of :func:`~sssbench.ops._reference_near.hat_cell_weights` (same rules, a
     Gauss–Legendre rule per quadrant) times the values of its 3×3 neighbours, which
-    ``table`` must hold (one ring of padding beyond the ``k`` the offsets reach)."""
+    ``table`` must hold (one ring of padding beyond the ``k`` the offsets reach); computed
+    and contracted block by block by :func:`~sssbench.ops._reference_near.hat_cell_sums`
+    (equal to contracting ``hat_cell_weights`` to rounding, tested)."""
     e = centre.numel()
     acc = torch.zeros(e, 3, dtype=torch.float64)
     wsum = torch.zeros_like(acc)
@@ -635,15 +639,18 @@ def _gather_sog(
     # zero-size cell has weight exactly 0 in every rule
     cols = [0, 1, 2, 3, 4, 5, 7, 8, 9] if reconstruction == "box" else list(range(10))
     fields = table[:, cols].t().contiguous()
-    hat = None
+    hat = values = None
     if reconstruction == "bilinear":  # flat-index shifts of the 3×3 neighbours (row −b)
         hat = torch.tensor([a - b * wp for a, b in HAT_OFFSETS], dtype=centre.dtype)
+        values = fields[6:10].t().contiguous()  # (N, 4): a neighbour's row is one gather
     if progress is not None:
         progress.reset(total=shift.numel() * math.ceil(e / _CENTRES))
 
     def chunk(i: int) -> int:
         part = slice(i, i + _CENTRES)
-        acc[part], wsum[part] = _sog_chunk(profile, v, fields, centre[part], shift, radius_mm, hat)
+        acc[part], wsum[part] = _sog_chunk(
+            profile, v, fields, centre[part], shift, radius_mm, hat, values
+        )
         return shift.numel()
 
     for n in map_threads(chunk, range(0, e, _CENTRES), workers):
@@ -660,11 +667,13 @@ def _sog_chunk(
     shift: torch.Tensor,
     radius_mm: float,
     hat: torch.Tensor | None = None,
+    values: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """:func:`_gather_sog` of at most ``_CENTRES`` centres (``fields``: field-major
     neighbour table, ``shift``: flat offsets nearest first; ``hat``: the flat shifts of the
     nine bilinear neighbours, ``None`` for the box reconstruction, whose table has no
-    stencil row)."""
+    stencil row; ``values``: the bilinear reconstruction's ``(N, 4)`` stencil and irradiance ·
+    stencil per cell, see :func:`~sssbench.ops._reference_near.hat_cell_sums`)."""
     e = centre.numel()
     acc = torch.zeros(e, 3, dtype=torch.float64)
     wsum = torch.zeros_like(acc)
@@ -697,16 +706,26 @@ def _sog_chunk(
             if len(rows) < c:
                 sel = torch.tensor(rows)
                 sub = [t.index_select(-2, sel) for t in sub]
-            if hat is not None:
+            if hat is not None and values is not None:
                 cells = idx[0].view(c, e)
                 if len(rows) < c:
                     cells = cells.index_select(0, sel)
-                wgt = hat_cell_weights(profile, rule, *(t.reshape(-1) for t in sub[:6]))
-                wgt = wgt.view(3, 9, -1, e)
-                for j, off in enumerate(hat.tolist()):
-                    qn = fields[6:10, cells + off]  # stencil, irradiance · stencil
-                    acc += (wgt[:, j] * qn[1:]).sum(1).t()
-                    wsum += (wgt[:, j] * qn[0]).sum(1).t()
+                geom = [t.reshape(-1) for t in sub[:6]]
+                cells = cells.reshape(-1)
+                # cells off the surface (zero size) have weight exactly 0 in every rule:
+                # only the others are integrated, their sums put back among zeros
+                on = torch.nonzero(geom[3] > 0).squeeze(1)
+                if on.numel() == cells.numel():
+                    part = hat_cell_sums(profile, rule, *geom, values, cells, hat)
+                else:
+                    part = geom[0].new_zeros(6, cells.numel())
+                    if on.numel():
+                        geom = [t.index_select(0, on) for t in geom]
+                        got = hat_cell_sums(profile, rule, *geom, values, cells[on], hat)
+                        part.index_copy_(1, on, got)
+                part = part.view(6, -1, e).sum(1)
+                acc += part[:3].t()
+                wsum += part[3:].t()
                 continue
             wgt = _sog_cell_weights(profile, rule, *(t.reshape(-1) for t in sub[:6]))
             wgt = wgt.view(3, -1, e)
