@@ -151,6 +151,33 @@ def _quadrant_gauss_legendre(dx, dy, dz, hh, sx, sy, v, n, weights) -> torch.Ten
     return node_sums(a_mat, r_mat, dx, dy, dz, sx, sy, hh).view(3, 9, dx.shape[0])
 
 
+def _cell_features(
+    dx: torch.Tensor,
+    dy: torch.Tensor,
+    dz: torch.Tensor,
+    sx: torch.Tensor,
+    sy: torch.Tensor,
+    hh: torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The six features of each cell the quadrature's exponents are linear in, ``(6, M)``,
+    and the cell's area element ``(M,)`` (inputs ``(M,)``, mm; the cell ``p + s t_x + t t_y``
+    with ``t_x = (1, 0, sx)``, ``t_y = (0, 1, sy)``, ``|s|, |t| ≤ h``)."""
+    two_h, h2 = 2 * hh, hh * hh
+    sx2, sy2 = sx * sx, sy * sy
+    feats = torch.stack(
+        [
+            torch.addcmul(torch.addcmul(dx * dx, dy, dy), dz, dz),  # |Δ|²
+            two_h * torch.addcmul(dx, sx, dz),  # 2h Δ·t_x
+            two_h * torch.addcmul(dy, sy, dz),  # 2h Δ·t_y
+            torch.addcmul(h2, h2, sx2),  # h² |t_x|²
+            torch.addcmul(h2, h2, sy2),  # h² |t_y|²
+            (two_h * hh) * sx * sy,  # 2h² t_x·t_y
+        ]
+    )
+    area = torch.sqrt(1 + sx2 + sy2) * h2  # dA = sqrt(1 + |∇z|²) dx dy
+    return feats, area
+
+
 def node_sums(
     a_mat: torch.Tensor,
     r_mat: torch.Tensor,
@@ -169,22 +196,10 @@ def node_sums(
     ``a_mat`` ``(rows, 6)`` holds each node's coefficients of the features, ``r_mat``
     ``(R, rows)`` the weights that reduce nodes to outputs; returns ``(R, M)``. Sources are
     taken in blocks so that ``rows × block`` stays near :data:`_NODE_ELEMS` elements."""
-    two_h, h2 = 2 * hh, hh * hh
-    sx2, sy2 = sx * sx, sy * sy
-    feats = torch.stack(
-        [
-            torch.addcmul(torch.addcmul(dx * dx, dy, dy), dz, dz),  # |Δ|²
-            two_h * torch.addcmul(dx, sx, dz),  # 2h Δ·t_x
-            two_h * torch.addcmul(dy, sy, dz),  # 2h Δ·t_y
-            torch.addcmul(h2, h2, sx2),  # h² |t_x|²
-            torch.addcmul(h2, h2, sy2),  # h² |t_y|²
-            (two_h * hh) * sx * sy,  # 2h² t_x·t_y
-        ]
-    )
+    feats, area = _cell_features(dx, dy, dz, sx, sy, hh)
     block = max(1, _NODE_ELEMS // a_mat.shape[0])
     m = dx.shape[0]
     parts = [r_mat @ torch.exp(a_mat @ feats[:, i : i + block]) for i in range(0, m, block)]
-    area = torch.sqrt(1 + sx2 + sy2) * h2  # dA = sqrt(1 + |∇z|²) dx dy
     return torch.cat(parts, 1) * area
 
 
@@ -333,18 +348,7 @@ def _quadrant_sums(
     the exponents as :func:`node_sums` (one product with the six cell features, one exp, in
     blocks of about :data:`_NODE_ELEMS` node values), then the ``t`` reduction (one product
     over the node rows of each ``s`` node) and the ``s`` reduction."""
-    two_h, h2 = 2 * hh, hh * hh
-    sx2, sy2 = sx * sx, sy * sy
-    feats = torch.stack(
-        [
-            torch.addcmul(torch.addcmul(dx * dx, dy, dy), dz, dz),  # |Δ|²
-            two_h * torch.addcmul(dx, sx, dz),  # 2h Δ·t_x
-            two_h * torch.addcmul(dy, sy, dz),  # 2h Δ·t_y
-            torch.addcmul(h2, h2, sx2),  # h² |t_x|²
-            torch.addcmul(h2, h2, sy2),  # h² |t_y|²
-            (two_h * hh) * sx * sy,  # 2h² t_x·t_y
-        ]
-    )
+    feats, area = _cell_features(dx, dy, dz, sx, sy, hh)
     m = dx.shape[0]
     out = dx.new_empty(len(per), 3, 3, m)
     # node values in sub-blocks of about _NODE_ELEMS elements (they stay in cache)
@@ -357,6 +361,5 @@ def _quadrant_sums(
             # Σ_t: (3_b, 2n_t) @ (2n_t, 2n_s · M) -> (3_b, 2n_s, M); Σ_s: (3_a, 2n_s) batched
             part = (red_t @ vals[start:stop].view(n2, n2 * (hi - lo))).view(3, n2, hi - lo)
             out[g, :, :, lo:hi] = torch.matmul(red_s, part)  # (3_b, 3_a, M)
-    area = torch.sqrt(1 + sx2 + sy2) * h2  # dA = sqrt(1 + |∇z|²) dx dy
     out.view(len(per), 9, m).mul_(area)
     return out.view(len(per), 9 * m)
