@@ -188,13 +188,16 @@ class GBuffer:
 
     def to(self, dtype: torch.dtype) -> GBuffer:
         """A copy with every floating-point tensor field cast to ``dtype`` (``profile_id``
-        keeps its integer dtype)."""
+        keeps its integer dtype); this G-buffer itself when every such field has ``dtype``
+        already (the copy would hold the same tensors: ``Tensor.to`` of a tensor's own dtype
+        returns it, and a G-buffer's fields are never reassigned), so a cast that changes
+        nothing does not validate its fields again."""
         changes = {}
         for f in fields(self):
             value = getattr(self, f.name)
-            if isinstance(value, torch.Tensor) and f.name != "profile_id":
+            if isinstance(value, torch.Tensor) and f.name != "profile_id" and value.dtype != dtype:
                 changes[f.name] = value.to(dtype)
-        return replace(self, **changes)
+        return replace(self, **changes) if changes else self
 
     def replace(self, **changes: object) -> GBuffer:
         """A copy with some fields replaced; the replaced fields are validated.

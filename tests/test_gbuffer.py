@@ -90,3 +90,20 @@ def test_replace_checks_a_reused_tensor_again_after_an_in_place_change():
     for _ in range(2):
         with pytest.raises(ValueError, match="mask must lie"):
             g.replace(mask=mask)
+
+
+def test_a_cast_to_the_own_dtype_is_the_same_g_buffer_and_a_real_cast_copies_every_float():
+    """``GBuffer.to``: casting to the dtype every float field already has changes nothing
+    (the same G-buffer); any other dtype casts every float field and keeps ``profile_id``."""
+    g = GBuffer(**good())
+    assert g.to(g.dtype) is g
+    g64 = g.to(torch.float64)
+    assert g64 is not g
+    for name, value in vars(g64).items():
+        if isinstance(value, torch.Tensor):
+            old = getattr(g, name)
+            if old.is_floating_point():
+                assert value.dtype == torch.float64 and torch.equal(value, old.double())
+            else:
+                assert value.dtype == old.dtype
+    assert g64.to(torch.float64) is g64

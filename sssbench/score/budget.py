@@ -30,7 +30,6 @@ import inspect
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from dataclasses import fields as dataclass_fields
 
 import numpy as np
 import torch
@@ -435,18 +434,6 @@ def budget_truth(gbuffer: GBuffer, profile: Profile) -> torch.Tensor:
         return flat_convolution(g, profile_kernel(profile), footprint_mm(g))
 
 
-def _float64(gbuffer: GBuffer) -> GBuffer:
-    """``gbuffer.to(torch.float64)``, or ``gbuffer`` itself when every field it would cast is
-    float64 already (the same tensors either way: ``Tensor.to`` of the same dtype returns the
-    tensor itself; a copy of the G-buffer only re-validates its fields)."""
-    same = all(
-        f.name == "profile_id" or getattr(gbuffer, f.name).dtype == torch.float64
-        for f in dataclass_fields(gbuffer)
-        if isinstance(getattr(gbuffer, f.name), torch.Tensor)
-    )
-    return gbuffer if same else gbuffer.to(torch.float64)
-
-
 def error_budget(
     build: Callable[[int], nn.Module],
     samples: int,
@@ -487,7 +474,7 @@ def error_budget(
 
     if gbuffer.shape[0] != 1:
         raise ValueError(f"gbuffer must hold one image (B = 1), got B = {gbuffer.shape[0]}")
-    g = _float64(gbuffer)
+    g = gbuffer.to(torch.float64)
     mask = g.mask_or_ones()
     with torch.no_grad():
         ref = (ReferenceSSS(profile)(g) if reference is None else reference).double()
