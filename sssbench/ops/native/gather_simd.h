@@ -28,75 +28,65 @@ typedef LANE SIMDN(vm_) __attribute__((vector_size(VW * sizeof(SCALAR))));
 typedef int32_t SIMDN(vi_) __attribute__((vector_size(VW * 4)));
 typedef uint32_t SIMDN(vu_) __attribute__((vector_size(VW * 4)));
 
-/* exp(x) for x <= 0 (also -inf), all lanes at once: the gaussian follow-surface factor
- * (000 eq. 7), whose argument -d^2 / 2 is never positive. Float: the table exp under
- * EXP_TABLE; otherwise (double) Cody-Waite reduction x = n ln 2 + r, |r| <= ln 2 / 2, then
- * Cephes' degree-7 polynomial (float, unused since issue 30) or the Taylor polynomial of degree
- * 13 (double), scaled by 2^n built in the exponent bits; 0 where 2^n would be subnormal (an
- * absolute error below 1.2e-38 / 2.3e-308). Not the C library's exp: a few ulp from it (the
- * measured bound is BACKEND_AGREEMENT's, sssbench/ops/gather.py). */
+/* The gaussian follow-surface factor of 000 eq. 7, exp(-d^2 / 2) = exp(-y) with
+ * y = (|dz| m)^2 >= 0, m = 1 / (sqrt 2 surface_scale) per channel (expneg_ below), all lanes
+ * at once. Not the C library's exp: within an ulp or two of it (the measured bound is
+ * BACKEND_AGREEMENT's, sssbench/ops/gather.py). */
 #if EXP_TABLE
-/* float: exp(x) = 2^n 2^(j/16) e^r with round(x 16 / ln 2) = 16 n + j, |r| <= ln 2 / 32 (the
- * rounding by adding 1.5 2^23 in the first fused multiply-add, since issue 30's last round:
- * to nearest even, where a truncation of x 16 / ln 2 - 1/2 and two conversions were before;
- * the same r but at ties, the same bound): the
- * table entry as the sum of two floats (hi + lo: 2^(j/16) to ~2^-48), e^r - 1 by its Taylor
- * polynomial of degree 3 (truncation below 1e-8, 0.08 ulp), assembled as hi + (hi q + lo)
- * with fused multiply-adds (one rounding each; the bitwise-specified tap arithmetic stays
- * unfused), 2^n by scalef on AVX-512 (subnormal results rounded) or built in the exponent
- * bits on AVX2 (0 where 2^n would be subnormal, as below): about 12 vector operations against
- * the 31 of the polynomial of degree 7 below. Within 1 ulp of the correctly rounded exp and
- * of the C library's expf at every float in [-104, 0] with a normal result (checked
- * exhaustively, 1.1e9 arguments, at both levels; tests/ops/test_gather_backends.py samples
- * it through a pass). */
-static const float SIMDN(exp_hi_)[16] __attribute__((aligned(64))) = {
-    1.0f, 1.0442737340927124f, 1.0905077457427979f, 1.1387885808944702f, 1.1892070770263672f,
-    1.2418577671051025f, 1.2968395948410034f, 1.3542555570602417f, 1.4142135381698608f,
-    1.4768261909484863f, 1.5422108173370361f, 1.610490322113037f, 1.6817928552627563f,
-    1.7562521696090698f, 1.8340080976486206f, 1.9152065515518188f};
-static const float SIMDN(exp_lo_)[16] __attribute__((aligned(64))) = {
-    0.0f, 4.8334701574503924e-08f, -1.3077539939843064e-08f, 5.386222312608879e-08f,
-    3.797635272917432e-08f, 4.496838101886169e-08f, -4.018999533172973e-08f,
-    -1.0123349269974824e-08f, 2.4203234971764687e-08f, -4.500898853621038e-08f,
-    8.070904833346049e-09f, 9.836217174097328e-09f, -2.4755326677450284e-08f,
-    -9.235770370707996e-09f, -1.1239277952768134e-08f, 9.845328108326612e-09f};
+/* float, since issue 30's last round (one table lookup, no select, no product by 2^n):
+ * exp(-y) = 2^n 2^(j/8) e^r with 8 n + j = round(-y 8 / ln 2) (by adding 1.5 2^23 in the
+ * first fused multiply-add, to nearest even: tm's low mantissa bits then hold it, no
+ * conversions), r = -y - (8 n + j) ln 2 / 8 (ln 2 / 8 as two floats; the first fused
+ * multiply-add is exact), |r| <= ln 2 / 16; 2^(j/8) from a table of 8 floats (one permute of
+ * one vector: the low 3 bits of tm index it; AVX-512's 16 lanes hold it twice), each within
+ * 0.34 ulp of 2^(j/8); e^r - 1 by its Taylor polynomial of degree 4 (truncation below
+ * 1.4e-9, 0.02 ulp); assembled as 2^(j/8) + 2^(j/8) (e^r - 1) in one fused multiply-add, and
+ * 2^n added to its exponent field as an integer. y is first clamped to Y0 = 87.33654 (the
+ * largest float with exp(-y) >= FLT_MIN, one min; also +inf, NaN -> Y0), so n >= -126 and the
+ * result is normal: exp(-Y0) = 1.17549e-38 where the exact exp(-y) is smaller (an absolute
+ * error below FLT_MIN, 1.2e-38; a weight times it underflows to 0 under the pass's
+ * flush-to-zero). About 14 vector operations (the 16-entry table with a second, low-order
+ * table, a degree-3 polynomial and a select of 0 where 2^n is subnormal: 27 on AVX2). Within
+ * 1 ulp of the correctly rounded exp at every float y in [0, Y0] (checked exhaustively at both
+ * levels, 1.1e9 arguments: tests/ops/exp_exhaustive.c; tests/ops/test_gather_backends.py
+ * samples it through a pass). The fused multiply-adds here are the only ones of the loop (the
+ * bitwise-specified tap arithmetic stays unfused). */
+static const float SIMDN(exp_tab_)[16] __attribute__((aligned(64))) = {
+    1.0f, 1.0905077457427979f, 1.1892070770263672f, 1.2968395948410034f,
+    1.4142135381698608f, 1.5422108173370361f, 1.6817928552627563f, 1.8340080976486206f,
+    1.0f, 1.0905077457427979f, 1.1892070770263672f, 1.2968395948410034f,
+    1.4142135381698608f, 1.5422108173370361f, 1.6817928552627563f, 1.8340080976486206f};
 
-SIMD_FN SIMDN(vs_) SIMDN(exp_)(SIMDN(vs_) x) {
+SIMD_FN SIMDN(vs_) SIMDN(expneg_)(SIMDN(vs_) y) {
     typedef SIMDN(vs_) vec;
     typedef SIMDN(vm_) mask;
-    typedef SIMDN(vi_) ivec;
+    typedef SIMDN(vu_) uivec;
     const vec zero = {0};
-    x = VMAXPS(x, zero + (SCALAR)-104.0); /* max(x, -104): also -inf, NaN -> -104 */
-    /* tm = 1.5 2^23 + n16, n16 = x 16 / ln 2 rounded to the nearest integer (one rounding:
-     * |n16| < 2^22, so tm's ulp is 1 and n16 sits in its low mantissa bits, whence the
-     * permutes below read j = n16 mod 16 and the float n16 is one exact subtraction: no
-     * conversions) */
+    y = VMINPS(y, zero + (SCALAR)87.33654022216797); /* min(y, Y0): also +inf, NaN -> Y0 */
+    /* tm = 1.5 2^23 + n8, n8 = round(-y 8 / ln 2) in [-1008, 0] */
     const vec magic = zero + (SCALAR)12582912.0;
-    const vec tm = VFMA(x, zero + (SCALAR)23.083120346069336, magic);
+    const vec tm = VFMA(y, zero - (SCALAR)11.541560173034668, magic);
     const vec nf = tm - magic;
-    /* r = x - n16 ln 2 / 16, ln 2 / 16 as two floats */
-    vec r = VFMA(nf, zero - (SCALAR)0.043321698904037476, x);
-    r = VFMA(nf, zero - (SCALAR)-1.1904088825787085e-10, r);
-    vec q = VFMA(r, zero + (SCALAR)(1.0 / 6), zero + (SCALAR)0.5);
-    q = VFMA(q, r * r, r); /* e^r - 1 */
-    const mask j = (mask)tm; /* the permutes read the low 4 bits only */
-    vec hi0, hi1, lo0, lo1;
-    __builtin_memcpy(&hi0, SIMDN(exp_hi_), sizeof hi0);
-    __builtin_memcpy(&hi1, SIMDN(exp_hi_) + (VW < 16 ? VW : 0), sizeof hi1);
-    __builtin_memcpy(&lo0, SIMDN(exp_lo_), sizeof lo0);
-    __builtin_memcpy(&lo1, SIMDN(exp_lo_) + (VW < 16 ? VW : 0), sizeof lo1);
-    const vec hi = (vec)SHUFFLE2(hi0, hi1, j), lo = (vec)SHUFFLE2(lo0, lo1, j);
-    const vec p = hi + VFMA(hi, q, lo);
-#ifdef VSCALEF /* AVX-512: p 2^floor(n16 / 16) in one instruction (subnormal results rounded) */
-    return VSCALEF(p, nf * (SCALAR)0.0625);
-#endif
-    /* n = floor(n16 / 16) from tm's bits; biased > 0: 2^n is normal */
-    const ivec biased = (((ivec)tm - 0x4B400000) >> 4) + 127;
-    const mask e = __builtin_convertvector(biased, mask) << 23;
-    const vec scale = VSELECT(__builtin_convertvector(biased > 0, mask), (vec)e, zero);
-    return p * scale;
+    /* s = y + n8 ln 2 / 8 = -r */
+    vec s = VFMA(nf, zero + (SCALAR)0.08664339780807495, y);
+    s = VFMA(nf, zero + (SCALAR)-2.380817765157417e-10, s);
+    /* e^r - 1 = e^-s - 1 = s^2 (1/2 - s/6 + s^2/24) - s */
+    vec q = VFMA(s, zero + (SCALAR)(1.0 / 24), zero - (SCALAR)(1.0 / 6));
+    q = VFMA(q, s, zero + (SCALAR)0.5);
+    q = VFMA(q, s * s, -s);
+    vec tab;
+    __builtin_memcpy(&tab, SIMDN(exp_tab_), sizeof tab);
+    const vec hi = (vec)VPERMUTE(tab, (mask)tm); /* 2^(j/8): the low bits of tm */
+    const vec p = VFMA(hi, q, hi);               /* in [0.97, 1.92] */
+    /* n << 23 = (n8 << 20) with the low 23 bits cleared (tm's high bits shift out) */
+    const uivec e = ((uivec)tm << 20) & 0xFF800000u;
+    return (vec)((uivec)p + e);
 }
 #else
+/* exp(x) for x <= 0 (also -inf), double: Cody-Waite reduction x = n ln 2 + r, |r| <= ln 2 / 2,
+ * then the Taylor polynomial of degree 13 (the float branch, Cephes' degree-7 polynomial, is
+ * unused since issue 30), scaled by 2^n built in the exponent bits; 0 where 2^n would be
+ * subnormal (an absolute error below 2.3e-308). */
 SIMD_FN SIMDN(vs_) SIMDN(exp_)(SIMDN(vs_) x) {
     typedef SIMDN(vs_) vec;
     typedef SIMDN(vm_) mask;
@@ -136,6 +126,9 @@ SIMD_FN SIMDN(vs_) SIMDN(exp_)(SIMDN(vs_) x) {
     const vec scale = VSELECT(__builtin_convertvector(biased > 0, mask), (vec)e, zero);
     return p * scale;
 }
+
+/* exp(-y) for y >= 0 (double): the polynomial above */
+SIMD_FN SIMDN(vs_) SIMDN(expneg_)(SIMDN(vs_) y) { return SIMDN(exp_)(-y); }
 #endif
 
 /* The taps of the active pixels [a, b) of row `row` (within the line's strip), VW at a time;
@@ -156,6 +149,11 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
     const ivec win0 = izero + (int32_t)ln->lo, pitch = izero + (int32_t)ln->pitch;
     const vec inv0 = zero + j->inv_scale[0], inv1 = zero + j->inv_scale[1],
               inv2 = zero + j->inv_scale[2];
+    /* the gaussian's 1 / (sqrt 2 surface_scale) per channel, rounded once */
+    const double rsqrt2 = 0.70710678118654752440;
+    const vec m0 = zero + (SCALAR)(rsqrt2 * j->inv_scale[0]),
+              m1 = zero + (SCALAR)(rsqrt2 * j->inv_scale[1]),
+              m2 = zero + (SCALAR)(rsqrt2 * j->inv_scale[2]);
     ivec iota;
     for (int l = 0; l < VW; ++l) iota[l] = l;
     for (int64_t c = a; c < b; c += VW) {
@@ -294,8 +292,8 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
             vec w0 = zero + wt[0], w1 = zero + wt[1], w2 = zero + wt[2];
             if (FOLLOW) {
                 const vec dz = (vec)((mask)(v3 - cz) & ~sign); /* |dz| */
-                const vec d0 = dz * inv0, d1 = dz * inv1, d2 = dz * inv2;
                 if (FOLLOW == 1) { /* min then max as VMIN / VMAX: a < b ? a : b */
+                    const vec d0 = dz * inv0, d1 = dz * inv1, d2 = dz * inv2;
                     const vec s0 = VSELECT(d0 < one, d0, one), s1 = VSELECT(d1 < one, d1, one),
                               s2 = VSELECT(d2 < one, d2, one);
                     const vec t0 = VSELECT(s0 > zero, s0, zero),
@@ -305,11 +303,15 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
                     v1 = v1 + t1 * (c1 - v1);
                     v2 = v2 + t2 * (c2 - v2);
                 } else if (j->offsets[t] != 0) {
-                    /* 000 eq. 7; a centre tap (offset 0) fetches its own pixel, dz = 0 and
-                     * exp(-0) = 1 exactly (here, in expf / exp and in torch): not computed */
-                    w0 = w0 * SIMDN(exp_)((SCALAR)-0.5 * d0 * d0);
-                    w1 = w1 * SIMDN(exp_)((SCALAR)-0.5 * d1 * d1);
-                    w2 = w2 * SIMDN(exp_)((SCALAR)-0.5 * d2 * d2);
+                    /* 000 eq. 7, exp(-(|dz| / surface_scale)^2 / 2) as exp(-(|dz| m)^2) with
+                     * m = 1 / (sqrt 2 surface_scale): two products per channel (the torch
+                     * loop's -0.5 d d three; the argument within 2.5 ulp of it); a centre
+                     * tap (offset 0) fetches its own pixel, dz = 0 and exp(-0) = 1 exactly
+                     * (here, in expf / exp and in torch): not computed */
+                    const vec d0 = dz * m0, d1 = dz * m1, d2 = dz * m2;
+                    w0 = w0 * SIMDN(expneg_)(d0 * d0);
+                    w1 = w1 * SIMDN(expneg_)(d1 * d1);
+                    w2 = w2 * SIMDN(expneg_)(d2 * d2);
                 }
             }
             acc0 = acc0 + w0 * v0;
