@@ -20,7 +20,7 @@ static long long worst, over;
 
 static void check(const float *y, const float *got, int n) {
     for (int i = 0; i < n; ++i) {
-        const float exact = (float)exp(-(double)y[i]);
+        const float exact = (float)exp(-(double)y[i] * 0.08664339756999316); /* ln 2 / 8 */
         if (!(exact >= FLT_MIN)) { /* normal or 0, and within 1.2e-38 */
             if ((got[i] != 0 && !(got[i] >= FLT_MIN)) || !(fabsf(got[i] - exact) < 1.2e-38f))
                 ++over;
@@ -39,7 +39,7 @@ static void check(const float *y, const float *got, int n) {
     do {                                                                               \
         const unsigned int csr = _mm_getcsr();                                         \
         _mm_setcsr(csr | 0x8000u);                                                     \
-        const float highest = 104.0f;                                                  \
+        const float highest = 1200.0f;                                                 \
         uint32_t last;                                                                 \
         memcpy(&last, &highest, 4);                                                    \
         float xs[W], out[W];                                                           \
@@ -59,11 +59,11 @@ static void check(const float *y, const float *got, int n) {
     } while (0)
 
 __attribute__((target("avx512f"))) static void sweep512(uint64_t stride) {
-    SWEEP(16, v16, expneg_f32_avx512);
+    SWEEP(16, v16, expz_f32_avx512);
 }
 
 __attribute__((target("avx2,fma"))) static void sweep256(uint64_t stride) {
-    SWEEP(8, v8, expneg_f32_avx2);
+    SWEEP(8, v8, expz_f32_avx2);
 }
 
 int main(int argc, char **argv) {

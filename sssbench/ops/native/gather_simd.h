@@ -57,23 +57,20 @@ static const float SIMDN(exp_tab_)[16] __attribute__((aligned(64))) = {
     1.0f, 1.0905077457427979f, 1.1892070770263672f, 1.2968395948410034f,
     1.4142135381698608f, 1.5422108173370361f, 1.6817928552627563f, 1.8340080976486206f};
 
-SIMD_FN SIMDN(vs_) SIMDN(expneg_)(SIMDN(vs_) y) {
+SIMD_FN SIMDN(vs_) SIMDN(expz_)(SIMDN(vs_) z) {
     typedef SIMDN(vs_) vec;
     typedef SIMDN(vm_) mask;
     typedef SIMDN(vu_) uivec;
     const vec zero = {0};
-    y = VMINPS(y, zero + (SCALAR)87.33654022216797); /* min(y, Y0): also +inf, NaN -> Y0 */
-    /* tm = 1.5 2^23 + n8, n8 = round(-y 8 / ln 2) in [-1008, 0] */
+    z = VMINPS(z, zero + (SCALAR)1008); /* min(z, 1008): also +inf, NaN -> 1008 */
+    /* tm = 1.5 2^23 + n8, n8 = round(-z) in [-1008, 0] (one rounding: tm's ulp is 1) */
     const vec magic = zero + (SCALAR)12582912.0;
-    const vec tm = VFMA(y, zero - (SCALAR)11.541560173034668, magic);
-    const vec nf = tm - magic;
-    /* s = y + n8 ln 2 / 8 = -r */
-    vec s = VFMA(nf, zero + (SCALAR)0.08664339780807495, y);
-    s = VFMA(nf, zero + (SCALAR)-2.380817765157417e-10, s);
-    /* e^r - 1 = e^-s - 1 = s^2 (1/2 - s/6 + s^2/24) - s */
-    vec q = VFMA(s, zero + (SCALAR)(1.0 / 24), zero - (SCALAR)(1.0 / 6));
-    q = VFMA(q, s, zero + (SCALAR)0.5);
-    q = VFMA(q, s * s, -s);
+    const vec tm = magic - z;
+    const vec t = z + (tm - magic); /* z - round(z) in [-1/2, 1/2], exact; r = -t ln 2 / 8 */
+    /* e^r - 1 = -L t + c2 L^2 t^2 + c3 L^3 t^3, L = ln 2 / 8, c2 and c3 minimax */
+    vec q = VFMA(t, zero + (SCALAR)-0.00010840770846698433, zero + (SCALAR)0.0037540236953645945);
+    q = VFMA(q, t, zero + (SCALAR)-0.08664339780807495);
+    q = q * t;
     vec tab;
     __builtin_memcpy(&tab, SIMDN(exp_tab_), sizeof tab);
     const vec hi = (vec)VPERMUTE(tab, (mask)tm); /* 2^(j/8): the low bits of tm */
@@ -127,8 +124,10 @@ SIMD_FN SIMDN(vs_) SIMDN(exp_)(SIMDN(vs_) x) {
     return p * scale;
 }
 
-/* exp(-y) for y >= 0 (double): the polynomial above */
-SIMD_FN SIMDN(vs_) SIMDN(expneg_)(SIMDN(vs_) y) { return SIMDN(exp_)(-y); }
+/* exp(-z ln 2 / 8) for z >= 0 (double): the polynomial above */
+SIMD_FN SIMDN(vs_) SIMDN(expz_)(SIMDN(vs_) z) {
+    return SIMDN(exp_)(z * (SCALAR)-0.08664339756999316);
+}
 #endif
 
 /* The taps of the active pixels [a, b) of row `row` (within the line's strip), VW at a time;
@@ -149,11 +148,20 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
     const ivec win0 = izero + (int32_t)ln->lo, pitch = izero + (int32_t)ln->pitch;
     const vec inv0 = zero + j->inv_scale[0], inv1 = zero + j->inv_scale[1],
               inv2 = zero + j->inv_scale[2];
-    /* the gaussian's 1 / (sqrt 2 surface_scale) per channel, rounded once */
-    const double rsqrt2 = 0.70710678118654752440;
-    const vec m0 = zero + (SCALAR)(rsqrt2 * j->inv_scale[0]),
-              m1 = zero + (SCALAR)(rsqrt2 * j->inv_scale[1]),
-              m2 = zero + (SCALAR)(rsqrt2 * j->inv_scale[2]);
+    /* the gaussian's exponent in units of ln 2 / 8: z = (|dz| m)^2 = |dz|^2 k per channel,
+     * m = (1 / surface_scale) sqrt(4 / ln 2), k = m^2, each rounded once; |dz|^2 k when every
+     * k lies in [1e-35, 1e30] (then |dz|^2 under- or overflows only where the factor rounds to
+     * 1 or 0 anyway), else (|dz| m)^2 */
+    double kd[3];
+    int zk = 1;
+    for (int ch = 0; ch < 3; ++ch) {
+        kd[ch] = (double)j->inv_scale[ch] * j->inv_scale[ch] * 5.7707801635558535;
+        zk = zk && kd[ch] >= 1e-35 && kd[ch] <= 1e30;
+    }
+    const double rt = 2.4022448175728996; /* sqrt(4 / ln 2) */
+    const vec m0 = zero + (SCALAR)(rt * j->inv_scale[0]), m1 = zero + (SCALAR)(rt * j->inv_scale[1]),
+              m2 = zero + (SCALAR)(rt * j->inv_scale[2]);
+    const vec k0 = zero + (SCALAR)kd[0], k1 = zero + (SCALAR)kd[1], k2 = zero + (SCALAR)kd[2];
     ivec iota;
     for (int l = 0; l < VW; ++l) iota[l] = l;
     for (int64_t c = a; c < b; c += VW) {
@@ -308,10 +316,17 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
                      * loop's -0.5 d d three; the argument within 2.5 ulp of it); a centre
                      * tap (offset 0) fetches its own pixel, dz = 0 and exp(-0) = 1 exactly
                      * (here, in expf / exp and in torch): not computed */
-                    const vec d0 = dz * m0, d1 = dz * m1, d2 = dz * m2;
-                    w0 = w0 * SIMDN(expneg_)(d0 * d0);
-                    w1 = w1 * SIMDN(expneg_)(d1 * d1);
-                    w2 = w2 * SIMDN(expneg_)(d2 * d2);
+                    vec z0, z1, z2;
+                    if (zk) { /* |dz|^2 k, k = m^2: one product per channel */
+                        const vec dz2 = dz * dz;
+                        z0 = dz2 * k0, z1 = dz2 * k1, z2 = dz2 * k2;
+                    } else { /* (|dz| m)^2: no under- or overflow the torch loop has not */
+                        const vec d0 = dz * m0, d1 = dz * m1, d2 = dz * m2;
+                        z0 = d0 * d0, z1 = d1 * d1, z2 = d2 * d2;
+                    }
+                    w0 = w0 * SIMDN(expz_)(z0);
+                    w1 = w1 * SIMDN(expz_)(z1);
+                    w2 = w2 * SIMDN(expz_)(z2);
                 }
             }
             acc0 = acc0 + w0 * v0;
