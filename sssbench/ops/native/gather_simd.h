@@ -15,10 +15,11 @@
  * or selects (or a gather), and every pixel goes through the same float operations in the same
  * order as in the scalar loop (lane-wise IEEE arithmetic, no FMA: the library is built with
  * -ffp-contract=off; min / max / clamp as the same selects): the results are bitwise those of
- * the scalar loop, so of the torch loop, but for the gaussian follow-surface's exp, computed
- * here by a vectorised table and polynomial (exp_ below, the only code with fused
- * multiply-adds) instead of the C library's expf / exp. Built without -march: the functions carry target attributes and sss_gather_ calls
- * them only when the CPU has the set (sss_set_simd in gather.c). */
+ * the scalar loop, so of the torch loop, but for the gaussian follow-surface's factor: its
+ * exponent formed as |dz|^2 k (segment_) and its exp computed by a vectorised table and
+ * polynomial (expz_ below, the only code with fused multiply-adds) instead of the C library's
+ * expf / exp of -0.5 d d. Built without -march: the functions carry target attributes and
+ * sss_gather_ calls them only when the CPU has the set (sss_set_simd in gather.c). */
 
 #define SIMDN(name) CAT(CAT(name, SUFFIX), CAT(_, ISA))
 #define SIMD_FN static inline __attribute__((always_inline, target(ISA_TARGET)))
@@ -28,29 +29,32 @@ typedef LANE SIMDN(vm_) __attribute__((vector_size(VW * sizeof(SCALAR))));
 typedef int32_t SIMDN(vi_) __attribute__((vector_size(VW * 4)));
 typedef uint32_t SIMDN(vu_) __attribute__((vector_size(VW * 4)));
 
-/* The gaussian follow-surface factor of 000 eq. 7, exp(-d^2 / 2) = exp(-y) with
- * y = (|dz| m)^2 >= 0, m = 1 / (sqrt 2 surface_scale) per channel (expneg_ below), all lanes
- * at once. Not the C library's exp: within an ulp or two of it (the measured bound is
- * BACKEND_AGREEMENT's, sssbench/ops/gather.py). */
+/* The gaussian follow-surface factor of 000 eq. 7, exp(-d^2 / 2), d = |dz| / surface_scale,
+ * as exp(-z ln 2 / 8) with z = d^2 (4 / ln 2) >= 0, the exponent in units of ln 2 / 8 (formed
+ * in segment_ as |dz|^2 k per channel: one product), all lanes at once (expz_ below). Not the
+ * C library's exp of the torch loop's argument: the measured bound is BACKEND_AGREEMENT's,
+ * sssbench/ops/gather.py. */
 #if EXP_TABLE
-/* float, since issue 30's last round (one table lookup, no select, no product by 2^n):
- * exp(-y) = 2^n 2^(j/8) e^r with 8 n + j = round(-y 8 / ln 2) (by adding 1.5 2^23 in the
- * first fused multiply-add, to nearest even: tm's low mantissa bits then hold it, no
- * conversions), r = -y - (8 n + j) ln 2 / 8 (ln 2 / 8 as two floats; the first fused
- * multiply-add is exact), |r| <= ln 2 / 16; 2^(j/8) from a table of 8 floats (one permute of
- * one vector: the low 3 bits of tm index it; AVX-512's 16 lanes hold it twice), each within
- * 0.34 ulp of 2^(j/8); e^r - 1 by its Taylor polynomial of degree 4 (truncation below
- * 1.4e-9, 0.02 ulp); assembled as 2^(j/8) + 2^(j/8) (e^r - 1) in one fused multiply-add, and
- * 2^n added to its exponent field as an integer. y is first clamped to Y0 = 87.33654 (the
- * largest float with exp(-y) >= FLT_MIN, one min; also +inf, NaN -> Y0), so n >= -126 and the
- * result is normal: exp(-Y0) = 1.17549e-38 where the exact exp(-y) is smaller (an absolute
- * error below FLT_MIN, 1.2e-38; a weight times it underflows to 0 under the pass's
- * flush-to-zero). About 14 vector operations (the 16-entry table with a second, low-order
- * table, a degree-3 polynomial and a select of 0 where 2^n is subnormal: 27 on AVX2). Within
- * 1 ulp of the correctly rounded exp at every float y in [0, Y0] (checked exhaustively at both
- * levels, 1.1e9 arguments: tests/ops/exp_exhaustive.c; tests/ops/test_gather_backends.py
- * samples it through a pass). The fused multiply-adds here are the only ones of the loop (the
- * bitwise-specified tap arithmetic stays unfused). */
+/* float, since issue 30's last round (one table lookup, no select, no product by 2^n, no
+ * reduction constant): z is clamped to 1008 (one min; also +inf, NaN -> 1008), where
+ * exp(-1008 ln 2 / 8) = 2^-126 = FLT_MIN; n8 = round(-z) by subtracting z from 1.5 2^23 (tm,
+ * whose ulp is 1: one rounding, to nearest even, and tm's low mantissa bits hold n8, no
+ * conversions); t = z + n8 in [-1/2, 1/2] exactly; exp(-z L) = 2^n 2^(j/8) e^(-t L) with
+ * n8 = 8 n + j, L = ln 2 / 8 (|t L| <= ln 2 / 16); 2^(j/8) from a table of 8 floats (one
+ * permute of one vector: the low 3 bits of tm index it; AVX-512's 16 lanes hold it twice),
+ * each within 0.34 ulp of 2^(j/8); e^(-t L) - 1 by a degree-3 polynomial in t (minimax
+ * coefficients with the linear one -L: 2.6e-8 relative, 0.43 ulp at most); assembled as
+ * 2^(j/8) + 2^(j/8) (e^(-t L) - 1) in one fused multiply-add, and 2^n added to its exponent
+ * field as an integer (n >= -126 and the product >= 1 when n = -126: always normal). 13
+ * vector operations (before: 27 on AVX2, with a 16-entry table and a second, low-order one,
+ * a two-float reduction constant and a select of 0 where 2^n is subnormal). Within 1 ulp of
+ * the correctly rounded exp(-z L) at every float z in [0, 1008] (checked exhaustively on
+ * AVX2, every float z in [0, 1200]: tests/ops/exp_exhaustive.c; AVX-512 runs the same
+ * source with a 16-lane permute, not checked on this machine, which lacks AVX-512; and
+ * through a pass by tests/ops/test_gather_backends.py); where the exact result is subnormal
+ * (z > 1008) it returns FLT_MIN (1.2e-38 or less from it; a weight times it underflows to 0
+ * under the pass's flush-to-zero). The fused multiply-adds here are the only ones of the loop
+ * (the bitwise-specified tap arithmetic stays unfused). */
 static const float SIMDN(exp_tab_)[16] __attribute__((aligned(64))) = {
     1.0f, 1.0905077457427979f, 1.1892070770263672f, 1.2968395948410034f,
     1.4142135381698608f, 1.5422108173370361f, 1.6817928552627563f, 1.8340080976486206f,
@@ -148,19 +152,21 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
     const ivec win0 = izero + (int32_t)ln->lo, pitch = izero + (int32_t)ln->pitch;
     const vec inv0 = zero + j->inv_scale[0], inv1 = zero + j->inv_scale[1],
               inv2 = zero + j->inv_scale[2];
-    /* the gaussian's exponent in units of ln 2 / 8: z = (|dz| m)^2 = |dz|^2 k per channel,
-     * m = (1 / surface_scale) sqrt(4 / ln 2), k = m^2, each rounded once; |dz|^2 k when every
-     * k lies in [1e-35, 1e30] (then |dz|^2 under- or overflows only where the factor rounds to
-     * 1 or 0 anyway), else (|dz| m)^2 */
-    double kd[3];
+    /* the gaussian's exponent in units of ln 2 / 8 (expz_): z = d^2 / 2 / (ln 2 / 8) =
+     * (|dz| m)^2 = |dz|^2 k per channel, m = (1 / surface_scale) sqrt(4 / ln 2) (clamped to
+     * the largest finite SCALAR, as 1 / surface_scale is: 0 m = 0), k = m^2, each rounded once
+     * from double; |dz|^2 k when every k lies in [1e-35, 1e30] (then |dz|^2 or the product
+     * under- or overflows only where the exact factor rounds to 1, or is below FLT_MIN,
+     * anyway), else (|dz| m)^2 */
+    double kd[3], md[3];
     int zk = 1;
     for (int ch = 0; ch < 3; ++ch) {
-        kd[ch] = (double)j->inv_scale[ch] * j->inv_scale[ch] * 5.7707801635558535;
+        const double inv = (double)j->inv_scale[ch];
+        kd[ch] = inv * inv * 5.7707801635558535;                 /* 4 / ln 2 */
+        md[ch] = fmin(inv * 2.4022448175728996, (double)SCALAR_MAX); /* sqrt(4 / ln 2) */
         zk = zk && kd[ch] >= 1e-35 && kd[ch] <= 1e30;
     }
-    const double rt = 2.4022448175728996; /* sqrt(4 / ln 2) */
-    const vec m0 = zero + (SCALAR)(rt * j->inv_scale[0]), m1 = zero + (SCALAR)(rt * j->inv_scale[1]),
-              m2 = zero + (SCALAR)(rt * j->inv_scale[2]);
+    const vec m0 = zero + (SCALAR)md[0], m1 = zero + (SCALAR)md[1], m2 = zero + (SCALAR)md[2];
     const vec k0 = zero + (SCALAR)kd[0], k1 = zero + (SCALAR)kd[1], k2 = zero + (SCALAR)kd[2];
     ivec iota;
     for (int l = 0; l < VW; ++l) iota[l] = l;
@@ -311,11 +317,12 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
                     v1 = v1 + t1 * (c1 - v1);
                     v2 = v2 + t2 * (c2 - v2);
                 } else if (j->offsets[t] != 0) {
-                    /* 000 eq. 7, exp(-(|dz| / surface_scale)^2 / 2) as exp(-(|dz| m)^2) with
-                     * m = 1 / (sqrt 2 surface_scale): two products per channel (the torch
-                     * loop's -0.5 d d three; the argument within 2.5 ulp of it); a centre
-                     * tap (offset 0) fetches its own pixel, dz = 0 and exp(-0) = 1 exactly
-                     * (here, in expf / exp and in torch): not computed */
+                    /* 000 eq. 7, exp(-(|dz| / surface_scale)^2 / 2) = exp(-z ln 2 / 8)
+                     * with z = |dz|^2 k: one product per channel (the torch loop's -0.5 d d,
+                     * d = |dz| / surface_scale, three; z within 1.5 ulp of the exact, the
+                     * torch loop's argument within 1.5 ulp too); a centre tap (offset 0)
+                     * fetches its own pixel, dz = 0 and exp(-0) = 1 exactly (here, in
+                     * expf / exp and in torch): not computed */
                     vec z0, z1, z2;
                     if (zk) { /* |dz|^2 k, k = m^2: one product per channel */
                         const vec dz2 = dz * dz;
