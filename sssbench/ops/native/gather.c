@@ -116,7 +116,7 @@ int sss_get_simd(void) {
 /* lanes idx (low 3 / 4 bits) of one vector (the table exp's lookup) */
 #define PERMUTE_AVX2(v, idx) _mm256_permutevar8x32_ps((__m256)(v), (__m256i)(idx))
 #define PERMUTE_AVX512(v, idx) _mm512_permutexvar_ps((__m512i)(idx), (__m512)(v))
-#define EXP_TABLE 1 /* the vectorised exp by a table of 2^(j/16) (gather_simd.h) */
+#define EXP_TABLE 1 /* the vectorised exp by a table of 2^(j/8) (gather_simd.h) */
 #include "gather_body.h"
 #undef SCALAR
 #undef LANE
