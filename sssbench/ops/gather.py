@@ -105,11 +105,13 @@ BACKEND_AGREEMENT = (
     "bitwise equal in float32 and float64 with follow_surface None or 'lerp', at every "
     "instruction-set level of the native loop (scalar, AVX2, AVX-512: the same IEEE operations "
     "in the same order per pixel, the per-pixel scale in float64 in all); with 'gaussian' the "
-    "exp differs (the C library's in the scalar native loop, a table and polynomial exp within "
-    "1 ulp of it in the vectorised ones, torch's vectorised exp) by a few ulp, and the native "
-    "loop flushes results that would be subnormal to 0 (x86 flush-to-zero during a gaussian "
-    "pass: an absolute error below 1.2e-38 / 2.2e-308), so results agree to within 1e-6 "
-    "(float32) / 1e-14 (float64) relative to the image's range"
+    "depth factor differs by a few ulp (torch's vectorised exp of (-0.5 d) d; the C library's "
+    "exp of the same argument in the scalar native loop; in the vectorised ones the argument "
+    "formed as |dz|^2 k, within 1.5 ulp of exact as torch's is, and a table and polynomial exp "
+    "within 1 ulp of the correctly rounded one), and the native loop flushes results that "
+    "would be subnormal to 0 (x86 flush-to-zero during a gaussian pass: an absolute error "
+    "below 1.2e-38 / 2.2e-308), so results agree to within 1e-6 (float32) / 1e-14 (float64) "
+    "relative to the image's range"
 )
 
 _BACKEND: ContextVar[str] = ContextVar("sssbench_gather_backend", default="native")

@@ -110,12 +110,13 @@ int sss_get_simd(void) {
     ((__typeof__(a))_mm256_fmadd_ps((__m256)(a), (__m256)(b), (__m256)(c)))
 #define FMA_AVX512(a, b, c) \
     ((__typeof__(a))_mm512_fmadd_ps((__m512)(a), (__m512)(b), (__m512)(c)))
-/* p * 2^n for a float n of integer value, subnormal results rounded (AVX-512F only) */
-#define SCALEF_AVX512(p, n) ((__typeof__(p))_mm512_scalef_ps((__m512)(p), (__m512)(n)))
-/* lane-wise max(a, b), b where either is NaN (the table exp's clamp: one instruction) */
-#define MAXPS_AVX2(a, b) ((__typeof__(a))_mm256_max_ps((__m256)(a), (__m256)(b)))
-#define MAXPS_AVX512(a, b) ((__typeof__(a))_mm512_max_ps((__m512)(a), (__m512)(b)))
-#define EXP_TABLE 1 /* the vectorised exp by a table of 2^(j/16) (gather_simd.h) */
+/* lane-wise min(a, b), b where either is NaN (the table exp's clamp: one instruction) */
+#define MINPS_AVX2(a, b) ((__typeof__(a))_mm256_min_ps((__m256)(a), (__m256)(b)))
+#define MINPS_AVX512(a, b) ((__typeof__(a))_mm512_min_ps((__m512)(a), (__m512)(b)))
+/* lanes idx (low 3 / 4 bits) of one vector (the table exp's lookup) */
+#define PERMUTE_AVX2(v, idx) _mm256_permutevar8x32_ps((__m256)(v), (__m256i)(idx))
+#define PERMUTE_AVX512(v, idx) _mm512_permutexvar_ps((__m512i)(idx), (__m512)(v))
+#define EXP_TABLE 1 /* the vectorised exp by a table of 2^(j/8) (gather_simd.h) */
 #include "gather_body.h"
 #undef SCALAR
 #undef LANE
@@ -135,9 +136,10 @@ int sss_get_simd(void) {
 #undef SHUFFLE2_AVX512
 #undef FMA_AVX2
 #undef FMA_AVX512
-#undef SCALEF_AVX512
-#undef MAXPS_AVX2
-#undef MAXPS_AVX512
+#undef MINPS_AVX2
+#undef MINPS_AVX512
+#undef PERMUTE_AVX2
+#undef PERMUTE_AVX512
 #undef EXP_TABLE
 
 #define SCALAR double

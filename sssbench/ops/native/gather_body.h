@@ -327,11 +327,13 @@ static inline __attribute__((always_inline)) void CAT(lines_, SUFFIX)(
 #define IANY IANY_AVX2
 #define SHUFFLE2 SHUFFLE2_AVX2
 #define VFMA FMA_AVX2
-#ifdef MAXPS_AVX2
-#define VMAXPS MAXPS_AVX2
+#ifdef MINPS_AVX2
+#define VMINPS MINPS_AVX2
+#define VPERMUTE PERMUTE_AVX2
 #endif
 #include "gather_simd.h"
-#undef VMAXPS
+#undef VMINPS
+#undef VPERMUTE
 #undef ISA
 #undef ISA_TARGET
 #undef VW
@@ -346,15 +348,13 @@ static inline __attribute__((always_inline)) void CAT(lines_, SUFFIX)(
 #define IANY IANY_AVX512
 #define SHUFFLE2 SHUFFLE2_AVX512
 #define VFMA FMA_AVX512
-#ifdef SCALEF_AVX512
-#define VSCALEF SCALEF_AVX512
-#endif
-#ifdef MAXPS_AVX512
-#define VMAXPS MAXPS_AVX512
+#ifdef MINPS_AVX512
+#define VMINPS MINPS_AVX512
+#define VPERMUTE PERMUTE_AVX512
 #endif
 #include "gather_simd.h"
-#undef VMAXPS
-#undef VSCALEF
+#undef VMINPS
+#undef VPERMUTE
 #undef ISA
 #undef ISA_TARGET
 #undef VW

@@ -15,10 +15,11 @@
  * or selects (or a gather), and every pixel goes through the same float operations in the same
  * order as in the scalar loop (lane-wise IEEE arithmetic, no FMA: the library is built with
  * -ffp-contract=off; min / max / clamp as the same selects): the results are bitwise those of
- * the scalar loop, so of the torch loop, but for the gaussian follow-surface's exp, computed
- * here by a vectorised table and polynomial (exp_ below, the only code with fused
- * multiply-adds) instead of the C library's expf / exp. Built without -march: the functions carry target attributes and sss_gather_ calls
- * them only when the CPU has the set (sss_set_simd in gather.c). */
+ * the scalar loop, so of the torch loop, but for the gaussian follow-surface's factor: its
+ * exponent formed as |dz|^2 k (segment_) and its exp computed by a vectorised table and
+ * polynomial (expz_ below, the only code with fused multiply-adds) instead of the C library's
+ * expf / exp of -0.5 d d. Built without -march: the functions carry target attributes and
+ * sss_gather_ calls them only when the CPU has the set (sss_set_simd in gather.c). */
 
 #define SIMDN(name) CAT(CAT(name, SUFFIX), CAT(_, ISA))
 #define SIMD_FN static inline __attribute__((always_inline, target(ISA_TARGET)))
@@ -28,75 +29,65 @@ typedef LANE SIMDN(vm_) __attribute__((vector_size(VW * sizeof(SCALAR))));
 typedef int32_t SIMDN(vi_) __attribute__((vector_size(VW * 4)));
 typedef uint32_t SIMDN(vu_) __attribute__((vector_size(VW * 4)));
 
-/* exp(x) for x <= 0 (also -inf), all lanes at once: the gaussian follow-surface factor
- * (000 eq. 7), whose argument -d^2 / 2 is never positive. Float: the table exp under
- * EXP_TABLE; otherwise (double) Cody-Waite reduction x = n ln 2 + r, |r| <= ln 2 / 2, then
- * Cephes' degree-7 polynomial (float, unused since issue 30) or the Taylor polynomial of degree
- * 13 (double), scaled by 2^n built in the exponent bits; 0 where 2^n would be subnormal (an
- * absolute error below 1.2e-38 / 2.3e-308). Not the C library's exp: a few ulp from it (the
- * measured bound is BACKEND_AGREEMENT's, sssbench/ops/gather.py). */
+/* The gaussian follow-surface factor of 000 eq. 7, exp(-d^2 / 2), d = |dz| / surface_scale,
+ * as exp(-z ln 2 / 8) with z = d^2 (4 / ln 2) >= 0, the exponent in units of ln 2 / 8 (formed
+ * in segment_ as |dz|^2 k per channel: one product), all lanes at once (expz_ below). Not the
+ * C library's exp of the torch loop's argument: the measured bound is BACKEND_AGREEMENT's,
+ * sssbench/ops/gather.py. */
 #if EXP_TABLE
-/* float: exp(x) = 2^n 2^(j/16) e^r with round(x 16 / ln 2) = 16 n + j, |r| <= ln 2 / 32 (the
- * rounding by adding 1.5 2^23 in the first fused multiply-add, since issue 30's last round:
- * to nearest even, where a truncation of x 16 / ln 2 - 1/2 and two conversions were before;
- * the same r but at ties, the same bound): the
- * table entry as the sum of two floats (hi + lo: 2^(j/16) to ~2^-48), e^r - 1 by its Taylor
- * polynomial of degree 3 (truncation below 1e-8, 0.08 ulp), assembled as hi + (hi q + lo)
- * with fused multiply-adds (one rounding each; the bitwise-specified tap arithmetic stays
- * unfused), 2^n by scalef on AVX-512 (subnormal results rounded) or built in the exponent
- * bits on AVX2 (0 where 2^n would be subnormal, as below): about 12 vector operations against
- * the 31 of the polynomial of degree 7 below. Within 1 ulp of the correctly rounded exp and
- * of the C library's expf at every float in [-104, 0] with a normal result (checked
- * exhaustively, 1.1e9 arguments, at both levels; tests/ops/test_gather_backends.py samples
- * it through a pass). */
-static const float SIMDN(exp_hi_)[16] __attribute__((aligned(64))) = {
-    1.0f, 1.0442737340927124f, 1.0905077457427979f, 1.1387885808944702f, 1.1892070770263672f,
-    1.2418577671051025f, 1.2968395948410034f, 1.3542555570602417f, 1.4142135381698608f,
-    1.4768261909484863f, 1.5422108173370361f, 1.610490322113037f, 1.6817928552627563f,
-    1.7562521696090698f, 1.8340080976486206f, 1.9152065515518188f};
-static const float SIMDN(exp_lo_)[16] __attribute__((aligned(64))) = {
-    0.0f, 4.8334701574503924e-08f, -1.3077539939843064e-08f, 5.386222312608879e-08f,
-    3.797635272917432e-08f, 4.496838101886169e-08f, -4.018999533172973e-08f,
-    -1.0123349269974824e-08f, 2.4203234971764687e-08f, -4.500898853621038e-08f,
-    8.070904833346049e-09f, 9.836217174097328e-09f, -2.4755326677450284e-08f,
-    -9.235770370707996e-09f, -1.1239277952768134e-08f, 9.845328108326612e-09f};
+/* float, since issue 30's last round (one table lookup, no select, no product by 2^n, no
+ * reduction constant): z is clamped to 1008 (one min; also +inf, NaN -> 1008), where
+ * exp(-1008 ln 2 / 8) = 2^-126 = FLT_MIN; n8 = round(-z) by subtracting z from 1.5 2^23 (tm,
+ * whose ulp is 1: one rounding, to nearest even, and tm's low mantissa bits hold n8, no
+ * conversions); t = z + n8 in [-1/2, 1/2] exactly; exp(-z L) = 2^n 2^(j/8) e^(-t L) with
+ * n8 = 8 n + j, L = ln 2 / 8 (|t L| <= ln 2 / 16); 2^(j/8) from a table of 8 floats (one
+ * permute of one vector: the low 3 bits of tm index it; AVX-512's 16 lanes hold it twice),
+ * each within 0.34 ulp of 2^(j/8); e^(-t L) - 1 by a degree-3 polynomial in t (minimax
+ * coefficients with the linear one -L: 2.6e-8 relative, 0.43 ulp at most); assembled as
+ * 2^(j/8) + 2^(j/8) (e^(-t L) - 1) in one fused multiply-add, and 2^n added to its exponent
+ * field as an integer (n >= -126 and the product >= 1 when n = -126: always normal). 13
+ * vector operations (before: 27 on AVX2, with a 16-entry table and a second, low-order one,
+ * a two-float reduction constant and a select of 0 where 2^n is subnormal). Within 1 ulp of
+ * the correctly rounded exp(-z L) at every float z in [0, 1008] (checked exhaustively on
+ * AVX2, every float z in [0, 1200]: tests/ops/exp_exhaustive.c; AVX-512 runs the same
+ * source with a 16-lane permute, not checked on this machine, which lacks AVX-512; and
+ * through a pass by tests/ops/test_gather_backends.py); where the exact result is subnormal
+ * (z > 1008) it returns FLT_MIN (1.2e-38 or less from it; a weight times it underflows to 0
+ * under the pass's flush-to-zero). The fused multiply-adds here are the only ones of the loop
+ * (the bitwise-specified tap arithmetic stays unfused). */
+static const float SIMDN(exp_tab_)[16] __attribute__((aligned(64))) = {
+    1.0f, 1.0905077457427979f, 1.1892070770263672f, 1.2968395948410034f,
+    1.4142135381698608f, 1.5422108173370361f, 1.6817928552627563f, 1.8340080976486206f,
+    1.0f, 1.0905077457427979f, 1.1892070770263672f, 1.2968395948410034f,
+    1.4142135381698608f, 1.5422108173370361f, 1.6817928552627563f, 1.8340080976486206f};
 
-SIMD_FN SIMDN(vs_) SIMDN(exp_)(SIMDN(vs_) x) {
+SIMD_FN SIMDN(vs_) SIMDN(expz_)(SIMDN(vs_) z) {
     typedef SIMDN(vs_) vec;
     typedef SIMDN(vm_) mask;
-    typedef SIMDN(vi_) ivec;
+    typedef SIMDN(vu_) uivec;
     const vec zero = {0};
-    x = VMAXPS(x, zero + (SCALAR)-104.0); /* max(x, -104): also -inf, NaN -> -104 */
-    /* tm = 1.5 2^23 + n16, n16 = x 16 / ln 2 rounded to the nearest integer (one rounding:
-     * |n16| < 2^22, so tm's ulp is 1 and n16 sits in its low mantissa bits, whence the
-     * permutes below read j = n16 mod 16 and the float n16 is one exact subtraction: no
-     * conversions) */
+    z = VMINPS(z, zero + (SCALAR)1008); /* min(z, 1008): also +inf, NaN -> 1008 */
+    /* tm = 1.5 2^23 + n8, n8 = round(-z) in [-1008, 0] (one rounding: tm's ulp is 1) */
     const vec magic = zero + (SCALAR)12582912.0;
-    const vec tm = VFMA(x, zero + (SCALAR)23.083120346069336, magic);
-    const vec nf = tm - magic;
-    /* r = x - n16 ln 2 / 16, ln 2 / 16 as two floats */
-    vec r = VFMA(nf, zero - (SCALAR)0.043321698904037476, x);
-    r = VFMA(nf, zero - (SCALAR)-1.1904088825787085e-10, r);
-    vec q = VFMA(r, zero + (SCALAR)(1.0 / 6), zero + (SCALAR)0.5);
-    q = VFMA(q, r * r, r); /* e^r - 1 */
-    const mask j = (mask)tm; /* the permutes read the low 4 bits only */
-    vec hi0, hi1, lo0, lo1;
-    __builtin_memcpy(&hi0, SIMDN(exp_hi_), sizeof hi0);
-    __builtin_memcpy(&hi1, SIMDN(exp_hi_) + (VW < 16 ? VW : 0), sizeof hi1);
-    __builtin_memcpy(&lo0, SIMDN(exp_lo_), sizeof lo0);
-    __builtin_memcpy(&lo1, SIMDN(exp_lo_) + (VW < 16 ? VW : 0), sizeof lo1);
-    const vec hi = (vec)SHUFFLE2(hi0, hi1, j), lo = (vec)SHUFFLE2(lo0, lo1, j);
-    const vec p = hi + VFMA(hi, q, lo);
-#ifdef VSCALEF /* AVX-512: p 2^floor(n16 / 16) in one instruction (subnormal results rounded) */
-    return VSCALEF(p, nf * (SCALAR)0.0625);
-#endif
-    /* n = floor(n16 / 16) from tm's bits; biased > 0: 2^n is normal */
-    const ivec biased = (((ivec)tm - 0x4B400000) >> 4) + 127;
-    const mask e = __builtin_convertvector(biased, mask) << 23;
-    const vec scale = VSELECT(__builtin_convertvector(biased > 0, mask), (vec)e, zero);
-    return p * scale;
+    const vec tm = magic - z;
+    const vec t = z + (tm - magic); /* z - round(z) in [-1/2, 1/2], exact; r = -t ln 2 / 8 */
+    /* e^r - 1 = -L t + c2 L^2 t^2 + c3 L^3 t^3, L = ln 2 / 8, c2 and c3 minimax */
+    vec q = VFMA(t, zero + (SCALAR)-0.00010840770846698433, zero + (SCALAR)0.0037540236953645945);
+    q = VFMA(q, t, zero + (SCALAR)-0.08664339780807495);
+    q = q * t;
+    vec tab;
+    __builtin_memcpy(&tab, SIMDN(exp_tab_), sizeof tab);
+    const vec hi = (vec)VPERMUTE(tab, (mask)tm); /* 2^(j/8): the low bits of tm */
+    const vec p = VFMA(hi, q, hi);               /* in [0.97, 1.92] */
+    /* n << 23 = (n8 << 20) with the low 23 bits cleared (tm's high bits shift out) */
+    const uivec e = ((uivec)tm << 20) & 0xFF800000u;
+    return (vec)((uivec)p + e);
 }
 #else
+/* exp(x) for x <= 0 (also -inf), double: Cody-Waite reduction x = n ln 2 + r, |r| <= ln 2 / 2,
+ * then the Taylor polynomial of degree 13 (the float branch, Cephes' degree-7 polynomial, is
+ * unused since issue 30), scaled by 2^n built in the exponent bits; 0 where 2^n would be
+ * subnormal (an absolute error below 2.3e-308). */
 SIMD_FN SIMDN(vs_) SIMDN(exp_)(SIMDN(vs_) x) {
     typedef SIMDN(vs_) vec;
     typedef SIMDN(vm_) mask;
@@ -136,6 +127,11 @@ SIMD_FN SIMDN(vs_) SIMDN(exp_)(SIMDN(vs_) x) {
     const vec scale = VSELECT(__builtin_convertvector(biased > 0, mask), (vec)e, zero);
     return p * scale;
 }
+
+/* exp(-z ln 2 / 8) for z >= 0 (double): the polynomial above */
+SIMD_FN SIMDN(vs_) SIMDN(expz_)(SIMDN(vs_) z) {
+    return SIMDN(exp_)(z * (SCALAR)-0.08664339756999316);
+}
 #endif
 
 /* The taps of the active pixels [a, b) of row `row` (within the line's strip), VW at a time;
@@ -156,6 +152,22 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
     const ivec win0 = izero + (int32_t)ln->lo, pitch = izero + (int32_t)ln->pitch;
     const vec inv0 = zero + j->inv_scale[0], inv1 = zero + j->inv_scale[1],
               inv2 = zero + j->inv_scale[2];
+    /* the gaussian's exponent in units of ln 2 / 8 (expz_): z = d^2 / 2 / (ln 2 / 8) =
+     * (|dz| m)^2 = |dz|^2 k per channel, m = (1 / surface_scale) sqrt(4 / ln 2) (clamped to
+     * the largest finite SCALAR, as 1 / surface_scale is: 0 m = 0), k = m^2, each rounded once
+     * from double; |dz|^2 k when every k lies in [1e-35, 1e30] (then |dz|^2 or the product
+     * under- or overflows only where the exact factor rounds to 1, or is below FLT_MIN,
+     * anyway), else (|dz| m)^2 */
+    double kd[3], md[3];
+    int zk = 1;
+    for (int ch = 0; ch < 3; ++ch) {
+        const double inv = (double)j->inv_scale[ch];
+        kd[ch] = inv * inv * 5.7707801635558535;                 /* 4 / ln 2 */
+        md[ch] = fmin(inv * 2.4022448175728996, (double)SCALAR_MAX); /* sqrt(4 / ln 2) */
+        zk = zk && kd[ch] >= 1e-35 && kd[ch] <= 1e30;
+    }
+    const vec m0 = zero + (SCALAR)md[0], m1 = zero + (SCALAR)md[1], m2 = zero + (SCALAR)md[2];
+    const vec k0 = zero + (SCALAR)kd[0], k1 = zero + (SCALAR)kd[1], k2 = zero + (SCALAR)kd[2];
     ivec iota;
     for (int l = 0; l < VW; ++l) iota[l] = l;
     for (int64_t c = a; c < b; c += VW) {
@@ -294,8 +306,8 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
             vec w0 = zero + wt[0], w1 = zero + wt[1], w2 = zero + wt[2];
             if (FOLLOW) {
                 const vec dz = (vec)((mask)(v3 - cz) & ~sign); /* |dz| */
-                const vec d0 = dz * inv0, d1 = dz * inv1, d2 = dz * inv2;
                 if (FOLLOW == 1) { /* min then max as VMIN / VMAX: a < b ? a : b */
+                    const vec d0 = dz * inv0, d1 = dz * inv1, d2 = dz * inv2;
                     const vec s0 = VSELECT(d0 < one, d0, one), s1 = VSELECT(d1 < one, d1, one),
                               s2 = VSELECT(d2 < one, d2, one);
                     const vec t0 = VSELECT(s0 > zero, s0, zero),
@@ -305,11 +317,23 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
                     v1 = v1 + t1 * (c1 - v1);
                     v2 = v2 + t2 * (c2 - v2);
                 } else if (j->offsets[t] != 0) {
-                    /* 000 eq. 7; a centre tap (offset 0) fetches its own pixel, dz = 0 and
-                     * exp(-0) = 1 exactly (here, in expf / exp and in torch): not computed */
-                    w0 = w0 * SIMDN(exp_)((SCALAR)-0.5 * d0 * d0);
-                    w1 = w1 * SIMDN(exp_)((SCALAR)-0.5 * d1 * d1);
-                    w2 = w2 * SIMDN(exp_)((SCALAR)-0.5 * d2 * d2);
+                    /* 000 eq. 7, exp(-(|dz| / surface_scale)^2 / 2) = exp(-z ln 2 / 8)
+                     * with z = |dz|^2 k: one product per channel (the torch loop's -0.5 d d,
+                     * d = |dz| / surface_scale, three; z within 1.5 ulp of the exact, the
+                     * torch loop's argument within 1.5 ulp too); a centre tap (offset 0)
+                     * fetches its own pixel, dz = 0 and exp(-0) = 1 exactly (here, in
+                     * expf / exp and in torch): not computed */
+                    vec z0, z1, z2;
+                    if (zk) { /* |dz|^2 k, k = m^2: one product per channel */
+                        const vec dz2 = dz * dz;
+                        z0 = dz2 * k0, z1 = dz2 * k1, z2 = dz2 * k2;
+                    } else { /* (|dz| m)^2: no under- or overflow the torch loop has not */
+                        const vec d0 = dz * m0, d1 = dz * m1, d2 = dz * m2;
+                        z0 = d0 * d0, z1 = d1 * d1, z2 = d2 * d2;
+                    }
+                    w0 = w0 * SIMDN(expz_)(z0);
+                    w1 = w1 * SIMDN(expz_)(z1);
+                    w2 = w2 * SIMDN(expz_)(z2);
                 }
             }
             acc0 = acc0 + w0 * v0;
