@@ -35,6 +35,7 @@ from skimage.color import deltaE_cie76, deltaE_ciede2000
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
 from sssbench._checks import check_choice, check_range, check_scalar, check_tensor
+from sssbench._memo import by_content
 
 __all__ = [
     "tonemap",
@@ -129,6 +130,27 @@ def _tonemap(image: torch.Tensor, exposure: float) -> torch.Tensor:
     x = image * exposure
     y = x / (1.0 + x)  # Reinhard
     return kornia.color.linear_rgb_to_rgb(y).clamp(0.0, 1.0)
+
+
+def _display(image: torch.Tensor, exposure: float) -> torch.Tensor:
+    """What a viewer sees of a checked float64 image (:func:`_check_pair`): negative values
+    clamped to 0 (a display shows no negative light), then :func:`_tonemap`.
+
+    Memoised on the image's contents (:func:`sssbench._memo.by_content`): a sweep scores
+    every method of a scene against the same reference (read anew from the reference cache
+    by each run), and :func:`flip_map` and :func:`delta_e` tone-map the same result; the
+    values are those of the computation itself, bit for bit (the same operations on the same
+    bits; the key holds torch's thread count, on which no value may depend but which costs
+    nothing to rule out)."""
+    tag = ("display", exposure, torch.get_num_threads())
+    return by_content((image,), tag, lambda: _tonemap(image.clamp(min=0.0), exposure))
+
+
+def _reference_lab(ref: torch.Tensor, exposure: float) -> torch.Tensor:
+    """``kornia.color.rgb_to_lab`` of :func:`_display` of a checked float64 reference,
+    memoised on its contents like :func:`_display` (the same for every method of a scene)."""
+    tag = ("lab", exposure, torch.get_num_threads())
+    return by_content((ref,), tag, lambda: kornia.color.rgb_to_lab(_display(ref, exposure)))
 
 
 # ----------------------------------------------------------------------------- metrics
@@ -271,9 +293,8 @@ def _delta_e(
     formula: str = "cie76",
     exposure: float = 1.0,
 ) -> float:
-    res, ref = res.clamp(min=0.0), ref.clamp(min=0.0)  # a display shows no negative light
-    lab_res = kornia.color.rgb_to_lab(_tonemap(res, exposure))
-    lab_ref = kornia.color.rgb_to_lab(_tonemap(ref, exposure))
+    lab_res = kornia.color.rgb_to_lab(_display(res, exposure))
+    lab_ref = _reference_lab(ref, exposure)
     fn = deltaE_cie76 if formula == "cie76" else deltaE_ciede2000
     de = fn(lab_ref.numpy(), lab_res.numpy(), channel_axis=1)  # (B, H, W)
     return float(_weighted_mean(torch.from_numpy(np.ascontiguousarray(de))[:, None], m).mean())
@@ -298,25 +319,30 @@ def flip_map(
     import flip_evaluator  # imported lazily: the extension is only needed for this metric
 
     res, ref, _ = _check_pair(result, reference, None)
-    res, ref = res.clamp(min=0.0), ref.clamp(min=0.0)  # a display shows no negative light
     ppd = check_scalar("ppd", ppd, 0.0, low_inclusive=False)
     exposure = check_scalar("exposure", exposure, 0.0, low_inclusive=False)
-    t_res = _tonemap(res, exposure)
-    t_ref = _tonemap(ref, exposure)
+    t_res = _display(res, exposure)
+    t_ref = _display(ref, exposure)
     maps = []
     for i in range(ref.shape[0]):
         a = np.ascontiguousarray(t_ref[i].permute(1, 2, 0).numpy(), dtype=np.float32)
         b = np.ascontiguousarray(t_res[i].permute(1, 2, 0).numpy(), dtype=np.float32)
-        fmap, _, _ = flip_evaluator.evaluate(
-            a,
-            b,
-            "LDR",
-            inputsRGB=True,
-            applyMagma=False,
-            computeMeanError=False,
-            parameters={"ppd": ppd},
-        )
-        maps.append(np.asarray(fmap, dtype=np.float32)[..., 0])
+
+        def evaluate(a: np.ndarray = a, b: np.ndarray = b) -> np.ndarray:
+            fmap, _, _ = flip_evaluator.evaluate(
+                a,
+                b,
+                "LDR",
+                inputsRGB=True,
+                applyMagma=False,
+                computeMeanError=False,
+                parameters={"ppd": ppd},
+            )
+            return np.asarray(fmap, dtype=np.float32)[..., 0]
+
+        # memoised on the two LDR images FLIP reads (the do-nothing run scores the image
+        # its scene's baseline scored already): the map FLIP returns for those bits
+        maps.append(by_content((a, b), ("flip_ldr", ppd), evaluate))
     return np.stack(maps)
 
 
