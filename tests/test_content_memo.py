@@ -189,3 +189,20 @@ def test_flat_convolution_memo_is_the_fft_bit_for_bit(monkeypatch):
     out = flat_convolution(brighter, method_kernel(PreintegratedSSS(SKIN)), p)
     assert len(calls) == 4
     torch.testing.assert_close(out, m7 * 1.5, rtol=1e-12, atol=1e-12)  # linear in the light
+
+
+def test_flip_map_does_not_depend_on_flips_threads():
+    """FLIP runs on torch's thread count (``metrics._flip_threads``): its map on one thread
+    is the map on two, bit for bit, and the runtime's own setting is restored after."""
+    lib = metrics._flip_openmp()
+    if lib is None:
+        pytest.skip("this flip_evaluator build vendors no OpenMP runtime")
+    res, ref, _ = _images(seed=2, shape=(1, 3, 64, 64))
+    before = lib.omp_get_max_threads()
+    maps = []
+    for threads in (1, 2):
+        with metrics._flip_threads(threads):
+            assert lib.omp_get_max_threads() == threads
+            maps.append(_flip_direct(res, ref))
+        assert lib.omp_get_max_threads() == before
+    assert np.array_equal(maps[0], maps[1])

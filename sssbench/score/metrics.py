@@ -26,7 +26,12 @@ Example:
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
+import functools
 import math
+from collections.abc import Iterator
+from pathlib import Path
 
 import kornia.color
 import numpy as np
@@ -311,7 +316,8 @@ def flip_map(
 
     Both images go through :func:`tonemap` and are handed to FLIP as LDR sRGB
     (``evaluate(reference, test, "LDR", inputsRGB=True)``), viewed at ``ppd`` pixels per degree
-    (FLIP's default, 67: a 0.7 m distance from a 24" 4K monitor).
+    (FLIP's default, 67: a 0.7 m distance from a 24" 4K monitor). FLIP runs on torch's
+    intra-op thread count (:func:`_flip_threads`; the map does not depend on it).
 
     Returns:
         ``(B, H, W)`` float32 FLIP map in ``[0, 1]`` (0 where the images agree).
@@ -329,21 +335,65 @@ def flip_map(
         b = np.ascontiguousarray(t_res[i].permute(1, 2, 0).numpy(), dtype=np.float32)
 
         def evaluate(a: np.ndarray = a, b: np.ndarray = b) -> np.ndarray:
-            fmap, _, _ = flip_evaluator.evaluate(
-                a,
-                b,
-                "LDR",
-                inputsRGB=True,
-                applyMagma=False,
-                computeMeanError=False,
-                parameters={"ppd": ppd},
-            )
+            with _flip_threads(torch.get_num_threads()):
+                fmap, _, _ = flip_evaluator.evaluate(
+                    a,
+                    b,
+                    "LDR",
+                    inputsRGB=True,
+                    applyMagma=False,
+                    computeMeanError=False,
+                    parameters={"ppd": ppd},
+                )
             return np.asarray(fmap, dtype=np.float32)[..., 0]
 
         # memoised on the two LDR images FLIP reads (the do-nothing run scores the image
         # its scene's baseline scored already): the map FLIP returns for those bits
         maps.append(by_content((a, b), ("flip_ldr", ppd), evaluate))
     return np.stack(maps)
+
+
+@functools.cache
+def _flip_openmp() -> ctypes.CDLL | None:
+    """The OpenMP runtime ``flip_evaluator``'s extension runs on: the copy its wheel vendors
+    (``flip_evaluator.libs/libgomp*``, already loaded by the extension, so this is the same
+    library), or ``None`` where there is none (another build: FLIP then keeps its own
+    threads)."""
+    import flip_evaluator
+
+    libs = Path(flip_evaluator.__file__).resolve().parent.parent / "flip_evaluator.libs"
+    found = sorted(libs.glob("libgomp*"))
+    if not found:
+        return None
+    try:
+        lib = ctypes.CDLL(str(found[0]))
+        lib.omp_set_num_threads.argtypes = [ctypes.c_int]
+        lib.omp_get_max_threads.restype = ctypes.c_int
+    except (OSError, AttributeError):
+        return None
+    return lib
+
+
+@contextlib.contextmanager
+def _flip_threads(threads: int) -> Iterator[None]:
+    """FLIP's OpenMP threads set to ``threads`` for the block (restored after it).
+
+    FLIP's C++ code runs its loops on all the cores by default, whatever torch's threads:
+    in a sweep of two single-threaded processes on two cores (the paper benchmark) each
+    FLIP evaluation asked for both cores while the other process scored on one, about 10 %
+    more CPU time for the same map. The map does not depend on the thread count (its loops
+    are per pixel; the mean, a reduction, is computed here): ``tests/test_content_memo.py``
+    compares it bit for bit."""
+    lib = _flip_openmp()
+    if lib is None:
+        yield
+        return
+    before = lib.omp_get_max_threads()
+    lib.omp_set_num_threads(max(int(threads), 1))
+    try:
+        yield
+    finally:
+        lib.omp_set_num_threads(before)
 
 
 def flip(
