@@ -43,6 +43,12 @@ snapshot. The guarantee becomes *never silently stale*, by contract and verifica
 A value memoised on sealed tensors only (a level-of-detail mask from a sealed depth and mask,
 a stencil's index lists) is sealed with them: it is the memo's, read-only by the same
 contract, verified at the same points. Tensors sealed by an outer block are left to it.
+
+**By contents, whatever tensors hold them** (:func:`by_content`): scoring computes the same
+values from equal images held by new tensors (the reference, read anew by every run of a
+sweep; the same result scored by two metrics), where a key by identity misses and a key by
+identity alone could be stale. The key is a SHA-256 digest of every key tensor's bits, taken
+at each lookup; values are kept and handed out as copies.
 """
 
 from __future__ import annotations
