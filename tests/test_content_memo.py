@@ -206,3 +206,30 @@ def test_flip_map_does_not_depend_on_flips_threads():
             maps.append(_flip_direct(res, ref))
         assert lib.omp_get_max_threads() == before
     assert np.array_equal(maps[0], maps[1])
+
+
+@pytest.mark.parametrize(("shape", "win"), [((3, 40, 36), 7), ((3, 5, 9), 5)])
+def test_ssim_is_skimages_bit_for_bit_hit_or_miss(shape, win):
+    """``metrics._structural_similarity`` (the reference's window moments memoised) against
+    ``skimage.metrics.structural_similarity`` itself, cold and with the reference's moments
+    kept (a second result), and after one pixel of the reference changed."""
+    from skimage.metrics import structural_similarity
+
+    g = torch.Generator().manual_seed(3)
+    ref = torch.rand(shape, generator=g, dtype=torch.float64)
+    for k in range(2):
+        res = ref + 0.1 * (k + 1) * torch.randn(shape, generator=g, dtype=torch.float64)
+        for r in (ref, ref.clone()):
+            value, smap = metrics._structural_similarity(r, res, win, 1.3)
+            expected = structural_similarity(
+                r.permute(1, 2, 0).numpy(), res.permute(1, 2, 0).numpy(), win_size=win,
+                data_range=1.3, channel_axis=-1, full=True,
+            )  # fmt: skip
+            assert value == expected[0] and np.array_equal(smap, expected[1])
+    changed = ref.clone()
+    changed[1, 2, 3] += 0.5
+    value, _ = metrics._structural_similarity(changed, res, win, 1.3)
+    assert value == structural_similarity(
+        changed.permute(1, 2, 0).numpy(), res.permute(1, 2, 0).numpy(), win_size=win,
+        data_range=1.3, channel_axis=-1,
+    )  # fmt: skip

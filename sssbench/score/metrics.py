@@ -36,8 +36,10 @@ from pathlib import Path
 import kornia.color
 import numpy as np
 import torch
+from scipy.ndimage import uniform_filter
 from skimage.color import deltaE_cie76, deltaE_ciede2000
-from skimage.metrics import peak_signal_noise_ratio, structural_similarity
+from skimage.metrics import peak_signal_noise_ratio
+from skimage.util import crop
 
 from sssbench._checks import check_choice, check_range, check_scalar, check_tensor
 from sssbench._memo import by_content
@@ -253,17 +255,56 @@ def _ssim(res: torch.Tensor, ref: torch.Tensor, m: torch.Tensor | None) -> float
     out = []
     for i in range(ref.shape[0]):
         data_range = float(peaks[i]) if float(peaks[i]) > 0 else 1.0
-        a = ref[i].permute(1, 2, 0).numpy()
-        b = res[i].permute(1, 2, 0).numpy()
-        value, smap = structural_similarity(
-            a, b, win_size=win, data_range=data_range, channel_axis=-1, full=True
-        )
+        value, smap = _structural_similarity(ref[i], res[i], win, data_range)
         if m is None:
             out.append(float(value))
         else:
             wgt = m[i, 0].numpy()
             out.append(float((smap.mean(-1) * wgt).sum() / wgt.sum()))
     return float(np.mean(out))
+
+
+def _structural_similarity(
+    ref: torch.Tensor, res: torch.Tensor, win: int, data_range: float
+) -> tuple[float, np.ndarray]:
+    """``skimage.metrics.structural_similarity(ref, res, win_size=win, data_range=data_range,
+    channel_axis=-1, full=True)`` of two float64 ``(3, H, W)`` images (as ``(H, W, 3)``):
+    ``(mean SSIM, (H, W, 3) SSIM map)``, bit for bit, with the reference's filtered moments
+    (its window means and variances, two of the five uniform filters per channel) memoised
+    on its contents (:func:`sssbench._memo.by_content`): a sweep scores every method of a
+    scene against the same reference.
+
+    skimage's steps (0.26, ``_structural_similarity.py``: uniform window, sample covariance,
+    ``K1 = 0.01``, ``K2 = 0.03``) in its order of operations; ``tests/test_content_memo.py``
+    compares the two on random images, so a change of skimage's shows there."""
+    a = ref.permute(1, 2, 0).numpy()
+    b = res.permute(1, 2, 0).numpy()
+    cov_norm = win**2 / (win**2 - 1)  # sample covariance
+    c1, c2 = (0.01 * data_range) ** 2, (0.03 * data_range) ** 2
+
+    def moments() -> tuple[np.ndarray, ...]:
+        out = []
+        for ch in range(a.shape[-1]):
+            ux = uniform_filter(a[..., ch], size=win)
+            uxx = uniform_filter(a[..., ch] * a[..., ch], size=win)
+            out.append(np.stack([ux, cov_norm * (uxx - ux * ux), ux**2]))
+        return tuple(out)
+
+    ref_moments = by_content((ref,), ("ssim_reference", win, cov_norm), moments)
+    pad = (win - 1) // 2
+    mssim = np.empty(a.shape[-1])
+    smap = np.empty(a.shape)
+    for ch, (ux, vx, ux2) in enumerate(ref_moments):
+        im1, im2 = a[..., ch], b[..., ch]
+        uy = uniform_filter(im2, size=win)
+        uyy = uniform_filter(im2 * im2, size=win)
+        uxy = uniform_filter(im1 * im2, size=win)
+        vy = cov_norm * (uyy - uy * uy)
+        vxy = cov_norm * (uxy - ux * uy)
+        a1, a2, b1, b2 = (2 * ux * uy + c1, 2 * vxy + c2, ux2 + uy**2 + c1, vx + vy + c2)
+        smap[..., ch] = (a1 * a2) / (b1 * b2)
+        mssim[ch] = crop(smap[..., ch], pad).mean(dtype=np.float64)
+    return float(mssim.mean()), smap
 
 
 def delta_e(
