@@ -26,15 +26,23 @@ Example:
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
+import functools
 import math
+from collections.abc import Iterator
+from pathlib import Path
 
 import kornia.color
 import numpy as np
 import torch
+from scipy.ndimage import uniform_filter
 from skimage.color import deltaE_cie76, deltaE_ciede2000
-from skimage.metrics import peak_signal_noise_ratio, structural_similarity
+from skimage.metrics import peak_signal_noise_ratio
+from skimage.util import crop
 
 from sssbench._checks import check_choice, check_range, check_scalar, check_tensor
+from sssbench._memo import by_content
 
 __all__ = [
     "tonemap",
@@ -129,6 +137,27 @@ def _tonemap(image: torch.Tensor, exposure: float) -> torch.Tensor:
     x = image * exposure
     y = x / (1.0 + x)  # Reinhard
     return kornia.color.linear_rgb_to_rgb(y).clamp(0.0, 1.0)
+
+
+def _display(image: torch.Tensor, exposure: float) -> torch.Tensor:
+    """What a viewer sees of a checked float64 image (:func:`_check_pair`): negative values
+    clamped to 0 (a display shows no negative light), then :func:`_tonemap`.
+
+    Memoised on the image's contents (:func:`sssbench._memo.by_content`): a sweep scores
+    every method of a scene against the same reference (read anew from the reference cache
+    by each run), and :func:`flip_map` and :func:`delta_e` tone-map the same result; the
+    values are those of the computation itself, bit for bit (the same operations on the same
+    bits; the key holds torch's thread count, on which no value may depend but which costs
+    nothing to rule out)."""
+    tag = ("display", exposure, torch.get_num_threads())
+    return by_content((image,), tag, lambda: _tonemap(image.clamp(min=0.0), exposure))
+
+
+def _reference_lab(ref: torch.Tensor, exposure: float) -> torch.Tensor:
+    """``kornia.color.rgb_to_lab`` of :func:`_display` of a checked float64 reference,
+    memoised on its contents like :func:`_display` (the same for every method of a scene)."""
+    tag = ("lab", exposure, torch.get_num_threads())
+    return by_content((ref,), tag, lambda: kornia.color.rgb_to_lab(_display(ref, exposure)))
 
 
 # ----------------------------------------------------------------------------- metrics
@@ -226,17 +255,56 @@ def _ssim(res: torch.Tensor, ref: torch.Tensor, m: torch.Tensor | None) -> float
     out = []
     for i in range(ref.shape[0]):
         data_range = float(peaks[i]) if float(peaks[i]) > 0 else 1.0
-        a = ref[i].permute(1, 2, 0).numpy()
-        b = res[i].permute(1, 2, 0).numpy()
-        value, smap = structural_similarity(
-            a, b, win_size=win, data_range=data_range, channel_axis=-1, full=True
-        )
+        value, smap = _structural_similarity(ref[i], res[i], win, data_range)
         if m is None:
             out.append(float(value))
         else:
             wgt = m[i, 0].numpy()
             out.append(float((smap.mean(-1) * wgt).sum() / wgt.sum()))
     return float(np.mean(out))
+
+
+def _structural_similarity(
+    ref: torch.Tensor, res: torch.Tensor, win: int, data_range: float
+) -> tuple[float, np.ndarray]:
+    """``skimage.metrics.structural_similarity(ref, res, win_size=win, data_range=data_range,
+    channel_axis=-1, full=True)`` of two float64 ``(3, H, W)`` images (as ``(H, W, 3)``):
+    ``(mean SSIM, (H, W, 3) SSIM map)``, bit for bit, with the reference's filtered moments
+    (its window means and variances, two of the five uniform filters per channel) memoised
+    on its contents (:func:`sssbench._memo.by_content`): a sweep scores every method of a
+    scene against the same reference.
+
+    skimage's steps (0.26, ``_structural_similarity.py``: uniform window, sample covariance,
+    ``K1 = 0.01``, ``K2 = 0.03``) in its order of operations; ``tests/test_content_memo.py``
+    compares the two on random images, so a change of skimage's shows there."""
+    a = ref.permute(1, 2, 0).numpy()
+    b = res.permute(1, 2, 0).numpy()
+    cov_norm = win**2 / (win**2 - 1)  # sample covariance
+    c1, c2 = (0.01 * data_range) ** 2, (0.03 * data_range) ** 2
+
+    def moments() -> tuple[np.ndarray, ...]:
+        out = []
+        for ch in range(a.shape[-1]):
+            ux = uniform_filter(a[..., ch], size=win)
+            uxx = uniform_filter(a[..., ch] * a[..., ch], size=win)
+            out.append(np.stack([ux, cov_norm * (uxx - ux * ux), ux**2]))
+        return tuple(out)
+
+    ref_moments = by_content((ref,), ("ssim_reference", win, cov_norm), moments)
+    pad = (win - 1) // 2
+    mssim = np.empty(a.shape[-1])
+    smap = np.empty(a.shape)
+    for ch, (ux, vx, ux2) in enumerate(ref_moments):
+        im1, im2 = a[..., ch], b[..., ch]
+        uy = uniform_filter(im2, size=win)
+        uyy = uniform_filter(im2 * im2, size=win)
+        uxy = uniform_filter(im1 * im2, size=win)
+        vy = cov_norm * (uyy - uy * uy)
+        vxy = cov_norm * (uxy - ux * uy)
+        a1, a2, b1, b2 = (2 * ux * uy + c1, 2 * vxy + c2, ux2 + uy**2 + c1, vx + vy + c2)
+        smap[..., ch] = (a1 * a2) / (b1 * b2)
+        mssim[ch] = crop(smap[..., ch], pad).mean(dtype=np.float64)
+    return float(mssim.mean()), smap
 
 
 def delta_e(
@@ -271,9 +339,8 @@ def _delta_e(
     formula: str = "cie76",
     exposure: float = 1.0,
 ) -> float:
-    res, ref = res.clamp(min=0.0), ref.clamp(min=0.0)  # a display shows no negative light
-    lab_res = kornia.color.rgb_to_lab(_tonemap(res, exposure))
-    lab_ref = kornia.color.rgb_to_lab(_tonemap(ref, exposure))
+    lab_res = kornia.color.rgb_to_lab(_display(res, exposure))
+    lab_ref = _reference_lab(ref, exposure)
     fn = deltaE_cie76 if formula == "cie76" else deltaE_ciede2000
     de = fn(lab_ref.numpy(), lab_res.numpy(), channel_axis=1)  # (B, H, W)
     return float(_weighted_mean(torch.from_numpy(np.ascontiguousarray(de))[:, None], m).mean())
@@ -290,7 +357,8 @@ def flip_map(
 
     Both images go through :func:`tonemap` and are handed to FLIP as LDR sRGB
     (``evaluate(reference, test, "LDR", inputsRGB=True)``), viewed at ``ppd`` pixels per degree
-    (FLIP's default, 67: a 0.7 m distance from a 24" 4K monitor).
+    (FLIP's default, 67: a 0.7 m distance from a 24" 4K monitor). FLIP runs on torch's
+    intra-op thread count (:func:`_flip_threads`; the map does not depend on it).
 
     Returns:
         ``(B, H, W)`` float32 FLIP map in ``[0, 1]`` (0 where the images agree).
@@ -298,26 +366,75 @@ def flip_map(
     import flip_evaluator  # imported lazily: the extension is only needed for this metric
 
     res, ref, _ = _check_pair(result, reference, None)
-    res, ref = res.clamp(min=0.0), ref.clamp(min=0.0)  # a display shows no negative light
     ppd = check_scalar("ppd", ppd, 0.0, low_inclusive=False)
     exposure = check_scalar("exposure", exposure, 0.0, low_inclusive=False)
-    t_res = _tonemap(res, exposure)
-    t_ref = _tonemap(ref, exposure)
+    t_res = _display(res, exposure)
+    t_ref = _display(ref, exposure)
     maps = []
     for i in range(ref.shape[0]):
         a = np.ascontiguousarray(t_ref[i].permute(1, 2, 0).numpy(), dtype=np.float32)
         b = np.ascontiguousarray(t_res[i].permute(1, 2, 0).numpy(), dtype=np.float32)
-        fmap, _, _ = flip_evaluator.evaluate(
-            a,
-            b,
-            "LDR",
-            inputsRGB=True,
-            applyMagma=False,
-            computeMeanError=False,
-            parameters={"ppd": ppd},
-        )
-        maps.append(np.asarray(fmap, dtype=np.float32)[..., 0])
+
+        def evaluate(a: np.ndarray = a, b: np.ndarray = b) -> np.ndarray:
+            with _flip_threads(torch.get_num_threads()):
+                fmap, _, _ = flip_evaluator.evaluate(
+                    a,
+                    b,
+                    "LDR",
+                    inputsRGB=True,
+                    applyMagma=False,
+                    computeMeanError=False,
+                    parameters={"ppd": ppd},
+                )
+            return np.asarray(fmap, dtype=np.float32)[..., 0]
+
+        # memoised on the two LDR images FLIP reads (the do-nothing run scores the image
+        # its scene's baseline scored already): the map FLIP returns for those bits
+        maps.append(by_content((a, b), ("flip_ldr", ppd), evaluate))
     return np.stack(maps)
+
+
+@functools.cache
+def _flip_openmp() -> ctypes.CDLL | None:
+    """The OpenMP runtime ``flip_evaluator``'s extension runs on: the copy its wheel vendors
+    (``flip_evaluator.libs/libgomp*``, already loaded by the extension, so this is the same
+    library), or ``None`` where there is none (another build: FLIP then keeps its own
+    threads)."""
+    import flip_evaluator
+
+    libs = Path(flip_evaluator.__file__).resolve().parent.parent / "flip_evaluator.libs"
+    found = sorted(libs.glob("libgomp*"))
+    if not found:
+        return None
+    try:
+        lib = ctypes.CDLL(str(found[0]))
+        lib.omp_set_num_threads.argtypes = [ctypes.c_int]
+        lib.omp_get_max_threads.restype = ctypes.c_int
+    except (OSError, AttributeError):
+        return None
+    return lib
+
+
+@contextlib.contextmanager
+def _flip_threads(threads: int) -> Iterator[None]:
+    """FLIP's OpenMP threads set to ``threads`` for the block (restored after it).
+
+    FLIP's C++ code runs its loops on all the cores by default, whatever torch's threads:
+    in a sweep of two single-threaded processes on two cores (the paper benchmark) each
+    FLIP evaluation asked for both cores while the other process scored on one, about 10 %
+    more CPU time for the same map. The map does not depend on the thread count (its loops
+    are per pixel; the mean, a reduction, is computed here): ``tests/test_content_memo.py``
+    compares it bit for bit."""
+    lib = _flip_openmp()
+    if lib is None:
+        yield
+        return
+    before = lib.omp_get_max_threads()
+    lib.omp_set_num_threads(max(int(threads), 1))
+    try:
+        yield
+    finally:
+        lib.omp_set_num_threads(before)
 
 
 def flip(
