@@ -143,7 +143,8 @@ SIMD_FN SIMDN(vs_) SIMDN(exp_)(SIMDN(vs_) x) {
  * in the spare lanes (computed, not written). */
 SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX) *ln,
                              int64_t row, int64_t a, int64_t b, const SCALAR *scale,
-                             int64_t n_axis, const int AXIS_Y, const int FOLLOW) {
+                             int64_t n_axis, const int AXIS_Y, const int FOLLOW,
+                             const int MULTI) {
     typedef SIMDN(vs_) vec;
     typedef SIMDN(vm_) mask;
     typedef SIMDN(vi_) ivec;
@@ -156,6 +157,9 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
     const ivec win0 = izero + (int32_t)ln->lo, pitch = izero + (int32_t)ln->pitch;
     const vec inv0 = zero + j->inv_scale[0], inv1 = zero + j->inv_scale[1],
               inv2 = zero + j->inv_scale[2];
+    /* MULTI: a sweep of j->nsets weight sets (see taps_ in gather_body.h); inputs 1.. of a
+     * fan-in are fetched as input 0 is, their planes ln->plx */
+    const int64_t ns = MULTI ? j->nsets : 1, nin = MULTI && j->fan_in ? ns : 1;
     ivec iota;
     for (int l = 0; l < VW; ++l) iota[l] = l;
     for (int64_t c = a; c < b; c += VW) {
@@ -187,6 +191,15 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
             c2 = (vec)GATHER_RAW(p2, centre);
             cz = (vec)GATHER_RAW(p3, centre);
         }
+        vec cx[MAX_SETS][3], vx[MAX_SETS][3], accx[MAX_SETS][3];
+        for (int64_t i = 1; i < nin; ++i)
+            for (int ch = 0; ch < 3; ++ch) {
+                if (n == VW)
+                    __builtin_memcpy(&cx[i][ch], ln->plx[i][ch] + centre[0], sizeof c0);
+                else
+                    cx[i][ch] = (vec)GATHER_RAW(ln->plx[i][ch], centre);
+            }
+        for (int64_t s = 1; s < ns; ++s) accx[s][0] = accx[s][1] = accx[s][2] = zero;
         vec acc0 = zero, acc1 = zero, acc2 = zero;
         for (int64_t t = 0; t < j->k; ++t) {
             vec p = pos + j->offsets[t] * sc;
@@ -217,6 +230,8 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
                     PERMUTED(p1, v1);
                     PERMUTED(p2, v2);
                     PERMUTED(p3, v3);
+                    for (int64_t i = 1; i < nin; ++i)
+                        for (int ch = 0; ch < 3; ++ch) PERMUTED(ln->plx[i][ch], vx[i][ch]);
 #undef PERMUTED
                     goto fetched;
                 }
@@ -239,6 +254,8 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
                     PAIR(p1, v1);
                     PAIR(p2, v2);
                     PAIR(p3, v3);
+                    for (int64_t i = 1; i < nin; ++i)
+                        for (int ch = 0; ch < 3; ++ch) PAIR(ln->plx[i][ch], vx[i][ch]);
 #undef PAIR
                     goto fetched;
                 }
@@ -270,6 +287,8 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
                     SELECTED(p1, v1);
                     SELECTED(p2, v2);
                     SELECTED(p3, v3);
+                    for (int64_t i = 1; i < nin; ++i)
+                        for (int ch = 0; ch < 3; ++ch) SELECTED(ln->plx[i][ch], vx[i][ch]);
 #undef SELECTED
                     goto fetched;
                 }
@@ -288,10 +307,18 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
                 va = (vec)GATHER_RAW(p3, ia);
                 vb = (vec)GATHER_RAW(p3, ib);
                 v3 = va + f * (vb - va);
+                for (int64_t i = 1; i < nin; ++i)
+                    for (int ch = 0; ch < 3; ++ch) {
+                        va = (vec)GATHER_RAW(ln->plx[i][ch], ia);
+                        vb = (vec)GATHER_RAW(ln->plx[i][ch], ib);
+                        vx[i][ch] = va + f * (vb - va);
+                    }
             }
         fetched:;
             const SCALAR *wt = j->weights4 + 4 * t;
             vec w0 = zero + wt[0], w1 = zero + wt[1], w2 = zero + wt[2];
+            vec e0 = one, e1 = one, e2 = one;
+            int scaled = 0;
             if (FOLLOW) {
                 const vec dz = (vec)((mask)(v3 - cz) & ~sign); /* |dz| */
                 const vec d0 = dz * inv0, d1 = dz * inv1, d2 = dz * inv2;
@@ -304,18 +331,67 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
                     v0 = v0 + t0 * (c0 - v0);
                     v1 = v1 + t1 * (c1 - v1);
                     v2 = v2 + t2 * (c2 - v2);
+                    for (int64_t i = 1; i < nin; ++i) {
+                        vx[i][0] = vx[i][0] + t0 * (cx[i][0] - vx[i][0]);
+                        vx[i][1] = vx[i][1] + t1 * (cx[i][1] - vx[i][1]);
+                        vx[i][2] = vx[i][2] + t2 * (cx[i][2] - vx[i][2]);
+                    }
                 } else if (j->offsets[t] != 0) {
                     /* 000 eq. 7; a centre tap (offset 0) fetches its own pixel, dz = 0 and
                      * exp(-0) = 1 exactly (here, in expf / exp and in torch): not computed */
-                    w0 = w0 * SIMDN(exp_)((SCALAR)-0.5 * d0 * d0);
-                    w1 = w1 * SIMDN(exp_)((SCALAR)-0.5 * d1 * d1);
-                    w2 = w2 * SIMDN(exp_)((SCALAR)-0.5 * d2 * d2);
+                    e0 = SIMDN(exp_)((SCALAR)-0.5 * d0 * d0);
+                    e1 = SIMDN(exp_)((SCALAR)-0.5 * d1 * d1);
+                    e2 = SIMDN(exp_)((SCALAR)-0.5 * d2 * d2);
+                    scaled = 1;
+                    w0 = w0 * e0;
+                    w1 = w1 * e1;
+                    w2 = w2 * e2;
                 }
             }
             acc0 = acc0 + w0 * v0;
             acc1 = acc1 + w1 * v1;
             acc2 = acc2 + w2 * v2;
+            for (int64_t s = 1; s < ns; ++s) { /* the other sets: the same samples, own weights */
+                const SCALAR *ws = j->weights4 + 4 * (s * j->k + t);
+                vec u0 = zero + ws[0], u1 = zero + ws[1], u2 = zero + ws[2];
+                if (scaled) {
+                    u0 = u0 * e0;
+                    u1 = u1 * e1;
+                    u2 = u2 * e2;
+                }
+                const int64_t i = nin > 1 ? s : 0;
+                accx[s][0] = accx[s][0] + u0 * (i ? vx[i][0] : v0);
+                accx[s][1] = accx[s][1] + u1 * (i ? vx[i][1] : v1);
+                accx[s][2] = accx[s][2] + u2 * (i ? vx[i][2] : v2);
+            }
         }
+        if (MULTI && j->fan_in) { /* 0 + c_0 r_0 + c_1 r_1 + ...: the sets' blend */
+            const SCALAR *cs = j->coef4;
+            vec s0 = zero + cs[0] * acc0, s1 = zero + cs[1] * acc1, s2 = zero + cs[2] * acc2;
+            for (int64_t s = 1; s < ns; ++s) {
+                cs = j->coef4 + 4 * s;
+                s0 = s0 + cs[0] * accx[s][0];
+                s1 = s1 + cs[1] * accx[s][1];
+                s2 = s2 + cs[2] * accx[s][2];
+            }
+            acc0 = s0;
+            acc1 = s1;
+            acc2 = s2;
+        } else if (MULTI) /* a fan-out: set s's result into output s */
+            for (int64_t s = 1; s < ns; ++s) {
+                SCALAR *o = j->dst + s * j->set_stride + row * w + c;
+                if (n == VW) {
+                    __builtin_memcpy(o, &accx[s][0], sizeof acc0);
+                    __builtin_memcpy(o + hw, &accx[s][1], sizeof acc0);
+                    __builtin_memcpy(o + 2 * hw, &accx[s][2], sizeof acc0);
+                } else {
+                    for (int64_t l = 0; l < n; ++l) {
+                        o[l] = accx[s][0][l];
+                        o[hw + l] = accx[s][1][l];
+                        o[2 * hw + l] = accx[s][2][l];
+                    }
+                }
+            }
         SCALAR *o = j->dst + row * w + c;
         if (n == VW) {
             __builtin_memcpy(o, &acc0, sizeof acc0);
@@ -413,7 +489,8 @@ SIMD_FN SCALAR SIMDN(scales_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFI
 }
 
 /* This thread's lines, as lines_ in gather_body.h, the taps VW pixels at a time. */
-SIMD_FN void SIMDN(lines_)(const CAT(job_, SUFFIX) *j, const int AXIS_Y, const int FOLLOW) {
+SIMD_FN void SIMDN(lines_)(const CAT(job_, SUFFIX) *j, const int AXIS_Y, const int FOLLOW,
+                           const int MULTI) {
     const int64_t n_axis = AXIS_Y ? j->h : j->w;
     for (int64_t q = j->first; q < j->last; ++q) {
         CAT(line_, SUFFIX) ln;
@@ -423,7 +500,7 @@ SIMD_FN void SIMDN(lines_)(const CAT(job_, SUFFIX) *j, const int AXIS_Y, const i
         for (int64_t e = 0; e < ln.count; ++e) {
             const int64_t *sp = j->spans + 3 * ln.ids[e];
             const int64_t a = sp[1] > ln.s0 ? sp[1] : ln.s0, b = sp[2] < ln.s1 ? sp[2] : ln.s1;
-            SIMDN(segment_)(j, &ln, sp[0], a, b, j->scale + idx, n_axis, AXIS_Y, FOLLOW);
+            SIMDN(segment_)(j, &ln, sp[0], a, b, j->scale + idx, n_axis, AXIS_Y, FOLLOW, MULTI);
             idx += b - a;
         }
     }
@@ -432,12 +509,13 @@ SIMD_FN void SIMDN(lines_)(const CAT(job_, SUFFIX) *j, const int AXIS_Y, const i
 __attribute__((target(ISA_TARGET))) static void *SIMDN(run_)(void *arg) {
     const CAT(job_, SUFFIX) *j = (const CAT(job_, SUFFIX) *)arg;
     FTZ_BEGIN(j->follow == 2); /* the gaussian's underflow: see FTZ_BEGIN in gather.c */
-    if (!j->axis_y && j->follow == 0) SIMDN(lines_)(j, 0, 0);
-    else if (!j->axis_y && j->follow == 1) SIMDN(lines_)(j, 0, 1);
-    else if (!j->axis_y) SIMDN(lines_)(j, 0, 2);
-    else if (j->follow == 0) SIMDN(lines_)(j, 1, 0);
-    else if (j->follow == 1) SIMDN(lines_)(j, 1, 1);
-    else SIMDN(lines_)(j, 1, 2);
+    const int m = j->nsets > 1; /* a sweep of several weight sets: the general loop */
+    if (!j->axis_y && j->follow == 0) m ? SIMDN(lines_)(j, 0, 0, 1) : SIMDN(lines_)(j, 0, 0, 0);
+    else if (!j->axis_y && j->follow == 1) m ? SIMDN(lines_)(j, 0, 1, 1) : SIMDN(lines_)(j, 0, 1, 0);
+    else if (!j->axis_y) m ? SIMDN(lines_)(j, 0, 2, 1) : SIMDN(lines_)(j, 0, 2, 0);
+    else if (j->follow == 0) m ? SIMDN(lines_)(j, 1, 0, 1) : SIMDN(lines_)(j, 1, 0, 0);
+    else if (j->follow == 1) m ? SIMDN(lines_)(j, 1, 1, 1) : SIMDN(lines_)(j, 1, 1, 0);
+    else m ? SIMDN(lines_)(j, 1, 2, 1) : SIMDN(lines_)(j, 1, 2, 0);
     FTZ_END();
     return NULL;
 }
