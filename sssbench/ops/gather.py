@@ -601,10 +601,14 @@ def separable_sweep(
             check_finite: as :func:`separable_pass` (no rotation, no ``sample_weight``).
         coefficients: ``(S, 3)`` finite per-set per-channel factors: the fan-in, whose result
             is ``Σ_s coefficients[s] · pass_s(images[s])`` at the active pixels.
-        out: fan-in only: ``(B, 3, H, W)`` target written at the active pixels and nowhere
+        out: fan-in: ``(B, 3, H, W)`` target written at the active pixels and nowhere
             else (must share no memory with the inputs); ``None``: a new tensor holding
             ``Σ_s coefficients[s] · images[s]`` at the inactive pixels (what the separate
-            passes summed give there).
+            passes summed give there). Fan-out: ``None`` or a contiguous ``(S, B, 3, H, W)``
+            workspace of the image's dtype that the native loop overwrites entirely (every
+            pixel of every set) and returns, when no gradient is needed (otherwise a new
+            tensor is returned): a caller that sweeps frame after frame saves allocating
+            and faulting in ``S`` images per call.
 
     Returns:
         fan-out: ``(S, B, 3, H, W)``, ``[s]`` set ``s``'s pass (``images`` at inactive pixels);
@@ -624,7 +628,7 @@ def separable_sweep(
     n_sets = len(kernels)
     fan_in = coefficients is not None
     if fan_in:
-        check_tensor("images", images, ndim=5)
+        check_tensor("images", images, ndim=5, finite=check_finite)
         if images.shape[0] != n_sets:
             raise ValueError(
                 f"images must have shape (S, B, 3, H, W) with S = {n_sets} (one per kernel) "
@@ -637,22 +641,20 @@ def separable_sweep(
             )
         first = images[0]
     else:
-        if out is not None:
-            raise ValueError("out is for a fan-in (with coefficients) only")
         first = images
     _check_pass_inputs(
         first, kernels[0], direction, gbuffer, width, follow_surface, surface_scale, None,
         None, None, None, check_finite,
     )  # fmt: skip
-    if fan_in and check_finite:
-        check_tensor("images", images, ndim=5, finite=True)
     strength = gbuffer.mask if (use_mask and gbuffer.mask is not None) else None
     per_pixel = width if isinstance(width, torch.Tensor) else None
     if out is not None:
-        if out.shape != first.shape or out.dtype != first.dtype:
+        want = first.shape if fan_in else (n_sets, *first.shape)
+        if not isinstance(out, torch.Tensor) or out.shape != want or out.dtype != first.dtype:
             raise ValueError(
-                f"out must have shape {tuple(first.shape)} and dtype {first.dtype}, "
-                f"got {tuple(out.shape)} {out.dtype}"
+                f"out must be a tensor of shape {tuple(want)} and dtype {first.dtype}, got "
+                f"{tuple(out.shape) if isinstance(out, torch.Tensor) else type(out).__name__}"
+                f"{' ' + str(out.dtype) if isinstance(out, torch.Tensor) else ''}"
             )
         check_writable("out", out, {
             "images": images, "gbuffer.depth": gbuffer.depth, "gbuffer.mask": strength,
@@ -700,7 +702,11 @@ def separable_sweep(
                     torch.autograd.graph.increment_version(out)
                 result = out
             else:
-                result = torch.empty((n_sets, *first.shape), dtype=dtype, device=first.device)
+                result = out
+                if result is None or not result.is_contiguous():
+                    result = torch.empty((n_sets, *first.shape), dtype=dtype, device=first.device)
+                elif not result.is_inference():
+                    torch.autograd.graph.increment_version(result)
                 n_total = native_pass(native.library(), images_c, result, args, True,
                                       sets=(False, None))  # fmt: skip
         else:
@@ -713,7 +719,8 @@ def separable_sweep(
                     follow)  # fmt: skip
             result, n_total = sweep_torch(
                 images, *args, coefficients=None if not fan_in else coefficients.to(dtype),
-                out=out, accumulate=compiled_accumulate() if name_ == "compile" else None,
+                out=out if fan_in else None,
+                accumulate=compiled_accumulate() if name_ == "compile" else None,
             )  # fmt: skip
     ms = (time.perf_counter() - start) * 1e3
     fetched = len(kernels[0]) * (n_sets if fan_in else 1)  # samples per pixel

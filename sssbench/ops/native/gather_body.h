@@ -308,6 +308,20 @@ static inline __attribute__((always_inline)) void CAT(line_window_, SUFFIX)(
             for (int ch = 0; ch < 3; ++ch) ln->plx[i][ch] = ln->pl[ch] + i * j->set_stride;
         return;
     }
+    /* a fan-in y sweep (it writes elsewhere) reads its strip's window where it is too, rows
+     * of w SCALARs apart: packing its 3 S + 1 planes would write and read back a window far
+     * larger than the cache, where the taps of successive rows reuse the few rows around
+     * them (the loads' margin as above: not past the last plane) */
+    if (PLANAR && AXIS_Y && nin > 1 && j->direct && hi * w + s1 + 64 < hw) {
+        ln->pitch = w;
+        ln->pl[0] = j->src + lo * w + s0;
+        ln->pl[1] = ln->pl[0] + hw;
+        ln->pl[2] = ln->pl[0] + 2 * hw;
+        ln->pl[3] = j->depth + lo * w + s0;
+        for (int64_t i = 1; i < nin; ++i)
+            for (int ch = 0; ch < 3; ++ch) ln->plx[i][ch] = ln->pl[ch] + i * j->set_stride;
+        return;
+    }
     for (int i = 0; i < 4; ++i) ln->pl[i] = j->buf + i * plane;
     for (int64_t i = 1; i < nin; ++i)
         for (int ch = 0; ch < 3; ++ch) ln->plx[i][ch] = j->buf + (4 + 3 * (i - 1) + ch) * plane;
