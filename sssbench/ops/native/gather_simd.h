@@ -157,9 +157,17 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
     const ivec win0 = izero + (int32_t)ln->lo, pitch = izero + (int32_t)ln->pitch;
     const vec inv0 = zero + j->inv_scale[0], inv1 = zero + j->inv_scale[1],
               inv2 = zero + j->inv_scale[2];
-    /* MULTI: a sweep of j->nsets weight sets (see taps_ in gather_body.h); inputs 1.. of a
-     * fan-in are fetched as input 0 is, their planes ln->plx */
-    const int64_t ns = MULTI ? j->nsets : 1, nin = MULTI && j->fan_in ? ns : 1;
+    /* MULTI: a sweep of j->nsets weight sets (see taps_ in gather_body.h). Set 0 runs in the
+     * tap loop below as the single pass does; for the others the loop keeps, per tap of a
+     * chunk of TAP_CHUNK, what the sets share (fan-out: the samples after the follow-surface
+     * lerp; fan-in: where the samples are, their fraction and the lerp factors; the
+     * gaussian's factors), and after each chunk every further set runs over it with its
+     * sums in registers (the same operations per set in the same order as a pass of its
+     * own: bitwise its result). A fan-in's set s reads input s (planes ln->plx[s]): two rows
+     * of it where the tap's samples share one row pair (the common case), else a gather. */
+    const int64_t ns = MULTI ? j->nsets : 1;
+    const int fan_in = MULTI && j->fan_in;
+    enum { TAP_CHUNK = 16 };
     ivec iota;
     for (int l = 0; l < VW; ++l) iota[l] = l;
     for (int64_t c = a; c < b; c += VW) {
@@ -191,17 +199,18 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
             c2 = (vec)GATHER_RAW(p2, centre);
             cz = (vec)GATHER_RAW(p3, centre);
         }
-        vec cx[MAX_SETS][3], vx[MAX_SETS][3], accx[MAX_SETS][3];
-        for (int64_t i = 1; i < nin; ++i)
-            for (int ch = 0; ch < 3; ++ch) {
-                if (n == VW)
-                    __builtin_memcpy(&cx[i][ch], ln->plx[i][ch] + centre[0], sizeof c0);
-                else
-                    cx[i][ch] = (vec)GATHER_RAW(ln->plx[i][ch], centre);
-            }
+        vec accx[MAX_SETS][3];  /* sets 1..: their sums between chunks */
+        vec tv[TAP_CHUNK][3];    /* fan-out: the samples; fan-in: the lerp factors */
+        vec te[TAP_CHUNK][3];    /* the gaussian's factors (tsc: applied) */
+        vec tf[TAP_CHUNK];       /* fan-in: the fraction */
+        ivec tia[TAP_CHUNK], tib[TAP_CHUNK];
+        int64_t tat[TAP_CHUNK]; /* fan-in: the row pair's offset, or -1: gather */
+        int tsc[TAP_CHUNK];
         for (int64_t s = 1; s < ns; ++s) accx[s][0] = accx[s][1] = accx[s][2] = zero;
         vec acc0 = zero, acc1 = zero, acc2 = zero;
         for (int64_t t = 0; t < j->k; ++t) {
+            const int64_t tt = t % TAP_CHUNK;
+            if (fan_in) tat[tt] = -1;
             vec p = pos + j->offsets[t] * sc;
             p = VSELECT(p >= zero, VSELECT(p <= last, p, last), zero); /* border; NaN -> 0 */
             const ivec i0 = __builtin_convertvector(p, ivec); /* = floor(p) since p >= 0 */
@@ -230,8 +239,6 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
                     PERMUTED(p1, v1);
                     PERMUTED(p2, v2);
                     PERMUTED(p3, v3);
-                    for (int64_t i = 1; i < nin; ++i)
-                        for (int ch = 0; ch < 3; ++ch) PERMUTED(ln->plx[i][ch], vx[i][ch]);
 #undef PERMUTED
                     goto fetched;
                 }
@@ -254,8 +261,7 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
                     PAIR(p1, v1);
                     PAIR(p2, v2);
                     PAIR(p3, v3);
-                    for (int64_t i = 1; i < nin; ++i)
-                        for (int ch = 0; ch < 3; ++ch) PAIR(ln->plx[i][ch], vx[i][ch]);
+                    if (fan_in) tat[tt] = at1;
 #undef PAIR
                     goto fetched;
                 }
@@ -287,8 +293,6 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
                     SELECTED(p1, v1);
                     SELECTED(p2, v2);
                     SELECTED(p3, v3);
-                    for (int64_t i = 1; i < nin; ++i)
-                        for (int ch = 0; ch < 3; ++ch) SELECTED(ln->plx[i][ch], vx[i][ch]);
 #undef SELECTED
                     goto fetched;
                 }
@@ -307,12 +311,6 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
                 va = (vec)GATHER_RAW(p3, ia);
                 vb = (vec)GATHER_RAW(p3, ib);
                 v3 = va + f * (vb - va);
-                for (int64_t i = 1; i < nin; ++i)
-                    for (int ch = 0; ch < 3; ++ch) {
-                        va = (vec)GATHER_RAW(ln->plx[i][ch], ia);
-                        vb = (vec)GATHER_RAW(ln->plx[i][ch], ib);
-                        vx[i][ch] = va + f * (vb - va);
-                    }
             }
         fetched:;
             const SCALAR *wt = j->weights4 + 4 * t;
@@ -331,10 +329,10 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
                     v0 = v0 + t0 * (c0 - v0);
                     v1 = v1 + t1 * (c1 - v1);
                     v2 = v2 + t2 * (c2 - v2);
-                    for (int64_t i = 1; i < nin; ++i) {
-                        vx[i][0] = vx[i][0] + t0 * (cx[i][0] - vx[i][0]);
-                        vx[i][1] = vx[i][1] + t1 * (cx[i][1] - vx[i][1]);
-                        vx[i][2] = vx[i][2] + t2 * (cx[i][2] - vx[i][2]);
+                    if (fan_in) {
+                        tv[tt][0] = t0;
+                        tv[tt][1] = t1;
+                        tv[tt][2] = t2;
                     }
                 } else if (j->offsets[t] != 0) {
                     /* 000 eq. 7; a centre tap (offset 0) fetches its own pixel, dz = 0 and
@@ -351,21 +349,96 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
             acc0 = acc0 + w0 * v0;
             acc1 = acc1 + w1 * v1;
             acc2 = acc2 + w2 * v2;
-            for (int64_t s = 1; s < ns; ++s) { /* the other sets: the same samples, own weights */
-                const SCALAR *ws = j->weights4 + 4 * (s * j->k + t);
-                vec u0 = zero + ws[0], u1 = zero + ws[1], u2 = zero + ws[2];
-                if (scaled) {
-                    u0 = u0 * e0;
-                    u1 = u1 * e1;
-                    u2 = u2 * e2;
+            if (ns > 1) { /* what the other sets share of this tap */
+                tsc[tt] = scaled;
+                te[tt][0] = e0;
+                te[tt][1] = e1;
+                te[tt][2] = e2;
+                if (fan_in) {
+                    tf[tt] = f;
+                    tia[tt] = ia;
+                    tib[tt] = ib;
+                } else {
+                    tv[tt][0] = v0;
+                    tv[tt][1] = v1;
+                    tv[tt][2] = v2;
                 }
-                const int64_t i = nin > 1 ? s : 0;
-                accx[s][0] = accx[s][0] + u0 * (i ? vx[i][0] : v0);
-                accx[s][1] = accx[s][1] + u1 * (i ? vx[i][1] : v1);
-                accx[s][2] = accx[s][2] + u2 * (i ? vx[i][2] : v2);
+            }
+            if (ns == 1 || (tt != TAP_CHUNK - 1 && t != j->k - 1)) continue;
+            const int64_t t0_ = t - tt; /* the chunk's first tap */
+            for (int64_t s = 1; s < ns; ++s) { /* the other sets over the chunk */
+                vec a0 = accx[s][0], a1 = accx[s][1], a2 = accx[s][2];
+                const SCALAR *q0 = fan_in ? ln->plx[s][0] : NULL, *q1 = fan_in ? ln->plx[s][1] : NULL,
+                             *q2 = fan_in ? ln->plx[s][2] : NULL;
+                vec m0 = zero, m1 = zero, m2 = zero; /* fan-in: input s's centre pixels */
+                if (fan_in && FOLLOW == 1) {
+                    if (n == VW) {
+                        __builtin_memcpy(&m0, q0 + centre[0], sizeof m0);
+                        __builtin_memcpy(&m1, q1 + centre[0], sizeof m1);
+                        __builtin_memcpy(&m2, q2 + centre[0], sizeof m2);
+                    } else {
+                        m0 = (vec)GATHER_RAW(q0, centre);
+                        m1 = (vec)GATHER_RAW(q1, centre);
+                        m2 = (vec)GATHER_RAW(q2, centre);
+                    }
+                }
+                for (int64_t u = 0; u <= tt; ++u) {
+                    vec x0, x1, x2;
+                    if (fan_in) {
+                        const vec fr = tf[u];
+                        if (tat[u] >= 0) {
+                            const int64_t o1 = tat[u], o2 = o1 + ln->pitch;
+                            vec a_, b_;
+#define ROWS(Q, out)                                                              \
+    do {                                                                          \
+        __builtin_memcpy(&a_, (Q) + o1, sizeof a_);                               \
+        __builtin_memcpy(&b_, (Q) + o2, sizeof b_);                               \
+        out = a_ + fr * (b_ - a_);                                                \
+    } while (0)
+                            ROWS(q0, x0);
+                            ROWS(q1, x1);
+                            ROWS(q2, x2);
+#undef ROWS
+                        } else {
+                            vec a_, b_;
+#define GATHERED(Q, out)                                                          \
+    do {                                                                          \
+        a_ = (vec)GATHER_RAW(Q, tia[u]);                                          \
+        b_ = (vec)GATHER_RAW(Q, tib[u]);                                          \
+        out = a_ + fr * (b_ - a_);                                                \
+    } while (0)
+                            GATHERED(q0, x0);
+                            GATHERED(q1, x1);
+                            GATHERED(q2, x2);
+#undef GATHERED
+                        }
+                        if (FOLLOW == 1) {
+                            x0 = x0 + tv[u][0] * (m0 - x0);
+                            x1 = x1 + tv[u][1] * (m1 - x1);
+                            x2 = x2 + tv[u][2] * (m2 - x2);
+                        }
+                    } else {
+                        x0 = tv[u][0];
+                        x1 = tv[u][1];
+                        x2 = tv[u][2];
+                    }
+                    const SCALAR *ws = j->weights4 + 4 * (s * j->k + t0_ + u);
+                    vec u0 = zero + ws[0], u1 = zero + ws[1], u2 = zero + ws[2];
+                    if (tsc[u]) {
+                        u0 = u0 * te[u][0];
+                        u1 = u1 * te[u][1];
+                        u2 = u2 * te[u][2];
+                    }
+                    a0 = a0 + u0 * x0;
+                    a1 = a1 + u1 * x1;
+                    a2 = a2 + u2 * x2;
+                }
+                accx[s][0] = a0;
+                accx[s][1] = a1;
+                accx[s][2] = a2;
             }
         }
-        if (MULTI && j->fan_in) { /* 0 + c_0 r_0 + c_1 r_1 + ...: the sets' blend */
+        if (fan_in) { /* 0 + c_0 r_0 + c_1 r_1 + ...: the sets' blend */
             const SCALAR *cs = j->coef4;
             vec s0 = zero + cs[0] * acc0, s1 = zero + cs[1] * acc1, s2 = zero + cs[2] * acc2;
             for (int64_t s = 1; s < ns; ++s) {
