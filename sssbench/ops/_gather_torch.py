@@ -158,20 +158,7 @@ def gather_torch(
 
 def sweep_torch(
     images: torch.Tensor,
-    depth: torch.Tensor,
-    strength: torch.Tensor | None,
-    width: torch.Tensor | None,
-    ddepth: torch.Tensor | None,
-    offsets: torch.Tensor,
-    weights: torch.Tensor,
-    inv_scale: torch.Tensor,
-    f_px: float,
-    width_scalar: float,
-    correction: float,
-    maxdd: float,
-    axis_y: bool,
-    follow: int,
-    *,
+    *args: object,
     coefficients: torch.Tensor | None = None,
     out: torch.Tensor | None = None,
     accumulate: Callable[..., torch.Tensor] | None = None,
@@ -184,8 +171,8 @@ def sweep_torch(
     Args:
         images: fan-out (``coefficients`` ``None``): one image ``(B, 3, H, W)``; fan-in:
             ``(S, B, 3, H, W)``, set ``s`` reads ``images[s]``.
-        weights: ``(S, K, 3)``, ``images``' dtype; the other arguments as
-            :func:`gather_torch`'s.
+        args: :func:`gather_torch`'s after ``image``, but ``weights`` (the sixth) ``(S, K, 3)``
+            in ``images``' dtype.
         coefficients: ``(S, 3)`` per-set per-channel factors of the fan-in, ``images``' dtype.
         out: fan-in: ``(B, 3, H, W)`` written at the active pixels only (``None``: a new
             tensor holding ``Σ_s c_s · images[s]`` elsewhere, what ``S`` separate passes summed
@@ -196,15 +183,15 @@ def sweep_torch(
         (``images`` at inactive pixels); fan-in ``(B, 3, H, W)``, ``0 + c_0 · r_0 + c_1 · r_1
         + …`` at the active pixels (``r_s`` set ``s``'s pass, summed in set order).
     """
-    args = (depth, strength, width, ddepth, offsets)
-    tail = (inv_scale, f_px, width_scalar, correction, maxdd, axis_y, follow)
+    head, weights, tail = args[:5], args[5], args[6:]
+    depth, strength = head[0], head[1]
     if coefficients is None:
-        runs = [gather_torch(images, *args, wt, *tail, accumulate=accumulate) for wt in weights]
+        runs = [gather_torch(images, *head, wt, *tail, accumulate=accumulate) for wt in weights]
         return torch.stack([r for r, _ in runs]), runs[0][1]
     total = torch.zeros_like(images[0])
     n = 0
     for img, wt, c in zip(images, weights, coefficients, strict=True):
-        r, n = gather_torch(img, *args, wt, *tail, accumulate=accumulate)
+        r, n = gather_torch(img, *head, wt, *tail, accumulate=accumulate)
         total = total + c.view(1, 3, 1, 1) * r
     if out is None:
         return total, n  # inactive pixels: Σ_s c_s · images[s], as the summed passes

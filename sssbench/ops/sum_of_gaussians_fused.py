@@ -89,6 +89,10 @@ class FusedSumOfGaussiansSSS(SeparableMethod):
     scatters_in_place = True
 
     needs = ("mask",)
+    no_sample_weight = (
+        "is not supported by FusedSumOfGaussiansSSS: its sweep has no per-sample bilateral "
+        "weight; use preintegrated or sum_of_gaussians for halo reduction"
+    )
 
     def __init__(
         self,
@@ -122,16 +126,6 @@ class FusedSumOfGaussiansSSS(SeparableMethod):
         self.kernels = kernels
         #: ``(S, 3)`` float64 ``c_s = w_s / Σ_j w_j`` per channel
         self.coefficients = coefficients
-
-    def pass_options(self, gbuffer, width=None, guide=None, sample_weight=None):
-        """As :meth:`SeparableMethod.pass_options`, refusing ``sample_weight`` (see the error)."""
-        if sample_weight is not None:
-            raise ValueError(
-                "sample_weight (halo reduction) is not supported by FusedSumOfGaussiansSSS: "
-                "its sweep has no per-sample bilateral weight; use preintegrated or "
-                "sum_of_gaussians for halo reduction"
-            )
-        return super().pass_options(gbuffer, width, guide, sample_weight)
 
     def scatter(self, gbuffer: GBuffer, options: dict[str, object]) -> torch.Tensor:
         opts = {k: options[k] for k in ("width", "follow_surface", "surface_scale", "check_finite")}

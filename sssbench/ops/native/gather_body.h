@@ -296,28 +296,19 @@ static inline __attribute__((always_inline)) void CAT(line_window_, SUFFIX)(
     ln->plane = plane;
     /* an x pass that writes elsewhere reads its row's window where it is (the vectorised
      * loops' loads may read up to 2 * VW_MAX SCALARs past the window: not past the image's
-     * last plane) */
+     * last plane); so does a fan-in y sweep (issue 30), its strip's rows w SCALARs apart:
+     * packing its 3 S + 1 planes would write and read back a window far larger than the
+     * cache, where the taps of successive rows reuse the few rows around them */
     const int64_t nin = j->fan_in ? j->nsets : 1;
     ln->stride = 4 * plane;
-    if (PLANAR && !AXIS_Y && j->direct && q * w + hi + 64 < hw) { /* each input's planes too */
-        ln->pl[0] = j->src + q * w + lo;
+    const int in_place = AXIS_Y ? nin > 1 && hi * w + s1 + 64 < hw : q * w + hi + 64 < hw;
+    if (PLANAR && j->direct && in_place) { /* each input's planes too */
+        const int64_t at = AXIS_Y ? lo * w + s0 : q * w + lo;
+        if (AXIS_Y) ln->pitch = w;
+        ln->pl[0] = j->src + at;
         ln->pl[1] = ln->pl[0] + hw;
         ln->pl[2] = ln->pl[0] + 2 * hw;
-        ln->pl[3] = j->depth + q * w + lo;
-        for (int64_t i = 1; i < nin; ++i)
-            for (int ch = 0; ch < 3; ++ch) ln->plx[i][ch] = ln->pl[ch] + i * j->set_stride;
-        return;
-    }
-    /* a fan-in y sweep (it writes elsewhere) reads its strip's window where it is too, rows
-     * of w SCALARs apart: packing its 3 S + 1 planes would write and read back a window far
-     * larger than the cache, where the taps of successive rows reuse the few rows around
-     * them (the loads' margin as above: not past the last plane) */
-    if (PLANAR && AXIS_Y && nin > 1 && j->direct && hi * w + s1 + 64 < hw) {
-        ln->pitch = w;
-        ln->pl[0] = j->src + lo * w + s0;
-        ln->pl[1] = ln->pl[0] + hw;
-        ln->pl[2] = ln->pl[0] + 2 * hw;
-        ln->pl[3] = j->depth + lo * w + s0;
+        ln->pl[3] = j->depth + at;
         for (int64_t i = 1; i < nin; ++i)
             for (int ch = 0; ch < 3; ++ch) ln->plx[i][ch] = ln->pl[ch] + i * j->set_stride;
         return;

@@ -187,18 +187,19 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
         const ivec col = AXIS_Y ? lane + (int32_t)(c - ln->s0) : izero;
         const vec pos = __builtin_convertvector(posi, vec);
         const ivec centre = (posi - win0) * pitch + col;
-        vec c0, c1, c2, cz; /* the pixels themselves: contiguous in a whole vector */
-        if (n == VW) {
-            __builtin_memcpy(&c0, p0 + centre[0], sizeof c0);
-            __builtin_memcpy(&c1, p1 + centre[0], sizeof c1);
-            __builtin_memcpy(&c2, p2 + centre[0], sizeof c2);
-            __builtin_memcpy(&cz, p3 + centre[0], sizeof cz);
-        } else {
-            c0 = (vec)GATHER_RAW(p0, centre);
-            c1 = (vec)GATHER_RAW(p1, centre);
-            c2 = (vec)GATHER_RAW(p2, centre);
-            cz = (vec)GATHER_RAW(p3, centre);
-        }
+        /* the pixels themselves: contiguous in a whole vector, else gathered */
+#define CENTRE(P, out)                                                            \
+    do {                                                                          \
+        if (n == VW)                                                              \
+            __builtin_memcpy(&(out), (P) + centre[0], sizeof(out));               \
+        else                                                                      \
+            (out) = (vec)GATHER_RAW((P), centre);                                 \
+    } while (0)
+        vec c0, c1, c2, cz;
+        CENTRE(p0, c0);
+        CENTRE(p1, c1);
+        CENTRE(p2, c2);
+        CENTRE(p3, cz);
         vec accx[MAX_SETS][3];  /* sets 1..: their sums between chunks */
         vec tv[TAP_CHUNK][3];    /* fan-out: the samples; fan-in: the lerp factors */
         vec te[TAP_CHUNK][3];    /* the gaussian's factors (tsc: applied) */
@@ -372,15 +373,9 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
                              *q2 = fan_in ? ln->plx[s][2] : NULL;
                 vec m0 = zero, m1 = zero, m2 = zero; /* fan-in: input s's centre pixels */
                 if (fan_in && FOLLOW == 1) {
-                    if (n == VW) {
-                        __builtin_memcpy(&m0, q0 + centre[0], sizeof m0);
-                        __builtin_memcpy(&m1, q1 + centre[0], sizeof m1);
-                        __builtin_memcpy(&m2, q2 + centre[0], sizeof m2);
-                    } else {
-                        m0 = (vec)GATHER_RAW(q0, centre);
-                        m1 = (vec)GATHER_RAW(q1, centre);
-                        m2 = (vec)GATHER_RAW(q2, centre);
-                    }
+                    CENTRE(q0, m0);
+                    CENTRE(q1, m1);
+                    CENTRE(q2, m2);
                 }
                 for (int64_t u = 0; u <= tt; ++u) {
                     vec x0, x1, x2;
@@ -593,5 +588,6 @@ __attribute__((target(ISA_TARGET))) static void *SIMDN(run_)(void *arg) {
     return NULL;
 }
 
+#undef CENTRE
 #undef SIMDN
 #undef SIMD_FN
