@@ -67,6 +67,9 @@ def methods(taps: int) -> dict[str, Callable[[], torch.nn.Module]]:
                     follow_surface="lerp",
                 )
             )  # fmt: skip
+    if hasattr(ops, "FusedSumOfGaussiansSSS"):
+        # the six Gaussians applied directly at the pre-integrated kernel's taps: two sweeps
+        out["sum_of_gaussians_fused"] = lambda: ops.FusedSumOfGaussiansSSS(skin, taps)
     if hasattr(ops, "Jimenez2012SSS"):
         out["jimenez2012"] = lambda: ops.Jimenez2012SSS.preset("shader_default", 2.0, taps)
     if hasattr(ops, "LowRankSSS"):  # rank 3: three separable terms, six passes
@@ -74,6 +77,41 @@ def methods(taps: int) -> dict[str, Callable[[], torch.nn.Module]]:
     if hasattr(ops, "ArtistSSS"):
         out["artist"] = lambda: ops.ArtistSSS.preset("multi_layer_close_fit", samples=taps)
     return out
+
+
+#: issue 30's error table: scenes at 0.3 mm/px (``SCALES['portrait']``), and its methods
+ERROR_SCENES = ("face", "head_cheek", "step_edge")
+ERROR_METHODS = ("identity", "preintegrated", "sum_of_gaussians", "sum_of_gaussians_fused")
+
+
+def error_table(res: tuple[int, int]) -> tuple[dict[str, dict[str, float]], str]:
+    """rel RMS against :class:`~sssbench.ops.ReferenceSSS` (over the mask) of the do-nothing
+    baseline, the pre-integrated two-pass, the paper's sum of Gaussians and the fused sweep,
+    each at its defaults and 7 taps, on :data:`ERROR_SCENES` at 0.3 mm/px (skin_deon6, the
+    profile timed here): ``({scene: {method: rel RMS}}, markdown table)``."""
+    import data_synth
+    from sssbench import ops
+    from sssbench.profiles import SumOfGaussians
+    from sssbench.score.metrics import rel_rms
+
+    skin = SumOfGaussians.from_table("skin_deon6")
+    make = {
+        "identity": lambda: ops.IdentitySSS(),
+        "preintegrated": lambda: ops.PreintegratedSSS(skin, 7),
+        "sum_of_gaussians": lambda: ops.SumOfGaussiansSSS(skin, samples=7),
+        "sum_of_gaussians_fused": lambda: ops.FusedSumOfGaussiansSSS(skin, 7),
+    }
+    errors: dict[str, dict[str, float]] = {}
+    for scene in ERROR_SCENES:
+        g = data_synth.make_scene(scene, resolution=res, pixel_mm=0.3)
+        ref = ops.ReferenceSSS(skin)(g)
+        with torch.no_grad():
+            errors[scene] = {m: float(rel_rms(make[m]()(g), ref, g.mask)) for m in ERROR_METHODS}
+    table = md_table(
+        [(m, *(errors[sc][m] for sc in ERROR_SCENES)) for m in ERROR_METHODS],
+        ["method (7 taps, defaults)", *(f"`{sc}` rel RMS" for sc in ERROR_SCENES)],
+    )
+    return errors, table
 
 
 def make_scene(which: tuple[str, str], res: tuple[int, int]):
@@ -441,11 +479,14 @@ def run(ctx: Context) -> Section:
 
     # issue 30: the sum of Gaussians as the app runs it and the artist pass against the
     # pre-integrated two-pass at equal taps, interleaved (per-round ratios, median)
-    from sssbench.ops import ArtistSSS, SumOfGaussiansSSS
+    from sssbench.ops import ArtistSSS, FusedSumOfGaussiansSSS, SumOfGaussiansSSS
 
     equal = {
         "preintegrated": by_taps[7],
         "sum_of_gaussians": SumOfGaussiansSSS(skin, samples=7),
+        # the Gaussians applied directly at shared taps: one x sweep (one image in, one per
+        # Gaussian out) and one y sweep (those in, the blend fused: the result out)
+        "sum_of_gaussians_fused": FusedSumOfGaussiansSSS(skin, 7),
         "artist": ArtistSSS.preset("multi_layer_close_fit", samples=7),
         # the artist pass with the lerp instead of 000 eq. 7's exp per tap and channel: how
         # much of the artist's cost is that exp
@@ -460,6 +501,11 @@ def run(ctx: Context) -> Section:
         return statistics.median(a / b for a, b in pairs_)
 
     sog_ratio, artist_ratio = ratio_to("sum_of_gaussians", eq_ms), ratio_to("artist", eq_ms)
+    fused_ratio = ratio_to("sum_of_gaussians_fused", eq_ms)
+    fused_sets = len(equal["sum_of_gaussians_fused"].kernels)
+    # and their error against the exact reference (issue 30: what the fused sweep costs in
+    # accuracy), 256² (128² quick) at 0.3 mm/px
+    errors, error_md = error_table((128, 128) if quick else (256, 256))
     artist_lerp_ratio = ratio_to("artist (lerp)", eq_ms)
     # the passes the app's schedule runs here (two per blurred Gaussian; LOD may cull more)
     sog_passes = 2 * sum(s.kernel is not None for s in equal["sum_of_gaussians"].steps)
@@ -689,15 +735,28 @@ def run(ctx: Context) -> Section:
             f"load): {PER_TAP_BEFORE_MS / slope:.2f}× that."
         )
         t30.append(line)
-    ok = sog_ratio <= 4.0
     t30.append(
-        f"- sum of Gaussians as the app runs it ({sog_passes} passes, LOD, the blend fused into "
-        f"each step's y pass) / pre-integrated two-pass at 7 taps (interleaved): "
-        f"{sog_ratio:.2f}× (target ≤ 4×) — {verdict30(ok)}. Per pass: "
+        f"- the paper's sum of Gaussians as the app runs it (`sum_of_gaussians`, 003 §7.3: "
+        f"{sog_passes} passes, incremental, LOD, the blend fused into each step's y pass) / "
+        f"pre-integrated two-pass at 7 taps (interleaved): {sog_ratio:.2f}× (target ≤ 4×: "
+        f"{'met' if sog_ratio <= 4.0 else 'not met'} by this schedule, which keeps its name "
+        f"and numbers; the target is judged on the fused sweep below). Per pass: "
         f"{sog_ratio / (sog_passes / 2):.2f}× a pre-integrated pass ({sog_passes} against 2 "
-        f"passes: the pass count alone gives {sog_passes / 2:g}×; the target needs "
+        f"passes: the pass count alone gives {sog_passes / 2:g}×; the target would need "
         f"{4.0 / (sog_passes / 2):.2f}× per pass)."
     )
+    ok = fused_ratio <= 4.0
+    t30.append(
+        f"- `sum_of_gaussians_fused` / pre-integrated at 7 taps (interleaved, the same rounds): "
+        f"{fused_ratio:.2f}× (target ≤ 4×) — {verdict30(ok)}. The {fused_sets} Gaussians "
+        f"applied directly at the pre-integrated kernel's 7 shared offsets, two sweeps: x "
+        f"reads the image once and writes one image per Gaussian, y reads those and writes "
+        f"Σ c_s · pass_s (each tap's position, depth fetch and follow-surface factor computed "
+        f"once for all Gaussians, `separable_sweep`). Its error against the exact reference "
+        f"beside the others' ({'128²' if quick else '256²'}, 0.3 mm/px, skin_deon6, 7 taps, "
+        f"defaults; `identity` is doing nothing):"
+    )
+    t30.extend(["", error_md, ""])
     met.append(ok)
     ok = artist_ratio <= 1.3
     t30.append(
@@ -757,6 +816,8 @@ def run(ctx: Context) -> Section:
             "scalar_tap_ms": scalar_tap_ms,
             "interleaved_tap_cpu_ms": tap_cpu,
             "sog_app_ratio": sog_ratio,
+            "sog_fused_ratio": fused_ratio,
+            "sog_errors": errors,
             "artist_ratio": artist_ratio,
             "artist_lerp_ratio": artist_lerp_ratio,
             "disk_per_sample_ratio": disk_res["ratio"],

@@ -19,6 +19,7 @@ from sssbench.ops.gather import (
     backend,
     get_backend,
     separable_pass,
+    separable_sweep,
 )
 from sssbench.ops.halo import HALO_KINDS, halo_guide, halo_weight, lab_guide, range_weight
 from sssbench.ops.identity import IdentitySSS
@@ -36,6 +37,10 @@ from sssbench.ops.sum_of_gaussians import (
     jg10_stretch,
     sum_of_gaussians_sss,
 )
+from sssbench.ops.sum_of_gaussians_fused import (
+    FusedSumOfGaussiansSSS,
+    fused_sum_of_gaussians_sss,
+)
 from sssbench.ops.texturing import TEXTURING_MODES, Texturing, texture_after, texture_before
 from sssbench.ops.timing import PassRecord, record_passes
 from sssbench.ops.translucency import (
@@ -51,6 +56,7 @@ __all__ = [
     "disk_sss",
     "SeparableMethod",
     "separable_pass",
+    "separable_sweep",
     "backend",
     "get_backend",
     "BACKENDS",
@@ -77,6 +83,8 @@ __all__ = [
     "incremental_variances",
     "jg10_stretch",
     "SoGStep",
+    "FusedSumOfGaussiansSSS",
+    "fused_sum_of_gaussians_sss",
     "PassRecord",
     "record_passes",
     "Translucency",

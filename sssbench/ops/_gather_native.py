@@ -33,7 +33,12 @@ from sssbench.ops import native
 from sssbench.ops._gather_torch import gather_torch
 from sssbench.ops._stencil import image_spans
 
-__all__ = ["gather", "gather_", "blend_", "native_pass", "run_pass", "weights_overflow"]
+__all__ = [
+    "gather", "gather_", "blend_", "native_pass", "run_pass", "weights_overflow", "MAX_SETS",
+]  # fmt: skip
+
+#: most weight sets of one sweep (``MAX_SETS`` in ``native/gather_body.h``)
+MAX_SETS = 16
 
 Tensor = torch.Tensor
 
@@ -63,6 +68,7 @@ def native_pass(
     args: tuple,
     copy: bool,
     blend: tuple[Tensor, Tensor] | None = None,
+    sets: tuple[bool, Tensor | None] | None = None,
 ) -> int:
     """One pass over a batch through the C loop (``native/gather_body.h``); the active pixel
     count. ``args``: the arguments after ``image`` of
@@ -84,11 +90,27 @@ def native_pass(
     into its step's last pass: bitwise ``torch.ops.sssbench.blend_(target, out, weight,
     mask)`` after the pass, without reading ``out`` back).
 
+    ``sets``: ``None`` (one pass, ``weights (K, 3)``) or ``(fan_in, coefficients)``, the
+    sweep of ``S`` weight sets over the same offsets (``weights (S, K, 3)``, at most
+    :data:`MAX_SETS`; see :func:`sweep_torch`, its specification): ``fan_in=False``:
+    ``image (B, 3, H, W)`` and ``out (S, B, 3, H, W)``, set ``s``'s pass into ``out[s]``;
+    ``fan_in=True`` (``copy`` False): ``image (S, B, 3, H, W)``, ``out (B, 3, H, W)`` gets
+    ``Σ_s coefficients[s] · pass_s(image[s])`` at the active pixels (``coefficients (S, 3)``).
+    Stacked tensors must be contiguous.
+
     Tensors already contiguous in the right dtype (the rule) are passed by address, image by
     image, without a torch call: on a far-away object the fixed cost of a pass is what its
     time is made of."""
     depth, strength, width, ddepth, offsets, weights, inv_scale, *scalars = args
     f_px, width_scalar, correction, maxdd, axis_y, follow = scalars
+    nsets, set_stride, fan_in, coef = 1, 0, 0, None
+    if sets is not None:
+        nsets, fan_in = weights.shape[0], int(sets[0])
+        stacked = image if fan_in else out
+        if not stacked.is_contiguous():
+            raise ValueError("the stacked images of a sweep must be contiguous")
+        set_stride = stacked.stride(0)
+        image, out = (image[0], out) if fan_in else (image, out[0])
     b, _, h, w = image.shape
     dtype = image.dtype
     keep = []  # converted copies and ctypes arrays must outlive the call
@@ -113,6 +135,8 @@ def native_pass(
         raise ValueError(f"out must be contiguous {dtype}, got {out.dtype} strides {out.stride()}")
     fields = [planes(t) for t in (image, depth, strength, width, ddepth, out)]
     taps = (f64(offsets), f64(weights), f64(inv_scale))
+    if fan_in:
+        coef = f64(sets[1])
     target, blend_w = (None, 0), None
     if blend is not None:
         if blend[0].dtype != dtype or not blend[0].is_contiguous():
@@ -127,7 +151,10 @@ def native_pass(
             src, z, spans.data_ptr(), mask, wid, dd, *taps, dst, f_px, width_scalar, correction,
             maxdd, spans.shape[0], offsets.numel(), h, w, int(axis_y), follow, int(copy), threads,
             None if target[0] is None else target[0] + bi * target[1], blend_w,
+            nsets, set_stride, fan_in, coef,
         )  # fmt: skip
+        if status == -3:
+            raise ValueError(f"native gather: {nsets} weight sets (at most {MAX_SETS}, no blend)")
         if status == -2:
             raise weights_overflow(weights, dtype)
         if status < 0:

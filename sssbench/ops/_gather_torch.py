@@ -16,7 +16,7 @@ import torch
 
 from sssbench.ops._stencil import image_stencils
 
-__all__ = ["gather_torch", "pixel_scales", "compiled_accumulate"]
+__all__ = ["gather_torch", "sweep_torch", "pixel_scales", "compiled_accumulate"]
 
 #: ``sample_weight(centre_guide (N, G), sample_guide (N, G)) -> (N, 1) or (N, 3)``
 SampleWeight = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
@@ -154,6 +154,50 @@ def gather_torch(
         out[bi].view(c_, -1)[:, lin] = acc
         n_total += int(lin.numel())
     return out, n_total
+
+
+def sweep_torch(
+    images: torch.Tensor,
+    *args: object,
+    coefficients: torch.Tensor | None = None,
+    out: torch.Tensor | None = None,
+    accumulate: Callable[..., torch.Tensor] | None = None,
+) -> tuple[torch.Tensor, int]:
+    """The sweep of ``S`` weight sets over the same taps: its specification, ``S`` passes of
+    :func:`gather_torch` (the native loop shares each tap's position, fetch and follow-surface
+    factor between the sets, with the same operations per set: bitwise these results but for
+    the gaussian follow-surface's exp, see :data:`~sssbench.ops.gather.BACKEND_AGREEMENT`).
+
+    Args:
+        images: fan-out (``coefficients`` ``None``): one image ``(B, 3, H, W)``; fan-in:
+            ``(S, B, 3, H, W)``, set ``s`` reads ``images[s]``.
+        args: :func:`gather_torch`'s after ``image``, but ``weights`` (the sixth) ``(S, K, 3)``
+            in ``images``' dtype.
+        coefficients: ``(S, 3)`` per-set per-channel factors of the fan-in, ``images``' dtype.
+        out: fan-in: ``(B, 3, H, W)`` written at the active pixels only (``None``: a new
+            tensor holding ``Σ_s c_s · images[s]`` elsewhere, what ``S`` separate passes summed
+            give there). Fan-out: ignored.
+
+    Returns:
+        ``(result, active pixels per set)``: fan-out ``(S, B, 3, H, W)``, set ``s``'s pass
+        (``images`` at inactive pixels); fan-in ``(B, 3, H, W)``, ``0 + c_0 · r_0 + c_1 · r_1
+        + …`` at the active pixels (``r_s`` set ``s``'s pass, summed in set order).
+    """
+    head, weights, tail = args[:5], args[5], args[6:]
+    depth, strength = head[0], head[1]
+    if coefficients is None:
+        runs = [gather_torch(images, *head, wt, *tail, accumulate=accumulate) for wt in weights]
+        return torch.stack([r for r, _ in runs]), runs[0][1]
+    total = torch.zeros_like(images[0])
+    n = 0
+    for img, wt, c in zip(images, weights, coefficients, strict=True):
+        r, n = gather_torch(img, *head, wt, *tail, accumulate=accumulate)
+        total = total + c.view(1, 3, 1, 1) * r
+    if out is None:
+        return total, n  # inactive pixels: Σ_s c_s · images[s], as the summed passes
+    active = torch.ones_like(depth, dtype=torch.bool) if strength is None else strength > 0
+    out.copy_(torch.where(active, total, out))
+    return out, n
 
 
 def _lerp_fetch(planes: torch.Tensor, a: torch.Tensor, b: torch.Tensor, f: torch.Tensor):

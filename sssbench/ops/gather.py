@@ -63,7 +63,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from contextvars import ContextVar
 from dataclasses import dataclass
@@ -75,8 +75,13 @@ from sssbench._memo import call_scoped, memo_scope
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.kernel1d import Kernel1D
 from sssbench.ops import native
-from sssbench.ops._gather_native import run_pass, weights_overflow  # registers torch.ops.sssbench.*
-from sssbench.ops._gather_torch import SampleWeight, compiled_accumulate, gather_torch
+from sssbench.ops._gather_native import (  # registers torch.ops.sssbench.*
+    MAX_SETS,
+    native_pass,
+    run_pass,
+    weights_overflow,
+)
+from sssbench.ops._gather_torch import SampleWeight, compiled_accumulate, gather_torch, sweep_torch
 from sssbench.ops._overlap import has_internal_overlap, shares_memory
 from sssbench.ops._stencil import image_spans, image_stencils
 from sssbench.ops.pass_backends import PASS_BACKENDS_ABOVE, _pass_backend
@@ -84,6 +89,8 @@ from sssbench.ops.timing import PassRecord, add_record
 
 __all__ = [
     "separable_pass",
+    "separable_sweep",
+    "MAX_SETS",
     "blend_on_stencil",
     "backend",
     "get_backend",
@@ -563,6 +570,164 @@ def separable_pass(
     ms = (time.perf_counter() - start) * 1e3
     add_record(PassRecord(name or f"pass.{direction}", len(kernel), n_total, ms))
     return out
+
+
+def separable_sweep(
+    images: torch.Tensor,
+    kernels: Sequence[Kernel1D],
+    direction: str,
+    gbuffer: GBuffer,
+    *,
+    coefficients: torch.Tensor | None = None,
+    out: torch.Tensor | None = None,
+    width: float | torch.Tensor = 1.0,
+    follow_surface: str | None = None,
+    surface_scale: float | torch.Tensor | None = None,
+    use_mask: bool = True,
+    name: str | None = None,
+    check_finite: bool = True,
+) -> torch.Tensor:
+    """:func:`separable_pass` with ``S`` weight sets over the same tap offsets in one sweep
+    (000 §3 eq. 2's rank-S sum of separable kernels, 003 §7.3's Gaussians applied directly):
+    each tap's position, fetch and follow-surface factor are computed once per pixel for all
+    sets (the native loop; the torch loop runs ``S`` passes, :func:`~sssbench.ops._gather_torch.
+    sweep_torch`, its specification). Results equal ``S`` separate :func:`separable_pass` calls
+    (summed with ``coefficients``, in set order from 0) as :data:`BACKEND_AGREEMENT` states:
+    bitwise with follow_surface ``None`` / ``"lerp"`` on every backend and level.
+
+    Args:
+        images: fan-out (``coefficients`` ``None``): one image ``(B, 3, H, W)``, the
+            G-buffer's dtype; fan-in: ``(S, B, 3, H, W)``, set ``s`` blurs ``images[s]``.
+        kernels: ``S`` :class:`Kernel1D` (1 <= S <= :data:`MAX_SETS`) with equal ``offsets``.
+        direction, gbuffer, width, follow_surface, surface_scale, use_mask, name,
+            check_finite: as :func:`separable_pass` (no rotation, no ``sample_weight``).
+        coefficients: ``(S, 3)`` finite per-set per-channel factors: the fan-in, whose result
+            is ``Σ_s coefficients[s] · pass_s(images[s])`` at the active pixels.
+        out: fan-in: ``(B, 3, H, W)`` target written at the active pixels and nowhere
+            else (must share no memory with the inputs); ``None``: a new tensor holding
+            ``Σ_s coefficients[s] · images[s]`` at the inactive pixels (what the separate
+            passes summed give there). Fan-out: ``None`` or a contiguous ``(S, B, 3, H, W)``
+            workspace of the image's dtype that the native loop overwrites entirely (every
+            pixel of every set) and returns, when no gradient is needed (otherwise a new
+            tensor is returned): a caller that sweeps frame after frame saves allocating
+            and faulting in ``S`` images per call.
+
+    Returns:
+        fan-out: ``(S, B, 3, H, W)``, ``[s]`` set ``s``'s pass (``images`` at inactive pixels);
+        fan-in: ``(B, 3, H, W)`` (``out`` when given). Differentiable on the torch loop
+        (used whenever autograd records an input); the ``gl`` backend has no shader for it
+        (``ValueError``).
+    """
+    if not isinstance(kernels, Sequence) or not kernels:
+        raise TypeError("kernels must be a non-empty sequence of Kernel1D")
+    if len(kernels) > MAX_SETS:
+        raise ValueError(f"kernels must hold at most {MAX_SETS} weight sets, got {len(kernels)}")
+    for i, k in enumerate(kernels):
+        if not isinstance(k, Kernel1D):
+            raise TypeError(f"kernels[{i}] must be a Kernel1D, got {type(k).__name__}")
+        if not torch.equal(k.offsets, kernels[0].offsets):
+            raise ValueError(f"kernels[{i}].offsets must equal kernels[0].offsets (shared taps)")
+    n_sets = len(kernels)
+    fan_in = coefficients is not None
+    if fan_in:
+        check_tensor("images", images, ndim=5, finite=check_finite)
+        if images.shape[0] != n_sets:
+            raise ValueError(
+                f"images must have shape (S, B, 3, H, W) with S = {n_sets} (one per kernel) "
+                f"for a fan-in, got {tuple(images.shape)}"
+            )
+        check_tensor("coefficients", coefficients, ndim=2, finite=True)
+        if coefficients.shape != (n_sets, 3):
+            raise ValueError(
+                f"coefficients must have shape ({n_sets}, 3), got {tuple(coefficients.shape)}"
+            )
+        first = images[0]
+    else:
+        first = images
+    _check_pass_inputs(
+        first, kernels[0], direction, gbuffer, width, follow_surface, surface_scale, None,
+        None, None, None, check_finite,
+    )  # fmt: skip
+    strength = gbuffer.mask if (use_mask and gbuffer.mask is not None) else None
+    per_pixel = width if isinstance(width, torch.Tensor) else None
+    if out is not None:
+        want = first.shape if fan_in else (n_sets, *first.shape)
+        if not isinstance(out, torch.Tensor) or out.shape != want or out.dtype != first.dtype:
+            raise ValueError(
+                f"out must be a tensor of shape {tuple(want)} and dtype {first.dtype}, got "
+                f"{tuple(out.shape) if isinstance(out, torch.Tensor) else type(out).__name__}"
+                f"{' ' + str(out.dtype) if isinstance(out, torch.Tensor) else ''}"
+            )
+        check_writable("out", out, {
+            "images": images, "gbuffer.depth": gbuffer.depth, "gbuffer.mask": strength,
+            "width": per_pixel,
+        })  # fmt: skip
+    name_ = get_backend()
+    if name_ == "gl":
+        raise ValueError(
+            "the gl backend has no shader for separable_sweep (several weight sets in one "
+            "sweep): run it on backend 'native', 'torch' or 'compile'"
+        )
+    dtype = first.dtype
+    axis = 3 if direction == "x" else 2
+    _, _, h_, _ = first.shape
+    f_px = h_ / (2.0 * math.tan(gbuffer.fov_y / 2.0))  # pixels per mm at 1 mm depth
+    follow = FOLLOW_SURFACE.index(follow_surface)
+    weights = torch.stack([k.weights for k in kernels])  # (S, K, 3)
+    scale_t = surface_scale if isinstance(surface_scale, torch.Tensor) else None
+    grads = torch.is_grad_enabled() and any(
+        t is not None and t.requires_grad
+        for t in (images, gbuffer.depth, strength, per_pixel, weights, kernels[0].offsets,
+                  scale_t, coefficients, out)
+    )  # fmt: skip
+    native_ok = name_ == "native" and first.device.type == "cpu" and native.library() is not None
+    start = time.perf_counter()
+    with memo_scope():
+        if native_ok and not (grads or torch.compiler.is_compiling()):
+            taps = (kernels[0].offsets, weights, _reciprocal(surface_scale))
+            args = (gbuffer.depth, strength, per_pixel, None, *taps, f_px,
+                    0.0 if per_pixel is not None else float(width), 0.0, 0.0, axis == 2,
+                    follow)  # fmt: skip
+            images_c = images.contiguous()
+            if fan_in:
+                c = coefficients.detach().to(torch.float64).contiguous()
+                if out is None:  # Σ_s c_s · images[s] at the inactive pixels, in set order
+                    out = torch.zeros_like(first, memory_format=torch.contiguous_format)
+                    for img, cs in zip(images_c, c.to(dtype), strict=True):
+                        out = out + cs.view(1, 3, 1, 1) * img
+                target = out if out.is_contiguous() else out.contiguous()
+                n_total = native_pass(native.library(), images_c, target, args, False,
+                                      sets=(True, c))  # fmt: skip
+                if target is not out:
+                    out.copy_(target)
+                elif not out.is_inference():
+                    torch.autograd.graph.increment_version(out)
+                result = out
+            else:
+                result = out
+                if result is None or not result.is_contiguous():
+                    result = torch.empty((n_sets, *first.shape), dtype=dtype, device=first.device)
+                elif not result.is_inference():
+                    torch.autograd.graph.increment_version(result)
+                n_total = native_pass(native.library(), images_c, result, args, True,
+                                      sets=(False, None))  # fmt: skip
+        else:
+            offsets, w_t = _taps(kernels[0], dtype)[0], weights.to(dtype)
+            if not bool(torch.isfinite(w_t).all()):
+                raise weights_overflow(weights, dtype)
+            args = (gbuffer.depth, strength, per_pixel, None, offsets, w_t,
+                    _inverse_scale(surface_scale, dtype), f_px,
+                    0.0 if per_pixel is not None else float(width), 0.0, 0.0, axis == 2,
+                    follow)  # fmt: skip
+            result, n_total = sweep_torch(
+                images, *args, coefficients=None if not fan_in else coefficients.to(dtype),
+                out=out if fan_in else None,
+                accumulate=compiled_accumulate() if name_ == "compile" else None,
+            )  # fmt: skip
+    ms = (time.perf_counter() - start) * 1e3
+    fetched = len(kernels[0]) * (n_sets if fan_in else 1)  # samples per pixel
+    add_record(PassRecord(name or f"sweep.{direction}", fetched, n_total, ms))
+    return result
 
 
 def _check_blend_into(

@@ -67,6 +67,11 @@ class LowRankSSS(SeparableMethod):
     """
 
     needs = ("mask",)
+    no_sample_weight = (
+        "renormalises each pass by its summed weights, which needs one non-negative normalised "
+        "kernel; the SVD terms of LowRankSSS carry negative weights and are summed, so use "
+        "another method for halo reduction"
+    )
 
     def __init__(
         self,
@@ -113,16 +118,6 @@ class LowRankSSS(SeparableMethod):
     def kernel_sum(self) -> torch.Tensor:
         """``(3,)`` sum of the rank-N kernel (1 at full rank)."""
         return sum(h.sum() * v.sum() for h, v in self.kernel.terms)
-
-    def pass_options(self, gbuffer, width=None, guide=None, sample_weight=None):
-        """As :meth:`SeparableMethod.pass_options`, refusing ``sample_weight`` (see the error)."""
-        if sample_weight is not None:
-            raise ValueError(
-                "sample_weight (halo reduction) renormalises each pass by its summed weights, "
-                "which needs one non-negative normalised kernel; the SVD terms of LowRankSSS "
-                "carry negative weights and are summed, so use another method for halo reduction"
-            )
-        return super().pass_options(gbuffer, width, guide, sample_weight)
 
     def scatter(self, gbuffer: GBuffer, options: dict[str, object]) -> torch.Tensor:
         image = gbuffer.diffuse

@@ -42,6 +42,9 @@ class SeparableMethod(nn.Module):
     extra_repr = options_repr
 
     needs: tuple[str, ...] = ("mask",)
+    #: why the method cannot take a ``sample_weight`` (halo reduction), or ``None`` when it can:
+    #: :meth:`pass_options` then refuses one with this reason
+    no_sample_weight: str | None = None
     scatters_in_place: bool = False
     follow_surface: str | None = None
     surface_scale: float | torch.Tensor | None = None
@@ -89,6 +92,8 @@ class SeparableMethod(nn.Module):
         """Keyword arguments for every ``separable_pass`` of one call."""
         if not isinstance(gbuffer, GBuffer):
             raise TypeError(f"gbuffer must be a GBuffer, got {type(gbuffer).__name__}")
+        if sample_weight is not None and self.no_sample_weight is not None:
+            raise ValueError(f"sample_weight (halo reduction) {self.no_sample_weight}")
         rot = None if self.rotation is None else random_rotation(gbuffer, self.rotation, self.seed)
         return dict(
             follow_surface=self.follow_surface,

@@ -73,6 +73,7 @@ METHODS: dict[str, MethodEntry] = {
     "preintegrated": MethodEntry("PreintegratedSSS"),
     "reference": MethodEntry("ReferenceSSS", samples_arg=None),
     "sum_of_gaussians": MethodEntry("SumOfGaussiansSSS"),
+    "sum_of_gaussians_fused": MethodEntry("FusedSumOfGaussiansSSS"),
     "low_rank": MethodEntry("LowRankSSS", samples_arg="n"),
     "artist": MethodEntry("ArtistSSS", uses_profile=False),
     "jimenez2012": MethodEntry("Jimenez2012SSS", uses_profile=False),

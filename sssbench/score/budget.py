@@ -192,8 +192,24 @@ def _sum_of_gaussians_kernel(method) -> ContinuousKernel:
     if method.unblurred_first:
         sig = sig.clone()
         sig[0] = 0.0
+    return _gaussian_sum(sig, w)
+
+
+def _fused_sum_of_gaussians_kernel(method) -> ContinuousKernel:
+    """003 §7.3 applied directly (000 §3 eq. 2): ``Σ_s c_s g_s(x) g_s(y)``, ``c_s = w_s / Σ w``,
+    the profile's own Gaussians (no stretch, none unblurred): the profile itself, so its
+    model part is 0 and the taps carry its error."""
+    prof = method.profile
+    order = torch.argsort(prof.variances)
+    w = prof.weights[order].double()
+    return _gaussian_sum(torch.sqrt(prof.variances[order].double()), w / w.sum(0, keepdim=True))
+
+
+def _gaussian_sum(sig: torch.Tensor, w: torch.Tensor) -> ContinuousKernel:
+    """``Σ_i w_i G_i`` with 2D Gaussians of σ ``sig (N,)`` (mm) and weights ``w (N, 3)``, one
+    separable term each (``√w_i`` per axis)."""
     terms = []
-    for i in range(var.numel()):
+    for i in range(sig.numel()):
         root = torch.sqrt(w[i : i + 1])  # (1, 3): √w_i on each axis
         f = _gaussians(sig[i : i + 1, None].expand(1, 3), root)
         terms.append(Term(f, f))
@@ -239,7 +255,9 @@ def method_kernel(method: nn.Module) -> ContinuousKernel:
     """The continuous 2D kernel a method approximates with its taps (see the module doc).
 
     Supported: :class:`~sssbench.ops.PreintegratedSSS` (``a_p(x) a_p(y)``, 000 eq. 5),
-    :class:`~sssbench.ops.SumOfGaussiansSSS` (its Gaussians), :class:`~sssbench.ops.LowRankSSS`
+    :class:`~sssbench.ops.SumOfGaussiansSSS` (its Gaussians),
+    :class:`~sssbench.ops.FusedSumOfGaussiansSSS` (the same, applied directly),
+    :class:`~sssbench.ops.LowRankSSS`
     (rank-N SVD), :class:`~sssbench.ops.ArtistSSS` (000 eq. 6),
     :class:`~sssbench.ops.Jimenez2012SSS` (002 eq. 1), :class:`~sssbench.ops.IdentitySSS`
     (a delta), :class:`~sssbench.ops.ReferenceSSS` (its profile).
@@ -249,6 +267,7 @@ def method_kernel(method: nn.Module) -> ContinuousKernel:
     table = {
         ops.PreintegratedSSS: _preintegrated_kernel,
         ops.SumOfGaussiansSSS: _sum_of_gaussians_kernel,
+        ops.FusedSumOfGaussiansSSS: _fused_sum_of_gaussians_kernel,
         ops.LowRankSSS: _low_rank_kernel,
         ops.ArtistSSS: _artist_kernel,
         ops.Jimenez2012SSS: _jimenez2012_kernel,

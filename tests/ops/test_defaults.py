@@ -32,6 +32,7 @@ BAR = 0.3
 DEFAULTS = {
     "preintegrated": lambda: ops.PreintegratedSSS(SKIN),
     "sum_of_gaussians": lambda: ops.SumOfGaussiansSSS(SKIN),
+    "sum_of_gaussians_fused": lambda: ops.FusedSumOfGaussiansSSS(SKIN),
     "low_rank": lambda: ops.LowRankSSS(SKIN),
     "jimenez2012": lambda: ops.Jimenez2012SSS.preset("shader_default", width=3.0),
     "artist": lambda: ops.ArtistSSS.preset("multi_layer_close_fit"),
@@ -39,6 +40,7 @@ DEFAULTS = {
 CLASSES = {
     "preintegrated": ops.PreintegratedSSS,
     "sum_of_gaussians": ops.SumOfGaussiansSSS,
+    "sum_of_gaussians_fused": ops.FusedSumOfGaussiansSSS,
     "low_rank": ops.LowRankSSS,
     "jimenez2012": ops.Jimenez2012SSS,
     "artist": ops.ArtistSSS,
@@ -69,7 +71,7 @@ def _skill(scored, name, scene, res):
     return skill(err, err_id)
 
 
-_GOOD = ["preintegrated", "sum_of_gaussians", "low_rank", "jimenez2012"]
+_GOOD = ["preintegrated", "sum_of_gaussians", "sum_of_gaussians_fused", "low_rank", "jimenez2012"]
 
 
 @pytest.mark.parametrize("scene", SCENES)

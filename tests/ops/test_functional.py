@@ -20,6 +20,11 @@ from sssbench.profiles import SumOfGaussians
 TWINS = {
     "preintegrated_sss": (ops.PreintegratedSSS, lambda p: (p,), {"samples": 9, "rotation": 0.1}),
     "sum_of_gaussians_sss": (ops.SumOfGaussiansSSS, lambda p: (p,), {"samples": 5}),
+    "fused_sum_of_gaussians_sss": (
+        ops.FusedSumOfGaussiansSSS,
+        lambda p: (p,),
+        {"samples": 5, "follow_surface": None},
+    ),
     "low_rank_sss": (ops.LowRankSSS, lambda p: (p,), {"rank": 2, "n": 9}),
     "artist_sss": (ops.ArtistSSS, lambda p: (0.5, 0.8, 0.4, 1.5), {"samples": 5}),
     "jimenez2012_sss": (

@@ -125,7 +125,7 @@ def _declare(lib: ctypes.CDLL) -> None:
     p, i64, i32, f64 = ctypes.c_void_p, ctypes.c_int64, ctypes.c_int, ctypes.c_double
     for fn in (lib.sss_gather_f32, lib.sss_gather_f64):
         fn.restype = ctypes.c_int64  # active pixels, -1: out of memory
-        fn.argtypes = [p] * 10 + [f64] * 4 + [i64] * 4 + [i32] * 4 + [p] * 2
+        fn.argtypes = [p] * 10 + [f64] * 4 + [i64] * 4 + [i32] * 4 + [p] * 2 + [i64] * 2 + [i32, p]
     for fn in (lib.sss_blend_f32, lib.sss_blend_f64):
         fn.restype = ctypes.c_int64  # active pixels
         fn.argtypes = [p] * 4 + [i64] * 3 + [i32]

@@ -42,7 +42,17 @@ typedef struct {
     SCALAR *scale; /* per thread: the scales of one line's active pixels */
     SCALAR *blend_out;      /* (3, H*W) NULL, or lerped toward each result as it is written */
     const SCALAR *blend_w;  /* (3,) per-channel blend weights of blend_out */
+    /* the sweep of several weight sets over the same taps (sss_gather_'s nsets > 1): set s's
+     * weights at weights4 + 4 k s; fan_in = 0: one src, set s's result at dst + s set_stride;
+     * fan_in = 1: set s reads src + s set_stride and dst gets sum_s coef4[4 s + ch] times
+     * set s's result (0 + c_0 r_0 + c_1 r_1 + ..., in that order) */
+    int64_t nsets, set_stride;
+    int fan_in;
+    const SCALAR *coef4; /* (nsets, 4) per-set per-channel coefficients (fan_in) */
 } CAT(job_, SUFFIX);
+
+/* most weight sets of one sweep (the stack arrays of the loops below) */
+#define MAX_SETS 16
 
 /* o <- lerp(o, e, wt): the sum-of-Gaussians blend (003 §7.3.3), torch.lerp's formula with a
  * separate multiply and add, the branch on |wt| < 0.5 as in run_blend_ below (bitwise its
@@ -80,18 +90,27 @@ static inline SCALAR CAT(scale_at_, SUFFIX)(const CAT(job_, SUFFIX) *j, int64_t 
 
 /* The taps of one pixel at position pos along the axis. The window buffer holds positions
  * [win0, ...] of the line; position q is at vector (q - win0) * pitch + lane. Lanes r, g, b
- * carry the colour, lane 3 depth through the lerp (its weight is 0). */
+ * carry the colour, lane 3 depth through the lerp (its weight is 0). Returns set 0's sum;
+ * with MULTI (a sweep of j->nsets weight sets) sets 1.. go to more[s - 1], and with
+ * j->fan_in set s reads input s, whose window is the same layout `stride` SCALARs further
+ * (each tap's position, depth sample and follow-surface factor computed once for all). */
 static inline __attribute__((always_inline)) CAT(vec_, SUFFIX) CAT(taps_, SUFFIX)(
     const CAT(job_, SUFFIX) *j, const SCALAR *buf, int64_t pitch, int64_t lane, int64_t win0,
-    SCALAR pos, SCALAR scale, int64_t n_axis, const int FOLLOW) {
+    SCALAR pos, SCALAR scale, int64_t n_axis, const int FOLLOW, const int MULTI,
+    int64_t stride, CAT(vec_, SUFFIX) *more) {
     typedef CAT(vec_, SUFFIX) vec;
     const SCALAR last = (SCALAR)(n_axis - 1);
     const vec inv = {j->inv_scale[0], j->inv_scale[1], j->inv_scale[2], 0};
     const vec one = {1, 1, 1, 1}, zero = {0, 0, 0, 0};
-    vec c;
+    const int64_t ns = MULTI ? j->nsets : 1, nin = MULTI && j->fan_in ? ns : 1;
+    vec c, cx[MAX_SETS], vx[MAX_SETS]; /* input 0's centre; inputs 1.. (fan_in) */
     __builtin_memcpy(&c, buf + 4 * (((int64_t)pos - win0) * pitch + lane), sizeof c);
+    for (int64_t i = 1; i < nin; ++i)
+        __builtin_memcpy(&cx[i], buf + i * stride + 4 * (((int64_t)pos - win0) * pitch + lane),
+                         sizeof c);
     const SCALAR cz = c[3];
     vec acc = zero;
+    for (int64_t s = 1; s < ns; ++s) more[s - 1] = zero;
     for (int64_t t = 0; t < j->k; ++t) {
         SCALAR p = pos + j->offsets[t] * scale;
         p = p >= 0 ? (p <= last ? p : last) : 0; /* border clamp; NaN -> 0 */
@@ -102,20 +121,36 @@ static inline __attribute__((always_inline)) CAT(vec_, SUFFIX) CAT(taps_, SUFFIX
         __builtin_memcpy(&va, buf + 4 * ((i0 - win0) * pitch + lane), sizeof va);
         __builtin_memcpy(&vb, buf + 4 * ((i1 - win0) * pitch + lane), sizeof vb);
         vec v = va + f * (vb - va);
+        for (int64_t i = 1; i < nin; ++i) {
+            __builtin_memcpy(&va, buf + i * stride + 4 * ((i0 - win0) * pitch + lane), sizeof va);
+            __builtin_memcpy(&vb, buf + i * stride + 4 * ((i1 - win0) * pitch + lane), sizeof vb);
+            vx[i] = va + f * (vb - va);
+        }
         __builtin_memcpy(&wt, j->weights4 + 4 * t, sizeof wt);
+        vec e = one;
+        int scaled = 0;
         if (FOLLOW) {
             const vec d = FABSF(v[3] - cz) * inv; /* |dz| / surface_scale per channel */
             if (FOLLOW == 1) { /* 002 appendix shader: lerp back by clamp(d, 0, 1) */
                 const vec s = VMAX(VMIN(d, one), zero);
                 v = v + s * (c - v);
+                for (int64_t i = 1; i < nin; ++i) vx[i] = vx[i] + s * (cx[i] - vx[i]);
             } else if (j->offsets[t] != 0) { /* 000 eq. 7 (the centre tap: exp(-0) = 1) */
-                const vec e = {EXPF((SCALAR)-0.5 * d[0] * d[0]),
-                               EXPF((SCALAR)-0.5 * d[1] * d[1]),
-                               EXPF((SCALAR)-0.5 * d[2] * d[2]), 0};
+                const vec e_ = {EXPF((SCALAR)-0.5 * d[0] * d[0]),
+                                EXPF((SCALAR)-0.5 * d[1] * d[1]),
+                                EXPF((SCALAR)-0.5 * d[2] * d[2]), 0};
+                e = e_;
+                scaled = 1;
                 wt = wt * e;
             }
         }
         acc = acc + wt * v;
+        for (int64_t s = 1; s < ns; ++s) { /* the other sets: the same sample(s), own weights */
+            vec ws;
+            __builtin_memcpy(&ws, j->weights4 + 4 * (s * j->k + t), sizeof ws);
+            if (scaled) ws = ws * e;
+            more[s - 1] = more[s - 1] + ws * (nin > 1 ? vx[s] : v);
+        }
     }
     return acc;
 }
@@ -172,6 +207,8 @@ typedef struct {
     const int64_t *ids; /* the spans crossing the line */
     int64_t count, s0, s1, lo, hi, pitch, plane;
     const SCALAR *pl[4]; /* PLANAR: the (r, g, b, depth) planes, window index 0 at pl[i][0] */
+    const SCALAR *plx[MAX_SETS][3]; /* PLANAR, fan_in: inputs 1..'s (r, g, b) planes */
+    int64_t stride; /* interleaved, fan_in: from input i's window to input i + 1's */
 } CAT(line_, SUFFIX);
 
 static inline __attribute__((always_inline)) int CAT(line_begin_, SUFFIX)(
@@ -180,21 +217,25 @@ static inline __attribute__((always_inline)) int CAT(line_begin_, SUFFIX)(
     const int64_t *ids = j->ids + j->lines[3 * q], count = j->lines[3 * q + 1];
     const int64_t s0 = AXIS_Y ? q * j->strip : 0;
     const int64_t s1 = AXIS_Y && s0 + j->strip < w ? s0 + j->strip : w;
+    /* copy mode with several sets (a fan-out sweep, never a fan-in): into every output */
+    const int64_t n_out = j->fan_in ? 1 : j->nsets;
     if (j->copy && !AXIS_Y) { /* the row's inactive pixels: its results write the others */
         int64_t c = 0;
         for (int64_t e = 0; e <= count; ++e) {
             const int64_t end = e < count ? j->spans[3 * ids[e] + 1] : w;
             if (end > c)
-                for (int ch = 0; ch < 3; ++ch)
-                    memcpy(j->dst + ch * hw + q * w + c, j->src + ch * hw + q * w + c,
-                           sizeof(SCALAR) * (size_t)(end - c));
+                for (int64_t o = 0; o < n_out; ++o)
+                    for (int ch = 0; ch < 3; ++ch)
+                        memcpy(j->dst + o * j->set_stride + ch * hw + q * w + c,
+                               j->src + ch * hw + q * w + c, sizeof(SCALAR) * (size_t)(end - c));
             if (e < count) c = j->spans[3 * ids[e] + 2];
         }
     } else if (j->copy) /* the line's pixels, before its results overwrite the active ones */
-        for (int ch = 0; ch < 3; ++ch)
-            for (int64_t r = AXIS_Y ? 0 : q; r < (AXIS_Y ? h : q + 1); ++r)
-                memcpy(j->dst + ch * hw + r * w + s0, j->src + ch * hw + r * w + s0,
-                       sizeof(SCALAR) * (size_t)(s1 - s0));
+        for (int64_t o = 0; o < n_out; ++o)
+            for (int ch = 0; ch < 3; ++ch)
+                for (int64_t r = AXIS_Y ? 0 : q; r < (AXIS_Y ? h : q + 1); ++r)
+                    memcpy(j->dst + o * j->set_stride + ch * hw + r * w + s0,
+                           j->src + ch * hw + r * w + s0, sizeof(SCALAR) * (size_t)(s1 - s0));
     if (count == 0) return 0;
     if (!AXIS_Y && !j->copy) { /* the next active row of this thread, prefetched */
         int64_t nq = q + 1;
@@ -255,15 +296,26 @@ static inline __attribute__((always_inline)) void CAT(line_window_, SUFFIX)(
     ln->plane = plane;
     /* an x pass that writes elsewhere reads its row's window where it is (the vectorised
      * loops' loads may read up to 2 * VW_MAX SCALARs past the window: not past the image's
-     * last plane) */
-    if (PLANAR && !AXIS_Y && j->direct && q * w + hi + 64 < hw) {
-        ln->pl[0] = j->src + q * w + lo;
+     * last plane); so does a fan-in y sweep (issue 30), its strip's rows w SCALARs apart:
+     * packing its 3 S + 1 planes would write and read back a window far larger than the
+     * cache, where the taps of successive rows reuse the few rows around them */
+    const int64_t nin = j->fan_in ? j->nsets : 1;
+    ln->stride = 4 * plane;
+    const int in_place = AXIS_Y ? nin > 1 && hi * w + s1 + 64 < hw : q * w + hi + 64 < hw;
+    if (PLANAR && j->direct && in_place) { /* each input's planes too */
+        const int64_t at = AXIS_Y ? lo * w + s0 : q * w + lo;
+        if (AXIS_Y) ln->pitch = w;
+        ln->pl[0] = j->src + at;
         ln->pl[1] = ln->pl[0] + hw;
         ln->pl[2] = ln->pl[0] + 2 * hw;
-        ln->pl[3] = j->depth + q * w + lo;
+        ln->pl[3] = j->depth + at;
+        for (int64_t i = 1; i < nin; ++i)
+            for (int ch = 0; ch < 3; ++ch) ln->plx[i][ch] = ln->pl[ch] + i * j->set_stride;
         return;
     }
     for (int i = 0; i < 4; ++i) ln->pl[i] = j->buf + i * plane;
+    for (int64_t i = 1; i < nin; ++i)
+        for (int ch = 0; ch < 3; ++ch) ln->plx[i][ch] = j->buf + (4 + 3 * (i - 1) + ch) * plane;
     for (int64_t r = r0; r <= r1; ++r) {
         const SCALAR *rgb = j->src + r * w, *z = j->depth + r * w;
         if (PLANAR) {
@@ -273,14 +325,21 @@ static inline __attribute__((always_inline)) void CAT(line_window_, SUFFIX)(
             memcpy(o + plane, rgb + hw + c0, bytes);
             memcpy(o + 2 * plane, rgb + 2 * hw + c0, bytes);
             memcpy(o + 3 * plane, z + c0, bytes);
+            for (int64_t i = 1; i < nin; ++i) /* a fan-in's further inputs, after depth */
+                for (int ch = 0; ch < 3; ++ch)
+                    memcpy(o + (4 + 3 * (i - 1) + ch) * plane,
+                           rgb + i * j->set_stride + ch * hw + c0, bytes);
             continue;
         }
-        SCALAR *o = j->buf + 4 * (r - r0) * (c1 - c0 + 1) - 4 * c0;
-        for (int64_t c = c0; c <= c1; ++c) {
-            o[4 * c] = rgb[c];
-            o[4 * c + 1] = rgb[hw + c];
-            o[4 * c + 2] = rgb[2 * hw + c];
-            o[4 * c + 3] = z[c];
+        for (int64_t i = 0; i < nin; ++i) { /* input i's window 4 plane SCALARs further */
+            SCALAR *o = j->buf + i * 4 * plane + 4 * (r - r0) * (c1 - c0 + 1) - 4 * c0;
+            const SCALAR *in = rgb + i * j->set_stride;
+            for (int64_t c = c0; c <= c1; ++c) {
+                o[4 * c] = in[c];
+                o[4 * c + 1] = in[hw + c];
+                o[4 * c + 2] = in[2 * hw + c];
+                o[4 * c + 3] = z[c];
+            }
         }
     }
 }
@@ -289,7 +348,7 @@ static inline __attribute__((always_inline)) void CAT(line_window_, SUFFIX)(
  * crossing a line are listed in j->ids in row order; a y pass clips them to its strip. The
  * scalar loop: one pixel at a time, its (r, g, b, depth) as one 4-lane vector. */
 static inline __attribute__((always_inline)) void CAT(lines_, SUFFIX)(
-    const CAT(job_, SUFFIX) *j, const int AXIS_Y, const int FOLLOW) {
+    const CAT(job_, SUFFIX) *j, const int AXIS_Y, const int FOLLOW, const int MULTI) {
     const int64_t w = j->w, h = j->h, hw = h * w, n_axis = AXIS_Y ? h : w;
     for (int64_t q = j->first; q < j->last; ++q) {
         CAT(line_, SUFFIX) ln;
@@ -301,10 +360,25 @@ static inline __attribute__((always_inline)) void CAT(lines_, SUFFIX)(
             const int64_t row = sp[0];
             const int64_t a = sp[1] > ln.s0 ? sp[1] : ln.s0, b = sp[2] < ln.s1 ? sp[2] : ln.s1;
             for (int64_t c = a; c < b; ++c) {
-                const CAT(vec_, SUFFIX) acc = CAT(taps_, SUFFIX)(
+                CAT(vec_, SUFFIX) more[MAX_SETS];
+                CAT(vec_, SUFFIX) acc = CAT(taps_, SUFFIX)(
                     j, j->buf, ln.pitch, AXIS_Y ? c - ln.s0 : 0, ln.lo,
-                    (SCALAR)(AXIS_Y ? row : c), j->scale[idx++], n_axis, FOLLOW);
+                    (SCALAR)(AXIS_Y ? row : c), j->scale[idx++], n_axis, FOLLOW, MULTI,
+                    ln.stride, more);
                 const int64_t l = row * w + c;
+                if (MULTI && j->fan_in) { /* 0 + c_0 r_0 + c_1 r_1 + ...: the sets' blend */
+                    CAT(vec_, SUFFIX) cs, sum = {0, 0, 0, 0};
+                    __builtin_memcpy(&cs, j->coef4, sizeof cs);
+                    sum = sum + cs * acc;
+                    for (int64_t s = 1; s < j->nsets; ++s) {
+                        __builtin_memcpy(&cs, j->coef4 + 4 * s, sizeof cs);
+                        sum = sum + cs * more[s - 1];
+                    }
+                    acc = sum;
+                } else if (MULTI) /* a fan-out: set s's result into output s */
+                    for (int64_t s = 1; s < j->nsets; ++s)
+                        for (int ch = 0; ch < 3; ++ch)
+                            j->dst[s * j->set_stride + ch * hw + l] = more[s - 1][ch];
                 j->dst[l] = acc[0];
                 j->dst[hw + l] = acc[1];
                 j->dst[2 * hw + l] = acc[2];
@@ -368,12 +442,13 @@ static inline __attribute__((always_inline)) void CAT(lines_, SUFFIX)(
 static void *CAT(run_, SUFFIX)(void *arg) {
     const CAT(job_, SUFFIX) *j = (const CAT(job_, SUFFIX) *)arg;
     FTZ_BEGIN(j->follow == 2); /* the gaussian's underflow: see FTZ_BEGIN in gather.c */
-    if (!j->axis_y && j->follow == 0) CAT(lines_, SUFFIX)(j, 0, 0);
-    else if (!j->axis_y && j->follow == 1) CAT(lines_, SUFFIX)(j, 0, 1);
-    else if (!j->axis_y) CAT(lines_, SUFFIX)(j, 0, 2);
-    else if (j->follow == 0) CAT(lines_, SUFFIX)(j, 1, 0);
-    else if (j->follow == 1) CAT(lines_, SUFFIX)(j, 1, 1);
-    else CAT(lines_, SUFFIX)(j, 1, 2);
+    const int m = j->nsets > 1; /* a sweep of several weight sets: the general loop */
+    if (!j->axis_y && j->follow == 0) m ? CAT(lines_, SUFFIX)(j, 0, 0, 1) : CAT(lines_, SUFFIX)(j, 0, 0, 0);
+    else if (!j->axis_y && j->follow == 1) m ? CAT(lines_, SUFFIX)(j, 0, 1, 1) : CAT(lines_, SUFFIX)(j, 0, 1, 0);
+    else if (!j->axis_y) m ? CAT(lines_, SUFFIX)(j, 0, 2, 1) : CAT(lines_, SUFFIX)(j, 0, 2, 0);
+    else if (j->follow == 0) m ? CAT(lines_, SUFFIX)(j, 1, 0, 1) : CAT(lines_, SUFFIX)(j, 1, 0, 0);
+    else if (j->follow == 1) m ? CAT(lines_, SUFFIX)(j, 1, 1, 1) : CAT(lines_, SUFFIX)(j, 1, 1, 0);
+    else m ? CAT(lines_, SUFFIX)(j, 1, 2, 1) : CAT(lines_, SUFFIX)(j, 1, 2, 0);
     FTZ_END();
     return NULL;
 }
@@ -382,10 +457,11 @@ static void *CAT(run_, SUFFIX)(void *arg) {
  * _inverse_scale convert them (the same operations, bitwise): offsets and inverse scales
  * clamped to the largest finite SCALAR before the cast (an infinite offset would give inf * 0 =
  * NaN at a pixel of zero width), weights cast as they are (checked finite by the caller).
- * out: the (k, 4) weights with a zero fourth lane, then 4 inverse scales (the fourth lane 0),
- * then k offsets. */
+ * out: the (k, 4) weights with a zero fourth lane (k = taps times weight sets: set after
+ * set), then 4 inverse scales (the fourth lane 0), then the taps' offsets. */
 static void CAT(taps_in_, SUFFIX)(const double *offsets, const double *weights,
-                                 const double *inv_scale, int64_t k, SCALAR *out) {
+                                 const double *inv_scale, int64_t k, int64_t n_offsets,
+                                 SCALAR *out) {
     const double big = (double)SCALAR_MAX;
     SCALAR *weights4 = out, *inv = out + 4 * k, *offsets_s = out + 4 * k + 4;
     for (int64_t t = 0; t < k; ++t) {
@@ -397,7 +473,7 @@ static void CAT(taps_in_, SUFFIX)(const double *offsets, const double *weights,
         inv[ch] = (SCALAR)(v <= big ? v : big); /* also NaN -> big, as torch.where */
     }
     inv[3] = 0;
-    for (int64_t t = 0; t < k; ++t) {
+    for (int64_t t = 0; t < n_offsets; ++t) {
         const double o = offsets[t];
         offsets_s[t] = (SCALAR)(o < -big ? -big : (o > big ? big : o)); /* NaN stays NaN */
     }
@@ -409,7 +485,13 @@ static void CAT(taps_in_, SUFFIX)(const double *offsets, const double *weights,
  * weights (k, 3), 1 / surface_scale (3,): see taps_in_). blend_out (3, H*W) or NULL: each
  * result written to dst is also blended into it, blend_out <- lerp(blend_out, result, blend_w)
  * per channel at the same pixel (the sum of Gaussians' blend fused into its step's last pass:
- * bitwise sss_blend_ of the pass's output, without reading that output back). */
+ * bitwise sss_blend_ of the pass's output, without reading that output back).
+ * nsets > 1 (at most MAX_SETS): a sweep of nsets weight sets over the same offsets, weights
+ * (nsets, k, 3) float64, sharing each tap's position, fetch and follow-surface factor; fan_in
+ * 0: dst + s set_stride gets set s's pass of src (copy: src everywhere else, in each);
+ * fan_in 1 (copy 0): set s reads src + s set_stride, and dst's active pixels get
+ * sum_s coef[s] times set s's result (coef (nsets, 3) float64, cast to SCALAR). The
+ * blend is for nsets = 1 only. */
 int64_t CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const int64_t *spans,
                              const SCALAR *mask, const SCALAR *width, const SCALAR *ddepth,
                              const double *offsets, const double *weights,
@@ -417,10 +499,18 @@ int64_t CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const i
                              double width_scalar, double correction, double maxdd,
                              int64_t n_spans, int64_t k, int64_t h, int64_t w, int axis_y,
                              int follow, int copy, int threads, SCALAR *blend_out,
-                             const SCALAR *blend_w) {
+                             const SCALAR *blend_w, int64_t nsets, int64_t set_stride,
+                             int fan_in, const double *coef) {
     enum { MAX_THREADS = 64 };
-    for (int64_t i = 0; i < 3 * k; ++i) /* every weight finite in SCALAR, checked first */
+    if (nsets < 1 || nsets > MAX_SETS || (nsets > 1 && (blend_out || (fan_in && copy))))
+        return -3;
+    if (nsets == 1) fan_in = 0;
+    for (int64_t i = 0; i < 3 * k * nsets; ++i) /* every weight finite in SCALAR, first */
         if (!(FABSF((SCALAR)weights[i]) <= SCALAR_MAX)) return -2;
+    if (fan_in)
+        for (int64_t i = 0; i < 3 * nsets; ++i)
+            if (!(FABSF((SCALAR)coef[i]) <= SCALAR_MAX)) return -2;
+    const int64_t nin = fan_in ? nsets : 1;
     int64_t n = 0; /* active pixels */
     for (int64_t s = 0; s < n_spans; ++s) n += spans[3 * s + 2] - spans[3 * s + 1];
     if (n == 0 && !copy) return 0; /* nothing to compute or copy */
@@ -447,15 +537,20 @@ int64_t CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const i
             entries += (spans[3 * s + 2] - 1) / strip - spans[3 * s + 1] / strip;
     /* window (4 lanes) + scales, and a margin the vectorised loops' loads may read past the
      * window (into values they never select) */
-    const size_t per_thread = (size_t)line_len * 5 + 64;
+    const size_t per_thread = (size_t)line_len * (4 * nin + 1) + 64;
     const size_t list_bytes = ((size_t)(3 * n_lines + entries) * sizeof(int64_t) + 63) / 64 * 64;
     int owned;
-    const size_t taps = ((size_t)k * 5 + 4 + 3) / 4 * 4; /* taps_in_'s SCALARs, 4-aligned */
+    /* taps_in_'s SCALARs and the coefficients, 4-aligned */
+    const size_t taps = ((size_t)k * (4 * nsets + 1) + 4 + 4 * nsets + 3) / 4 * 4;
     char *block = (char *)workspace_acquire(
         list_bytes + sizeof(SCALAR) * (taps + per_thread * (size_t)threads), &owned);
     if (!block) return -1;
     SCALAR *memory = (SCALAR *)(block + list_bytes);
-    CAT(taps_in_, SUFFIX)(offsets, weights, inv_scale, k, memory);
+    CAT(taps_in_, SUFFIX)(offsets, weights, inv_scale, k * nsets, k, memory);
+    SCALAR *coef4 = memory + 4 * k * nsets + 4 + k;
+    for (int64_t s = 0; s < nsets; ++s)
+        for (int ch = 0; ch < 4; ++ch)
+            coef4[4 * s + ch] = fan_in && ch < 3 ? (SCALAR)coef[3 * s + ch] : 0;
     int64_t *lists = (int64_t *)block;
     memset(lists, 0, list_bytes);
     int64_t *lines = lists, *ids = lists + 3 * n_lines;
@@ -482,14 +577,17 @@ int64_t CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const i
             for (int64_t q = 0; q < n_lines; ++q) lines[3 * q + 1] = 0;
         }
     }
-    const SCALAR *weights4 = memory, *inv_s = memory + 4 * k, *offsets_s = memory + 4 * k + 4;
+    const SCALAR *weights4 = memory, *inv_s = memory + 4 * k * nsets,
+                 *offsets_s = memory + 4 * k * nsets + 4;
     SCALAR max_offset = 0;
     for (int64_t t = 0; t < k; ++t) {
         const SCALAR a = FABSF(offsets_s[t]);
         if (!(a <= max_offset)) max_offset = a == a ? a : (SCALAR)INFINITY;
     }
     /* src and dst disjoint (a new output, as a rule): no pass writes what it reads */
-    const int direct = dst + 3 * h * w <= src || src + 3 * h * w <= dst;
+    const int64_t span_in = (nin - 1) * set_stride + 3 * h * w;
+    const int64_t span_out = (fan_in ? 0 : (nsets - 1) * set_stride) + 3 * h * w;
+    const int direct = dst + span_out <= src || src + span_in <= dst;
     CAT(job_, SUFFIX) jobs[MAX_THREADS];
     int64_t q = 0, done = 0, total = 0;
     for (int64_t l = 0; l < n_lines; ++l) total += lines[3 * l + 2];
@@ -502,7 +600,8 @@ int64_t CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const i
                                 inv_s, dst, lines, ids, focal_px, width_scalar,
                                 correction, maxdd, max_offset, k, h, w, first, q, strip, axis_y, follow, copy,
                                 direct,
-                                mine, mine + 4 * (size_t)line_len, blend_out, blend_w};
+                                mine, mine + 4 * (size_t)nin * (size_t)line_len, blend_out, blend_w,
+                                nsets, set_stride, fan_in, coef4};
         jobs[t] = jb;
     }
     void *(*run)(void *) = CAT(run_, SUFFIX); /* the widest loop the CPU allows (sss_set_simd) */

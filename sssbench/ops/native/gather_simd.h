@@ -139,7 +139,8 @@ SIMD_FN SIMDN(vs_) SIMDN(expz_)(SIMDN(vs_) z) {
  * in the spare lanes (computed, not written). */
 SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX) *ln,
                              int64_t row, int64_t a, int64_t b, const SCALAR *scale,
-                             int64_t n_axis, const int AXIS_Y, const int FOLLOW) {
+                             int64_t n_axis, const int AXIS_Y, const int FOLLOW,
+                             const int MULTI) {
     typedef SIMDN(vs_) vec;
     typedef SIMDN(vm_) mask;
     typedef SIMDN(vi_) ivec;
@@ -168,6 +169,17 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
     }
     const vec m0 = zero + (SCALAR)md[0], m1 = zero + (SCALAR)md[1], m2 = zero + (SCALAR)md[2];
     const vec k0 = zero + (SCALAR)kd[0], k1 = zero + (SCALAR)kd[1], k2 = zero + (SCALAR)kd[2];
+    /* MULTI: a sweep of j->nsets weight sets (see taps_ in gather_body.h). Set 0 runs in the
+     * tap loop below as the single pass does; for the others the loop keeps, per tap of a
+     * chunk of TAP_CHUNK, what the sets share (fan-out: the samples after the follow-surface
+     * lerp; fan-in: where the samples are, their fraction and the lerp factors; the
+     * gaussian's factors), and after each chunk every further set runs over it with its
+     * sums in registers (the same operations per set in the same order as a pass of its
+     * own: bitwise its result). A fan-in's set s reads input s (planes ln->plx[s]): two rows
+     * of it where the tap's samples share one row pair (the common case), else a gather. */
+    const int64_t ns = MULTI ? j->nsets : 1;
+    const int fan_in = MULTI && j->fan_in;
+    enum { TAP_CHUNK = 16 };
     ivec iota;
     for (int l = 0; l < VW; ++l) iota[l] = l;
     for (int64_t c = a; c < b; c += VW) {
@@ -187,20 +199,31 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
         const ivec col = AXIS_Y ? lane + (int32_t)(c - ln->s0) : izero;
         const vec pos = __builtin_convertvector(posi, vec);
         const ivec centre = (posi - win0) * pitch + col;
-        vec c0, c1, c2, cz; /* the pixels themselves: contiguous in a whole vector */
-        if (n == VW) {
-            __builtin_memcpy(&c0, p0 + centre[0], sizeof c0);
-            __builtin_memcpy(&c1, p1 + centre[0], sizeof c1);
-            __builtin_memcpy(&c2, p2 + centre[0], sizeof c2);
-            __builtin_memcpy(&cz, p3 + centre[0], sizeof cz);
-        } else {
-            c0 = (vec)GATHER_RAW(p0, centre);
-            c1 = (vec)GATHER_RAW(p1, centre);
-            c2 = (vec)GATHER_RAW(p2, centre);
-            cz = (vec)GATHER_RAW(p3, centre);
-        }
+        /* the pixels themselves: contiguous in a whole vector, else gathered */
+#define CENTRE(P, out)                                                            \
+    do {                                                                          \
+        if (n == VW)                                                              \
+            __builtin_memcpy(&(out), (P) + centre[0], sizeof(out));               \
+        else                                                                      \
+            (out) = (vec)GATHER_RAW((P), centre);                                 \
+    } while (0)
+        vec c0, c1, c2, cz;
+        CENTRE(p0, c0);
+        CENTRE(p1, c1);
+        CENTRE(p2, c2);
+        CENTRE(p3, cz);
+        vec accx[MAX_SETS][3];  /* sets 1..: their sums between chunks */
+        vec tv[TAP_CHUNK][3];    /* fan-out: the samples; fan-in: the lerp factors */
+        vec te[TAP_CHUNK][3];    /* the gaussian's factors (tsc: applied) */
+        vec tf[TAP_CHUNK];       /* fan-in: the fraction */
+        ivec tia[TAP_CHUNK], tib[TAP_CHUNK];
+        int64_t tat[TAP_CHUNK]; /* fan-in: the row pair's offset, or -1: gather */
+        int tsc[TAP_CHUNK];
+        for (int64_t s = 1; s < ns; ++s) accx[s][0] = accx[s][1] = accx[s][2] = zero;
         vec acc0 = zero, acc1 = zero, acc2 = zero;
         for (int64_t t = 0; t < j->k; ++t) {
+            const int64_t tt = t % TAP_CHUNK;
+            if (fan_in) tat[tt] = -1;
             vec p = pos + j->offsets[t] * sc;
             p = VSELECT(p >= zero, VSELECT(p <= last, p, last), zero); /* border; NaN -> 0 */
             const ivec i0 = __builtin_convertvector(p, ivec); /* = floor(p) since p >= 0 */
@@ -251,6 +274,7 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
                     PAIR(p1, v1);
                     PAIR(p2, v2);
                     PAIR(p3, v3);
+                    if (fan_in) tat[tt] = at1;
 #undef PAIR
                     goto fetched;
                 }
@@ -304,6 +328,8 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
         fetched:;
             const SCALAR *wt = j->weights4 + 4 * t;
             vec w0 = zero + wt[0], w1 = zero + wt[1], w2 = zero + wt[2];
+            vec e0 = one, e1 = one, e2 = one;
+            int scaled = 0;
             if (FOLLOW) {
                 const vec dz = (vec)((mask)(v3 - cz) & ~sign); /* |dz| */
                 if (FOLLOW == 1) { /* min then max as VMIN / VMAX: a < b ? a : b */
@@ -316,6 +342,11 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
                     v0 = v0 + t0 * (c0 - v0);
                     v1 = v1 + t1 * (c1 - v1);
                     v2 = v2 + t2 * (c2 - v2);
+                    if (fan_in) {
+                        tv[tt][0] = t0;
+                        tv[tt][1] = t1;
+                        tv[tt][2] = t2;
+                    }
                 } else if (j->offsets[t] != 0) {
                     /* 000 eq. 7, exp(-(|dz| / surface_scale)^2 / 2) = exp(-z ln 2 / 8)
                      * with z = |dz|^2 k: one product per channel (the torch loop's -0.5 d d,
@@ -331,15 +362,128 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
                         const vec d0 = dz * m0, d1 = dz * m1, d2 = dz * m2;
                         z0 = d0 * d0, z1 = d1 * d1, z2 = d2 * d2;
                     }
-                    w0 = w0 * SIMDN(expz_)(z0);
-                    w1 = w1 * SIMDN(expz_)(z1);
-                    w2 = w2 * SIMDN(expz_)(z2);
+                    e0 = SIMDN(expz_)(z0);
+                    e1 = SIMDN(expz_)(z1);
+                    e2 = SIMDN(expz_)(z2);
+                    scaled = 1;
+                    w0 = w0 * e0;
+                    w1 = w1 * e1;
+                    w2 = w2 * e2;
                 }
             }
             acc0 = acc0 + w0 * v0;
             acc1 = acc1 + w1 * v1;
             acc2 = acc2 + w2 * v2;
+            if (ns > 1) { /* what the other sets share of this tap */
+                tsc[tt] = scaled;
+                te[tt][0] = e0;
+                te[tt][1] = e1;
+                te[tt][2] = e2;
+                if (fan_in) {
+                    tf[tt] = f;
+                    tia[tt] = ia;
+                    tib[tt] = ib;
+                } else {
+                    tv[tt][0] = v0;
+                    tv[tt][1] = v1;
+                    tv[tt][2] = v2;
+                }
+            }
+            if (ns == 1 || (tt != TAP_CHUNK - 1 && t != j->k - 1)) continue;
+            const int64_t t0_ = t - tt; /* the chunk's first tap */
+            for (int64_t s = 1; s < ns; ++s) { /* the other sets over the chunk */
+                vec a0 = accx[s][0], a1 = accx[s][1], a2 = accx[s][2];
+                const SCALAR *q0 = fan_in ? ln->plx[s][0] : NULL, *q1 = fan_in ? ln->plx[s][1] : NULL,
+                             *q2 = fan_in ? ln->plx[s][2] : NULL;
+                vec m0 = zero, m1 = zero, m2 = zero; /* fan-in: input s's centre pixels */
+                if (fan_in && FOLLOW == 1) {
+                    CENTRE(q0, m0);
+                    CENTRE(q1, m1);
+                    CENTRE(q2, m2);
+                }
+                for (int64_t u = 0; u <= tt; ++u) {
+                    vec x0, x1, x2;
+                    if (fan_in) {
+                        const vec fr = tf[u];
+                        if (tat[u] >= 0) {
+                            const int64_t o1 = tat[u], o2 = o1 + ln->pitch;
+                            vec a_, b_;
+#define ROWS(Q, out)                                                              \
+    do {                                                                          \
+        __builtin_memcpy(&a_, (Q) + o1, sizeof a_);                               \
+        __builtin_memcpy(&b_, (Q) + o2, sizeof b_);                               \
+        out = a_ + fr * (b_ - a_);                                                \
+    } while (0)
+                            ROWS(q0, x0);
+                            ROWS(q1, x1);
+                            ROWS(q2, x2);
+#undef ROWS
+                        } else {
+                            vec a_, b_;
+#define GATHERED(Q, out)                                                          \
+    do {                                                                          \
+        a_ = (vec)GATHER_RAW(Q, tia[u]);                                          \
+        b_ = (vec)GATHER_RAW(Q, tib[u]);                                          \
+        out = a_ + fr * (b_ - a_);                                                \
+    } while (0)
+                            GATHERED(q0, x0);
+                            GATHERED(q1, x1);
+                            GATHERED(q2, x2);
+#undef GATHERED
+                        }
+                        if (FOLLOW == 1) {
+                            x0 = x0 + tv[u][0] * (m0 - x0);
+                            x1 = x1 + tv[u][1] * (m1 - x1);
+                            x2 = x2 + tv[u][2] * (m2 - x2);
+                        }
+                    } else {
+                        x0 = tv[u][0];
+                        x1 = tv[u][1];
+                        x2 = tv[u][2];
+                    }
+                    const SCALAR *ws = j->weights4 + 4 * (s * j->k + t0_ + u);
+                    vec u0 = zero + ws[0], u1 = zero + ws[1], u2 = zero + ws[2];
+                    if (tsc[u]) {
+                        u0 = u0 * te[u][0];
+                        u1 = u1 * te[u][1];
+                        u2 = u2 * te[u][2];
+                    }
+                    a0 = a0 + u0 * x0;
+                    a1 = a1 + u1 * x1;
+                    a2 = a2 + u2 * x2;
+                }
+                accx[s][0] = a0;
+                accx[s][1] = a1;
+                accx[s][2] = a2;
+            }
         }
+        if (fan_in) { /* 0 + c_0 r_0 + c_1 r_1 + ...: the sets' blend */
+            const SCALAR *cs = j->coef4;
+            vec s0 = zero + cs[0] * acc0, s1 = zero + cs[1] * acc1, s2 = zero + cs[2] * acc2;
+            for (int64_t s = 1; s < ns; ++s) {
+                cs = j->coef4 + 4 * s;
+                s0 = s0 + cs[0] * accx[s][0];
+                s1 = s1 + cs[1] * accx[s][1];
+                s2 = s2 + cs[2] * accx[s][2];
+            }
+            acc0 = s0;
+            acc1 = s1;
+            acc2 = s2;
+        } else if (MULTI) /* a fan-out: set s's result into output s */
+            for (int64_t s = 1; s < ns; ++s) {
+                SCALAR *o = j->dst + s * j->set_stride + row * w + c;
+                if (n == VW) {
+                    __builtin_memcpy(o, &accx[s][0], sizeof acc0);
+                    __builtin_memcpy(o + hw, &accx[s][1], sizeof acc0);
+                    __builtin_memcpy(o + 2 * hw, &accx[s][2], sizeof acc0);
+                } else {
+                    for (int64_t l = 0; l < n; ++l) {
+                        o[l] = accx[s][0][l];
+                        o[hw + l] = accx[s][1][l];
+                        o[2 * hw + l] = accx[s][2][l];
+                    }
+                }
+            }
         SCALAR *o = j->dst + row * w + c;
         if (n == VW) {
             __builtin_memcpy(o, &acc0, sizeof acc0);
@@ -437,7 +581,8 @@ SIMD_FN SCALAR SIMDN(scales_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFI
 }
 
 /* This thread's lines, as lines_ in gather_body.h, the taps VW pixels at a time. */
-SIMD_FN void SIMDN(lines_)(const CAT(job_, SUFFIX) *j, const int AXIS_Y, const int FOLLOW) {
+SIMD_FN void SIMDN(lines_)(const CAT(job_, SUFFIX) *j, const int AXIS_Y, const int FOLLOW,
+                           const int MULTI) {
     const int64_t n_axis = AXIS_Y ? j->h : j->w;
     for (int64_t q = j->first; q < j->last; ++q) {
         CAT(line_, SUFFIX) ln;
@@ -447,7 +592,7 @@ SIMD_FN void SIMDN(lines_)(const CAT(job_, SUFFIX) *j, const int AXIS_Y, const i
         for (int64_t e = 0; e < ln.count; ++e) {
             const int64_t *sp = j->spans + 3 * ln.ids[e];
             const int64_t a = sp[1] > ln.s0 ? sp[1] : ln.s0, b = sp[2] < ln.s1 ? sp[2] : ln.s1;
-            SIMDN(segment_)(j, &ln, sp[0], a, b, j->scale + idx, n_axis, AXIS_Y, FOLLOW);
+            SIMDN(segment_)(j, &ln, sp[0], a, b, j->scale + idx, n_axis, AXIS_Y, FOLLOW, MULTI);
             idx += b - a;
         }
     }
@@ -456,15 +601,17 @@ SIMD_FN void SIMDN(lines_)(const CAT(job_, SUFFIX) *j, const int AXIS_Y, const i
 __attribute__((target(ISA_TARGET))) static void *SIMDN(run_)(void *arg) {
     const CAT(job_, SUFFIX) *j = (const CAT(job_, SUFFIX) *)arg;
     FTZ_BEGIN(j->follow == 2); /* the gaussian's underflow: see FTZ_BEGIN in gather.c */
-    if (!j->axis_y && j->follow == 0) SIMDN(lines_)(j, 0, 0);
-    else if (!j->axis_y && j->follow == 1) SIMDN(lines_)(j, 0, 1);
-    else if (!j->axis_y) SIMDN(lines_)(j, 0, 2);
-    else if (j->follow == 0) SIMDN(lines_)(j, 1, 0);
-    else if (j->follow == 1) SIMDN(lines_)(j, 1, 1);
-    else SIMDN(lines_)(j, 1, 2);
+    const int m = j->nsets > 1; /* a sweep of several weight sets: the general loop */
+    if (!j->axis_y && j->follow == 0) m ? SIMDN(lines_)(j, 0, 0, 1) : SIMDN(lines_)(j, 0, 0, 0);
+    else if (!j->axis_y && j->follow == 1) m ? SIMDN(lines_)(j, 0, 1, 1) : SIMDN(lines_)(j, 0, 1, 0);
+    else if (!j->axis_y) m ? SIMDN(lines_)(j, 0, 2, 1) : SIMDN(lines_)(j, 0, 2, 0);
+    else if (j->follow == 0) m ? SIMDN(lines_)(j, 1, 0, 1) : SIMDN(lines_)(j, 1, 0, 0);
+    else if (j->follow == 1) m ? SIMDN(lines_)(j, 1, 1, 1) : SIMDN(lines_)(j, 1, 1, 0);
+    else m ? SIMDN(lines_)(j, 1, 2, 1) : SIMDN(lines_)(j, 1, 2, 0);
     FTZ_END();
     return NULL;
 }
 
+#undef CENTRE
 #undef SIMDN
 #undef SIMD_FN
