@@ -126,7 +126,8 @@ def test_method_option_valid_for_one_method_of_the_grid_only(tmp_path):
 
 def test_paper_benchmark_grid_is_read_whole_and_builds_no_image(monkeypatch):
     # every job of the preset's grid (conf/experiment/paper_benchmark.yaml: 6 scenes x 3 scales
-    # x the 7 methods other than the reference x 2 tap counts), no scene built
+    # x the 8 methods other than the reference (artist, disk, identity, jimenez2012, low_rank,
+    # preintegrated, sum_of_gaussians, sum_of_gaussians_fused) x 2 tap counts), no scene built
     def no_image(*args, **kwargs):
         raise AssertionError("the value check built an image")
 
@@ -139,7 +140,7 @@ def test_paper_benchmark_grid_is_read_whole_and_builds_no_image(monkeypatch):
             data_synth.make_scene(scene, (8, 8))
     argv = ["-m", "+experiment=paper_benchmark"]
     problem, specs = app._grid_specs(argv)
-    assert problem is None and len(specs) == 6 * 3 * 7 * 2
+    assert problem is None and len(specs) == 6 * 3 * 8 * 2
     assert {(s.scene, s.scene_params["pixel_mm"]) for s in specs} == {
         (scene, px)
         for scene in ("step_edge", "light_dot", "pores", "sphere", "head_cheek", "face")
