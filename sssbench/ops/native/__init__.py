@@ -105,15 +105,14 @@ def _build(cc: str, fresh: bool = False) -> Path:
         cmd = [cc, *_FLAGS, "-o", tmp, *units, "-lm", "-lpthread"]
         log.info(  # the first run's longest silence otherwise (issue 28: nothing silent for long)
             "building the native gather library with %s into %s (once per source version: "
-            "about 2 min of CPU with gcc 12)",
+            "about 35 s of CPU with gcc 12)",
             cc,
             folder,
         )
-        # once per source version and user (cached): 132 s of CPU with gcc 12 on a 2-core AMD
-        # EPYC since issue 30's multi-set sweep (18 s before it; the scalar loop
-        # and the AVX2 and AVX-512 loops, float32 and float64), 2.5 min of wall time measured
-        # on this 2-core machine under a load of 20 (disk.c: 1.5 s of CPU more); the timeout
-        # leaves room for more
+        # once per source version and user (cached): 33 s of CPU with gcc 12 on a 2-core AMD
+        # EPYC (83 s before each loop specialisation became its own function, 18 s before
+        # issue 30's multi-set sweep; the scalar loop and the AVX2 and AVX-512 loops, float32
+        # and float64, disk.c included); the timeout leaves room for a slow, loaded machine
         subprocess.run(cmd, check=True, capture_output=True, text=True, timeout=_BUILD_TIMEOUT_S)
         os.replace(tmp, target)  # atomic: a racing worker sees a whole library or none
     finally:

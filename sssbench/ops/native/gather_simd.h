@@ -49,9 +49,8 @@ typedef uint32_t SIMDN(vu_) __attribute__((vector_size(VW * 4)));
  * vector operations (before: 27 on AVX2, with a 16-entry table and a second, low-order one,
  * a two-float reduction constant and a select of 0 where 2^n is subnormal). Within 1 ulp of
  * the correctly rounded exp(-z L) at every float z in [0, 1008] (checked exhaustively on
- * AVX2, every float z in [0, 1200]: tests/ops/exp_exhaustive.c; AVX-512 runs the same
- * source with a 16-lane permute, not checked on this machine, which lacks AVX-512; and
- * through a pass by tests/ops/test_gather_backends.py); where the exact result is subnormal
+ * AVX2 and on AVX-512, every float z in [0, 1200]: tests/ops/exp_exhaustive.c; and through
+ * a pass by tests/ops/test_gather_backends.py); where the exact result is subnormal
  * (z > 1008) it returns FLT_MIN (1.2e-38 or less from it; a weight times it underflows to 0
  * under the pass's flush-to-zero). The fused multiply-adds here are the only ones of the loop
  * (the bitwise-specified tap arithmetic stays unfused). */
@@ -598,17 +597,10 @@ SIMD_FN void SIMDN(lines_)(const CAT(job_, SUFFIX) *j, const int AXIS_Y, const i
     }
 }
 
+LINES_ALL(SIMDN(lines_), __attribute__((target(ISA_TARGET))))
+
 __attribute__((target(ISA_TARGET))) static void *SIMDN(run_)(void *arg) {
-    const CAT(job_, SUFFIX) *j = (const CAT(job_, SUFFIX) *)arg;
-    FTZ_BEGIN(j->follow == 2); /* the gaussian's underflow: see FTZ_BEGIN in gather.c */
-    const int m = j->nsets > 1; /* a sweep of several weight sets: the general loop */
-    if (!j->axis_y && j->follow == 0) m ? SIMDN(lines_)(j, 0, 0, 1) : SIMDN(lines_)(j, 0, 0, 0);
-    else if (!j->axis_y && j->follow == 1) m ? SIMDN(lines_)(j, 0, 1, 1) : SIMDN(lines_)(j, 0, 1, 0);
-    else if (!j->axis_y) m ? SIMDN(lines_)(j, 0, 2, 1) : SIMDN(lines_)(j, 0, 2, 0);
-    else if (j->follow == 0) m ? SIMDN(lines_)(j, 1, 0, 1) : SIMDN(lines_)(j, 1, 0, 0);
-    else if (j->follow == 1) m ? SIMDN(lines_)(j, 1, 1, 1) : SIMDN(lines_)(j, 1, 1, 0);
-    else m ? SIMDN(lines_)(j, 1, 2, 1) : SIMDN(lines_)(j, 1, 2, 0);
-    FTZ_END();
+    CAT(SIMDN(lines_), _any)((const CAT(job_, SUFFIX) *)arg);
     return NULL;
 }
 
