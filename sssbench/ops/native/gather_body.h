@@ -296,15 +296,15 @@ static inline __attribute__((always_inline)) void CAT(line_window_, SUFFIX)(
     ln->plane = plane;
     /* an x pass that writes elsewhere reads its row's window where it is (the vectorised
      * loops' loads may read up to 2 * VW_MAX SCALARs past the window: not past the image's
-     * last plane); so does a fan-in y sweep (issue 30), its strip's rows w SCALARs apart:
-     * packing its 3 S + 1 planes would write and read back a window far larger than the
-     * cache, where the taps of successive rows reuse the few rows around them */
+     * last plane). A y pass packs its strip, a fan-in sweep's 3 S + 1 planes too: read in
+     * place, its strip's rows are w SCALARs apart, a page per row and plane, and the
+     * 1080p close-up's 6-set y sweep took 1.3x the CPU time it takes packed (measured,
+     * issue 30; each further set cost more than a whole single-set y pass) */
     const int64_t nin = j->fan_in ? j->nsets : 1;
     ln->stride = 4 * plane;
-    const int in_place = AXIS_Y ? nin > 1 && hi * w + s1 + 64 < hw : q * w + hi + 64 < hw;
+    const int in_place = !AXIS_Y && q * w + hi + 64 < hw;
     if (PLANAR && j->direct && in_place) { /* each input's planes too */
-        const int64_t at = AXIS_Y ? lo * w + s0 : q * w + lo;
-        if (AXIS_Y) ln->pitch = w;
+        const int64_t at = q * w + lo;
         ln->pl[0] = j->src + at;
         ln->pl[1] = ln->pl[0] + hw;
         ln->pl[2] = ln->pl[0] + 2 * hw;

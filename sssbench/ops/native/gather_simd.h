@@ -217,12 +217,19 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
         vec tf[TAP_CHUNK];       /* fan-in: the fraction */
         ivec tia[TAP_CHUNK], tib[TAP_CHUNK];
         int64_t tat[TAP_CHUNK]; /* fan-in: the row pair's offset, or -1: gather */
+        /* fan-in, a tap whose lanes' rows lie within four (the selects of set 0, tat -1):
+         * the four rows' offsets and each lane's row of the pair, for the other sets' same
+         * selects (a gather per set and channel instead costs about as much as all the
+         * rest of a close-up's y sweep: measured, issue 30) */
+        int64_t tsel[TAP_CHUNK][4];
+        ivec tra[TAP_CHUNK], trb[TAP_CHUNK];
+        int tsok[TAP_CHUNK];
         int tsc[TAP_CHUNK];
         for (int64_t s = 1; s < ns; ++s) accx[s][0] = accx[s][1] = accx[s][2] = zero;
         vec acc0 = zero, acc1 = zero, acc2 = zero;
         for (int64_t t = 0; t < j->k; ++t) {
             const int64_t tt = t % TAP_CHUNK;
-            if (fan_in) tat[tt] = -1;
+            if (fan_in) tat[tt] = -1, tsok[tt] = 0;
             vec p = pos + j->offsets[t] * sc;
             p = VSELECT(p >= zero, VSELECT(p <= last, p, last), zero); /* border; NaN -> 0 */
             const ivec i0 = __builtin_convertvector(p, ivec); /* = floor(p) since p >= 0 */
@@ -305,7 +312,12 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
                     SELECTED(p1, v1);
                     SELECTED(p2, v2);
                     SELECTED(p3, v3);
-#undef SELECTED
+                    if (fan_in) {
+                        tsok[tt] = 1;
+                        for (int k = 0; k < 4; ++k) tsel[tt][k] = at[k];
+                        tra[tt] = ra;
+                        trb[tt] = rb;
+                    }
                     goto fetched;
                 }
             }
@@ -417,6 +429,18 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
                             ROWS(q1, x1);
                             ROWS(q2, x2);
 #undef ROWS
+                        } else if (tsok[u]) { /* set 0's four rows and selects */
+                            const int64_t *at = tsel[u];
+                            const mask a1 = __builtin_convertvector(tra[u] == 1, mask),
+                                       a2 = __builtin_convertvector(tra[u] == 2, mask),
+                                       a3 = __builtin_convertvector(tra[u] == 3, mask),
+                                       b1 = __builtin_convertvector(trb[u] == 1, mask),
+                                       b2 = __builtin_convertvector(trb[u] == 2, mask),
+                                       b3 = __builtin_convertvector(trb[u] == 3, mask);
+                            const vec f = fr;
+                            SELECTED(q0, x0);
+                            SELECTED(q1, x1);
+                            SELECTED(q2, x2);
                         } else {
                             vec a_, b_;
 #define GATHERED(Q, out)                                                          \
@@ -429,6 +453,7 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
                             GATHERED(q1, x1);
                             GATHERED(q2, x2);
 #undef GATHERED
+#undef SELECTED
                         }
                         if (FOLLOW == 1) {
                             x0 = x0 + tv[u][0] * (m0 - x0);
