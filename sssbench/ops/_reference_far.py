@@ -211,7 +211,7 @@ def _sum3(t: torch.Tensor) -> torch.Tensor:
     """``t[..., 0] + t[..., 1] + t[..., 2]`` (left to right): what ``t.sum(-1)`` of a last
     axis of 3 computes, bit for bit (torch's reduction adds the three in order from the
     first; tests/ops/test_reference_far.py checks the two agree on every bit), without a
-    reduction kernel's overhead on so short an axis (~10× the time, measured)."""
+    reduction kernel's overhead on so short an axis (~10× the time at (1000, 4, 3), measured)."""
     return t[..., 0] + t[..., 1] + t[..., 2]
 
 
@@ -224,8 +224,9 @@ def _coefficients(p: torch.Tensor, mom: torch.Tensor, v: float) -> torch.Tensor:
     once per pair).
 
     Every sum over the three axes is :func:`_sum3` (the same additions, in the same order, as
-    ``sum(-1)``: the result is bitwise that of the reduction form; about 3× faster on the
-    tiles of the 512² scenes, measured)."""
+    ``sum(-1)``: the result is bitwise that of the reduction form, tested; 2.7× less CPU time
+    than the reduction form at 1000 sources × 4 channels, the tiles' typical size on the 512²
+    scenes, measured)."""
     s, c = mom.shape[:2]
     qv = mom[..., 4:]
     pl = [p[:, None, axis] for axis in range(3)]  # (S, 1) each
