@@ -211,7 +211,9 @@ def _sum3(t: torch.Tensor) -> torch.Tensor:
     """``t[..., 0] + t[..., 1] + t[..., 2]`` (left to right): what ``t.sum(-1)`` of a last
     axis of 3 computes, bit for bit (torch's reduction adds the three in order from the
     first; tests/ops/test_reference_far.py checks the two agree on every bit), without a
-    reduction kernel's overhead on so short an axis (~10× the time at (1000, 4, 3), measured)."""
+    reduction kernel's overhead on so short an axis (~10× the time at (1000, 4, 3), measured).
+    One exception: three signed zeros summing to ``-0.0`` stay ``-0.0`` here, where the
+    reduction, which starts from ``+0.0``, gives ``+0.0`` (the same value)."""
     return t[..., 0] + t[..., 1] + t[..., 2]
 
 
