@@ -600,18 +600,22 @@ def _flip_mean(fmap: np.ndarray, m: torch.Tensor | None) -> float:
 
 
 def masked_flip_map(fmap: np.ndarray, weights: np.ndarray | None) -> np.ndarray:
-    """A checked float64 FLIP map ``(B, H, W)`` with 0 where the ``(B, H, W)`` weights are 0
-    (``None``: all read), for the consumers that weight it: a pixel it was not computed at
-    (``NaN``, :func:`flip_map_over`) is never read, and ``0 * weight`` is what ``value *
-    weight`` was there, so the weighted sums keep their bits. Raises ``ValueError`` if a
-    pixel with a positive weight has no value (a map computed over another mask)."""
-    read = np.ones(fmap.shape, dtype=bool) if weights is None else weights > 0
-    if bool(np.isnan(fmap[read]).any()):
+    """A checked float64 FLIP map ``(B, H, W)`` with its ``NaN`` (pixels
+    :func:`flip_map_over` did not compute) set to 0, for the consumers that weight it by the
+    ``(B, H, W)`` weights (``None``: all 1): such a pixel is never read, and ``0 * 0`` is
+    what ``value * 0`` was there, so the weighted sums keep their bits. A map without
+    ``NaN`` is returned as it is. Raises ``ValueError`` if a pixel with a positive weight
+    has no value (a map computed over another mask)."""
+    nan = np.isnan(fmap)
+    if not nan.any():
+        return fmap
+    read = nan if weights is None else nan & (weights > 0)
+    if read.any():
         raise ValueError(
-            f"fmap has no value (NaN) at {int(np.isnan(fmap[read]).sum())} pixels the mask "
-            "reads: it was computed over another mask (flip_map_over) or is not a FLIP map"
+            f"fmap has no value (NaN) at {int(read.sum())} pixels the mask reads: it was "
+            "computed over another mask (flip_map_over) or is not a FLIP map"
         )
-    return fmap if weights is None else np.where(read, fmap, 0.0)
+    return np.where(nan, 0.0, fmap)
 
 
 def check_flip_map(fmap: np.ndarray, image: torch.Tensor) -> np.ndarray:
