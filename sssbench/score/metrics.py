@@ -1,5 +1,10 @@
 """Quality metrics of a result against a reference (DESIGN §1: ``sssbench/score/metrics.py``).
 
+One module because the metrics share one input check (:func:`_check_pair`), one display
+transform and its memo (:func:`_display`, read by ΔE and FLIP alike) and the FLIP map's
+conventions (:func:`flip_map`, :func:`flip_map_over` and their consumers' check
+:func:`masked_flip_map`): split, each part would import the others' private helpers.
+
 Every metric takes a result and a reference of shape ``(B, 3, H, W)`` (linear radiance, >= 0 is
 not required by the error metrics but is by the tone-mapped ones) and an optional mask
 ``(B, 1, H, W)`` with values in ``[0, 1]``. The mask acts as a per-pixel *weight*: a binary mask
