@@ -87,7 +87,7 @@ from sssbench.run.spec import RunSpec
 from sssbench.run.stochastic import is_stochastic, seed_split
 from sssbench.score import verdict
 from sssbench.score.bias_noise import bias_noise
-from sssbench.score.metrics import METRICS, compute_all, flip_map
+from sssbench.score.metrics import METRICS, compute_all, flip_map_over
 from sssbench.store.tracking import PassStats, RunStore, config_hash, utc_now
 
 log = logging.getLogger("sssbench")
@@ -275,7 +275,9 @@ def _measure_sealed(
     mask = metric_mask(built.gbuffer, result.dtype)  # 5. score
     identity, *base = baseline(spec, built.gbuffer, built.profile, reference, mask)
     checkpoint()
-    fmap = flip_map(result, reference)  # one FLIP evaluation for the mean and the local
+    # one FLIP evaluation for the mean and the local, over the mask's box: both read only
+    # the pixels with mask > 0 (the previews compute no FLIP)
+    fmap = flip_map_over(result, reference, mask)
     checkpoint()
     values = compute_all(result, reference, mask, fmap=fmap)
     _, values["error_flip_window"], _ = verdict.error_visibility(result, reference, mask, fmap)

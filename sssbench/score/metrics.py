@@ -1,5 +1,10 @@
 """Quality metrics of a result against a reference (DESIGN §1: ``sssbench/score/metrics.py``).
 
+One module because the metrics share one input check (:func:`_check_pair`), one display
+transform and its memo (:func:`_display`, read by ΔE and FLIP alike) and the FLIP map's
+conventions (:func:`flip_map`, :func:`flip_map_over` and their consumers' check
+:func:`masked_flip_map`): split, each part would import the others' private helpers.
+
 Every metric takes a result and a reference of shape ``(B, 3, H, W)`` (linear radiance, >= 0 is
 not required by the error metrics but is by the tone-mapped ones) and an optional mask
 ``(B, 1, H, W)`` with values in ``[0, 1]``. The mask acts as a per-pixel *weight*: a binary mask
@@ -53,6 +58,8 @@ __all__ = [
     "delta_e",
     "flip",
     "flip_map",
+    "flip_map_over",
+    "flip_support",
     "METRICS",
     "compute_all",
 ]
@@ -363,35 +370,160 @@ def flip_map(
     Returns:
         ``(B, H, W)`` float32 FLIP map in ``[0, 1]`` (0 where the images agree).
     """
-    import flip_evaluator  # imported lazily: the extension is only needed for this metric
-
     res, ref, _ = _check_pair(result, reference, None)
     ppd = check_scalar("ppd", ppd, 0.0, low_inclusive=False)
     exposure = check_scalar("exposure", exposure, 0.0, low_inclusive=False)
     t_res = _display(res, exposure)
     t_ref = _display(ref, exposure)
-    maps = []
-    for i in range(ref.shape[0]):
-        a = np.ascontiguousarray(t_ref[i].permute(1, 2, 0).numpy(), dtype=np.float32)
-        b = np.ascontiguousarray(t_res[i].permute(1, 2, 0).numpy(), dtype=np.float32)
+    return np.stack([_flip_ldr(t_ref[i], t_res[i], ppd) for i in range(ref.shape[0])])
 
-        def evaluate(a: np.ndarray = a, b: np.ndarray = b) -> np.ndarray:
-            with _flip_threads(torch.get_num_threads()):
-                fmap, _, _ = flip_evaluator.evaluate(
-                    a,
-                    b,
-                    "LDR",
-                    inputsRGB=True,
-                    applyMagma=False,
-                    computeMeanError=False,
-                    parameters={"ppd": ppd},
-                )
-            return np.asarray(fmap, dtype=np.float32)[..., 0]
 
-        # memoised on the two LDR images FLIP reads (the do-nothing run scores the image
-        # its scene's baseline scored already): the map FLIP returns for those bits
-        maps.append(by_content((a, b), ("flip_ldr", ppd), evaluate))
-    return np.stack(maps)
+def flip_support(ppd: float = 67.0) -> int:
+    """How far, in pixels, FLIP's map at one pixel reads its inputs at ``ppd`` pixels per
+    degree: the larger radius of its two separable spatial filters, which both read the
+    (pointwise) YCxCz images side by side, never each other's output.
+
+    * the colour CSF filter: ``ceil(3 sqrt(b_max / (2 pi^2)) ppd)`` with the largest scale
+      parameter ``b_max = 0.04`` of the contrast sensitivity Gaussians (FLIP, the colour
+      pipeline's spatial filters; ``calculateSpatialFilterRadius`` in FLIP's ``FLIP.h``):
+      10 px at 67 ppd;
+    * the edge and point (feature) filters: ``ceil(3 sigma)`` with
+      ``sigma = 0.5 w ppd``, ``w = 0.082`` degrees (FLIP, the feature pipeline;
+      ``setFeatureFilter`` in ``FLIP.h``): 9 px at 67 ppd.
+
+    Each radius is computed in float32 as FLIP does, and one pixel is added to each for a
+    ``ceil`` that float32 and float64 might round to different sides of (no ppd in use is
+    near one; the guard costs a pixel). ``tests/score/test_flip_crop.py`` measures that a
+    crop's map equals the whole image's at this distance from the cut, bit for bit.
+
+    Args:
+        ppd: pixels per degree of visual angle, > 0.
+
+    Returns:
+        the radius in pixels, >= 1.
+    """
+    ppd = check_scalar("ppd", ppd, 0.0, low_inclusive=False)
+    f = np.float32
+    csf = np.ceil(f(3.0) * np.sqrt(f(0.04) / (f(2.0) * f(math.pi) ** 2)) * f(ppd))
+    feature = np.ceil(f(3.0) * f(0.5) * f(0.082) * f(ppd))
+    return int(max(csf, feature)) + 1
+
+
+def _mask_windows(
+    mask: torch.Tensor, margin: int
+) -> list[tuple[tuple[slice, slice], tuple[slice, slice]] | None]:
+    """Per image of a ``(B, 1, H, W)`` mask: ``None`` if no pixel has mask > 0, else
+    ``(crop, trusted)``, two ``(rows, cols)`` slices of the image: ``crop`` is the bounding box
+    of mask > 0 grown by ``margin`` and clipped to the image; ``trusted`` is ``crop`` less
+    ``margin`` pixels at each side where it was cut inside the image (a side on the image's
+    own border keeps its pixels: FLIP pads the crop there as it pads the image). ``trusted``
+    holds the bounding box."""
+    _, _, h, w = mask.shape
+    out: list[tuple[tuple[slice, slice], tuple[slice, slice]] | None] = []
+    for i in range(mask.shape[0]):
+        rows = torch.nonzero((mask[i, 0] > 0).any(1)).flatten()
+        cols = torch.nonzero((mask[i, 0] > 0).any(0)).flatten()
+        if rows.numel() == 0:
+            out.append(None)
+            continue
+        spans = []
+        for ids, n in ((rows, h), (cols, w)):
+            lo, hi = max(int(ids[0]) - margin, 0), min(int(ids[-1]) + 1 + margin, n)
+            kept = (lo if lo == 0 else lo + margin, hi if hi == n else hi - margin)
+            spans.append(((lo, hi), kept))
+        (r, rt), (c, ct) = spans
+        out.append(((slice(*r), slice(*c)), (slice(*rt), slice(*ct))))
+    return out
+
+
+def flip_map_over(
+    result: torch.Tensor,
+    reference: torch.Tensor,
+    mask: torch.Tensor | None,
+    *,
+    exposure: float = 1.0,
+    ppd: float = 67.0,
+) -> np.ndarray:
+    """:func:`flip_map` where a mask reads it: bit for bit on the mask's bounding box, ``NaN``
+    wherever it was not computed.
+
+    FLIP's map at a pixel reads the images only within :func:`flip_support` pixels (its
+    filters' radius), so FLIP is run on the crop = the bounding box of mask > 0 grown by
+    that margin and clipped to the image; the crop's map is kept where it lies at least the
+    margin inside each side cut inside the image (FLIP pads at a crop's edge by clamping,
+    as at the image's, so pixels near the image's own border are kept too). There it is the
+    whole image's map bit for bit (the same float32 operations on the same values;
+    ``tests/score/test_flip_crop.py`` compares them on random and structured images and
+    several masks). Every other pixel is ``NaN``: a value never computed is never shown as
+    one. The consumers (:func:`flip`, :func:`compute_all`,
+    :func:`sssbench.score.verdict.visibility_stats`) read only the pixels with mask > 0 and
+    raise if one of those is ``NaN``. A mask covering most of the image gains little (the
+    crop is the whole image once the box reaches within the margin of each border).
+
+    Args:
+        result: ``(B, 3, H, W)`` linear radiance.
+        reference: ``(B, 3, H, W)`` linear radiance.
+        mask: ``(B, 1, H, W)`` in ``[0, 1]`` or ``None`` (then the whole map,
+            :func:`flip_map`). An image whose mask is 0 everywhere gets an all-``NaN`` map
+            and costs no FLIP evaluation.
+        exposure: as in :func:`flip_map`, > 0.
+        ppd: as in :func:`flip_map`, > 0.
+
+    Returns:
+        ``(B, H, W)`` float32 FLIP map in ``[0, 1]`` on the kept pixels, ``NaN`` elsewhere.
+    """
+    if mask is None:
+        return flip_map(result, reference, exposure=exposure, ppd=ppd)
+    res, ref, _ = _check_pair(result, reference, None)
+    m = check_tensor("mask", mask, ndim=4, channels=1)
+    b, _, h, w = ref.shape
+    if m.shape != (b, 1, h, w):
+        raise ValueError(f"mask must have shape ({b}, 1, {h}, {w}), got {tuple(m.shape)}")
+    check_range("mask", m, 0.0, 1.0)
+    ppd = check_scalar("ppd", ppd, 0.0, low_inclusive=False)
+    exposure = check_scalar("exposure", exposure, 0.0, low_inclusive=False)
+    windows = _mask_windows(m.detach().cpu(), flip_support(ppd))
+    out = np.full((b, h, w), np.nan, dtype=np.float32)
+    for i, win in enumerate(windows):
+        if win is None:
+            continue
+        (rows, cols), (t_rows, t_cols) = win
+        crop_map = _flip_ldr(
+            _display(ref[i : i + 1], exposure)[0, :, rows, cols],
+            _display(res[i : i + 1], exposure)[0, :, rows, cols],
+            ppd,
+        )
+        r0, c0 = rows.start, cols.start
+        out[i, t_rows, t_cols] = crop_map[
+            t_rows.start - r0 : t_rows.stop - r0, t_cols.start - c0 : t_cols.stop - c0
+        ]
+    return out
+
+
+def _flip_ldr(t_ref: torch.Tensor, t_res: torch.Tensor, ppd: float) -> np.ndarray:
+    """FLIP's ``(H, W)`` float32 LDR map of two displayed ``(3, H, W)`` images (sRGB in
+    ``[0, 1]``, :func:`_display`), memoised on the float32 images FLIP reads."""
+    import flip_evaluator  # imported lazily: the extension is only needed for this metric
+
+    a = np.ascontiguousarray(t_ref.permute(1, 2, 0).numpy(), dtype=np.float32)
+    b = np.ascontiguousarray(t_res.permute(1, 2, 0).numpy(), dtype=np.float32)
+
+    def evaluate() -> np.ndarray:
+        with _flip_threads(torch.get_num_threads()):
+            fmap, _, _ = flip_evaluator.evaluate(
+                a,
+                b,
+                "LDR",
+                inputsRGB=True,
+                applyMagma=False,
+                computeMeanError=False,
+                parameters={"ppd": ppd},
+            )
+        return np.asarray(fmap, dtype=np.float32)[..., 0]
+
+    # memoised on the two LDR images FLIP reads (the do-nothing run scores the image its
+    # scene's baseline scored already): the map FLIP returns for those bits
+    return by_content((a, b), ("flip_ldr", ppd), evaluate)
 
 
 @functools.cache
@@ -459,16 +591,36 @@ def flip(
     """
     _, _, m = _check_pair(result, reference, mask)
     if fmap is None:
-        fmap = flip_map(result, reference, exposure=exposure, ppd=ppd)
+        fmap = flip_map_over(result, reference, mask, exposure=exposure, ppd=ppd)
     return _flip_mean(check_flip_map(fmap, result), m)
 
 
 def _flip_mean(fmap: np.ndarray, m: torch.Tensor | None) -> float:
     """The mask-weighted mean of a checked float64 FLIP map (:func:`flip`)."""
     if m is None:
-        return float(fmap.mean())
+        return float(masked_flip_map(fmap, None).mean())
     wgt = m[:, 0].numpy()
-    return float(np.mean((fmap * wgt).sum(axis=(1, 2)) / wgt.sum(axis=(1, 2))))
+    read = masked_flip_map(fmap, wgt)
+    return float(np.mean((read * wgt).sum(axis=(1, 2)) / wgt.sum(axis=(1, 2))))
+
+
+def masked_flip_map(fmap: np.ndarray, weights: np.ndarray | None) -> np.ndarray:
+    """A checked float64 FLIP map ``(B, H, W)`` with its ``NaN`` (pixels
+    :func:`flip_map_over` did not compute) set to 0, for the consumers that weight it by the
+    ``(B, H, W)`` weights (``None``: all 1): such a pixel is never read, and ``0 * 0`` is
+    what ``value * 0`` was there, so the weighted sums keep their bits. A map without
+    ``NaN`` is returned as it is. Raises ``ValueError`` if a pixel with a positive weight
+    has no value (a map computed over another mask)."""
+    nan = np.isnan(fmap)
+    if not nan.any():
+        return fmap
+    read = nan if weights is None else nan & (weights > 0)
+    if read.any():
+        raise ValueError(
+            f"fmap has no value (NaN) at {int(read.sum())} pixels the mask reads: it was "
+            "computed over another mask (flip_map_over) or is not a FLIP map"
+        )
+    return np.where(nan, 0.0, fmap)
 
 
 def check_flip_map(fmap: np.ndarray, image: torch.Tensor) -> np.ndarray:
@@ -505,7 +657,7 @@ def compute_all(
     :func:`flip_map` if the caller has it (see :func:`flip`)."""
     res, ref, m = _check_pair(result, reference, mask)  # checked once for every metric
     if fmap is None:
-        fmap = flip_map(result, reference)
+        fmap = flip_map_over(result, reference, mask)
     out = {name: fn(res, ref, m) for name, fn in _CHECKED.items()}
     out["flip"] = _flip_mean(check_flip_map(fmap, result), m)
     return {name: out[name] for name in METRICS}

@@ -149,18 +149,23 @@ def visibility_stats(
             ``window × window`` window that is at least half inside the mask (any window with
             a masked pixel when none is), all images of the batch pooled.
         window: side of the window in pixels (odd, >= 1).
-        fmap: ``flip_map(diffuse, reference)`` when the caller has it already (the same
-            numbers, one FLIP evaluation fewer), ``(B, H, W)``.
+        fmap: ``flip_map(diffuse, reference)`` or ``flip_map_over(diffuse, reference,
+            mask)`` when the caller has it already (the same numbers, one FLIP evaluation
+            fewer), ``(B, H, W)``; only its pixels with a positive weight are read (a
+            ``ValueError`` if one is NaN). Without it, :func:`flip_map_over` computes FLIP
+            on the mask's bounding box only.
 
     Returns:
         ``(mean, local)``: the mean FLIP (as :func:`sssbench.score.metrics.flip`) and the
         largest window mean of the per-pixel FLIP; compare with :func:`is_visible`.
     """
-    from sssbench.score.metrics import check_flip_map, flip_map
+    from sssbench.score.metrics import check_flip_map, flip_map_over, masked_flip_map
 
     if not isinstance(window, int) or window < 1 or window % 2 == 0:
         raise ValueError(f"window must be an odd int >= 1, got {window!r}")
-    fmap = check_flip_map(flip_map(diffuse, reference) if fmap is None else fmap, diffuse)
+    if fmap is None:
+        fmap = flip_map_over(diffuse, reference, mask)
+    fmap = check_flip_map(fmap, diffuse)
     if mask is None:
         wgt = np.ones_like(fmap)
     else:
@@ -172,6 +177,7 @@ def visibility_stats(
         wgt = mask.detach().double().cpu()[:, 0].numpy()
         if bool((wgt.reshape(wgt.shape[0], -1).sum(1) <= 0).any()):
             raise ValueError("mask must select at least one pixel in every image")
+    fmap = masked_flip_map(fmap, wgt)  # the pixels with weight 0 (maybe NaN) never read
     mean = float(np.mean((fmap * wgt).sum(axis=(1, 2)) / wgt.sum(axis=(1, 2))))
     return mean, _local(fmap, (wgt > 0).astype(np.float64), window)
 
