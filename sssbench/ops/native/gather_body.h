@@ -400,27 +400,29 @@ static inline __attribute__((always_inline)) void CAT(lines_, SUFFIX)(
  * multi-set sweep took the library's build from 18 s to 132 s of CPU on one machine, 83 s on
  * another; out of line, 33 s on the second). The code of each loop is the same, and so are
  * its results (tests/ops/test_gather_backends.py, bitwise at every level). */
-#define LINES_DISPATCH(LINES, ATTR)                                             \
-    ATTR static void CAT(LINES, _any)(const CAT(job_, SUFFIX) * j) {            \
+#define LINES_DISPATCH(LINES, RUN, ATTR)                                        \
+    ATTR static void *RUN(void *arg) {                                          \
         static void (*const table[2][3][2])(const CAT(job_, SUFFIX) *) = {        \
             {{CAT(LINES, _x0s), CAT(LINES, _x0m)}, {CAT(LINES, _x1s), CAT(LINES, _x1m)},  \
              {CAT(LINES, _x2s), CAT(LINES, _x2m)}},                                 \
             {{CAT(LINES, _y0s), CAT(LINES, _y0m)}, {CAT(LINES, _y1s), CAT(LINES, _y1m)},  \
              {CAT(LINES, _y2s), CAT(LINES, _y2m)}}};                                \
+        const CAT(job_, SUFFIX) *j = (const CAT(job_, SUFFIX) *)arg;             \
         FTZ_BEGIN(j->follow == 2); /* the gaussian's underflow: FTZ_BEGIN in gather.c */ \
         table[j->axis_y != 0][j->follow][j->nsets > 1](j);                       \
         FTZ_END();                                                              \
+        return NULL;                                                            \
     }
 /* the twelve specialisations of LINES (a function-like name) with attributes ATTR, then
- * LINES_any, which runs the one a job asks for */
-#define LINES_ALL(LINES, ATTR)                                                  \
+ * RUN, one thread's work (pool_run's signature), which runs the one a job asks for */
+#define LINES_ALL(LINES, RUN, ATTR)                                               \
     LINES_ONE(LINES, ATTR, x0s, 0, 0, 0) LINES_ONE(LINES, ATTR, x0m, 0, 0, 1)     \
     LINES_ONE(LINES, ATTR, x1s, 0, 1, 0) LINES_ONE(LINES, ATTR, x1m, 0, 1, 1)     \
     LINES_ONE(LINES, ATTR, x2s, 0, 2, 0) LINES_ONE(LINES, ATTR, x2m, 0, 2, 1)     \
     LINES_ONE(LINES, ATTR, y0s, 1, 0, 0) LINES_ONE(LINES, ATTR, y0m, 1, 0, 1)     \
     LINES_ONE(LINES, ATTR, y1s, 1, 1, 0) LINES_ONE(LINES, ATTR, y1m, 1, 1, 1)     \
     LINES_ONE(LINES, ATTR, y2s, 1, 2, 0) LINES_ONE(LINES, ATTR, y2m, 1, 2, 1)     \
-    LINES_DISPATCH(LINES, ATTR)
+    LINES_DISPATCH(LINES, RUN, ATTR)
 #define LINES_ONE(LINES, ATTR, TAG, AX, FO, MU)                                 \
     ATTR __attribute__((noinline)) static void CAT(LINES, _##TAG)(const CAT(job_, SUFFIX) * j) { \
         LINES(j, AX, FO, MU);                                                   \
@@ -472,12 +474,8 @@ static inline __attribute__((always_inline)) void CAT(lines_, SUFFIX)(
 #undef VFMA
 #endif
 
-LINES_ALL(CAT(lines_, SUFFIX), )
-
-static void *CAT(run_, SUFFIX)(void *arg) {
-    CAT(CAT(lines_, SUFFIX), _any)((const CAT(job_, SUFFIX) *)arg);
-    return NULL;
-}
+/* One thread's lines: run_f32 / run_f64 */
+LINES_ALL(CAT(lines_, SUFFIX), CAT(run_, SUFFIX), )
 
 /* The kernel's float64 taps and 1 / surface_scale in SCALAR, as sssbench.ops.gather._taps and
  * _inverse_scale convert them (the same operations, bitwise): offsets and inverse scales

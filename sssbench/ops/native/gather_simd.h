@@ -622,12 +622,8 @@ SIMD_FN void SIMDN(lines_)(const CAT(job_, SUFFIX) *j, const int AXIS_Y, const i
     }
 }
 
-LINES_ALL(SIMDN(lines_), __attribute__((target(ISA_TARGET))))
-
-__attribute__((target(ISA_TARGET))) static void *SIMDN(run_)(void *arg) {
-    CAT(SIMDN(lines_), _any)((const CAT(job_, SUFFIX) *)arg);
-    return NULL;
-}
+/* One thread's lines at this level: run_f32_avx2 and the like */
+LINES_ALL(SIMDN(lines_), SIMDN(run_), __attribute__((target(ISA_TARGET))))
 
 #undef CENTRE
 #undef SIMDN
