@@ -1,8 +1,10 @@
 """FLIP evaluated only over the mask's bounding box (``metrics.flip_map_over``): bit for bit
 the whole image's map on every pixel it keeps, NaN elsewhere, and never read there.
 
-The expected values come from outside the code under test: ``flip_evaluator.evaluate`` on
-the whole images, called here directly (no memo, no crop)."""
+The expected values come from outside the code under test (the crop and the memo): the torch
+FLIP map (``flip_ldr.flip_ldr_map``) of the whole images, called here directly (no memo, no
+crop), itself checked against NVIDIA's ``flip_evaluator.evaluate`` within 1e-5 here and in
+``tests/score/test_flip_ldr.py``."""
 
 from __future__ import annotations
 
@@ -14,6 +16,7 @@ import pytest
 import torch
 
 from sssbench.score import metrics, verdict
+from sssbench.score.flip_ldr import flip_ldr_map
 from sssbench.score.metrics import flip_map_over, flip_support
 from tests.specs import small_spec
 
@@ -36,7 +39,11 @@ def _flip_whole(res: torch.Tensor, ref: torch.Tensor, ppd: float = 67.0) -> np.n
             a, b, "LDR", inputsRGB=True, applyMagma=False, computeMeanError=False,
             parameters={"ppd": ppd},
         )  # fmt: skip
-        maps.append(np.asarray(fmap, dtype=np.float32)[..., 0])
+        ours = flip_ldr_map(
+            torch.from_numpy(a).permute(2, 0, 1), torch.from_numpy(b).permute(2, 0, 1), ppd
+        )
+        assert np.abs(ours - np.asarray(fmap, dtype=np.float32)[..., 0]).max() <= 1e-5
+        maps.append(ours)
     return np.stack(maps)
 
 
