@@ -209,133 +209,144 @@ def _srgb_to_ycxcz(srgb: torch.Tensor) -> torch.Tensor:
 
 
 def _pow32(x: torch.Tensor, y: float | torch.Tensor) -> torch.Tensor:
-    """``powf`` elementwise: in float64, rounded once to float32. torch's float32 ``pow``
-    takes a vectorised path for most elements and a scalar one for a row's tail, which round
-    differently; in float64 both agree to far below a float32 ulp, so the float32 value at a
-    pixel does not depend on its position (a crop's map is the whole image's)."""
+    """``powf(x, y)`` elementwise for ``x >= 0``: ``exp(y log x)`` in float64, rounded once
+    to float32 (as glibc's ``powf`` rounds, but in rare near-ties; ``pow(0, 0) = 1``).
+
+    Not torch's float32 ``pow``: it is an ulp off glibc's in ~10 % of values, and it takes a
+    vectorised path for most elements and a scalar one for a row's tail, which round
+    differently, so a pixel's value would depend on its position (a crop's map would not be
+    the whole image's). float64 ``exp`` and ``log`` err far below a float32 ulp on either path
+    (and are 2.3x cheaper than float64 ``pow``)."""
     y64 = y.double() if isinstance(y, torch.Tensor) else float(_F(y))
-    return torch.pow(x.double(), y64).float()
+    out = x.double().log_().mul_(y64).exp_()
+    if isinstance(y, torch.Tensor):
+        out = out.nan_to_num_(nan=1.0)  # 0 ** 0 (= exp(0 * -inf)) is 1
+    return out.float()
 
 
-# Elements (channels x rows x columns) per strip: measured fastest at 512^2 and 1080p (the
-# per-call overhead of smaller strips costs more than the cache misses of larger ones).
-_STRIP_ELEMENTS = 1 << 19
+# Output rows per strip: about this many elements (channels x rows x columns) in a strip's
+# filter outputs; measured fastest at 512^2 and 1080p (larger strips miss the cache and fault
+# in fresh pages; smaller ones pay torch's per-call overhead and recompute more halo rows).
+_STRIP_ELEMENTS = 1 << 20
 
 
-def _strips(n: int, width: int, channels: int) -> list[tuple[int, int]]:
-    """Row ranges ``[a, b)`` covering ``0..n`` in strips of about ``_STRIP_ELEMENTS``."""
-    rows = max(1, _STRIP_ELEMENTS // max(1, width * channels))
-    return [(a, min(a + rows, n)) for a in range(0, n, rows)]
+def _strip_rows(width: int) -> int:
+    """Output rows per strip for images ``width`` pixels wide."""
+    return max(8, _STRIP_ELEMENTS // (8 * max(1, width)))
 
 
-def _separable(
-    src: torch.Tensor, taps: torch.Tensor, out: torch.Tensor, dim: int, *, fused: bool
-) -> None:
-    """One separable pass of a padded ``src`` ``(C, n (+2r), W (+2r))`` into ``out``
-    ``(C, n, W)`` along ``dim`` (-2: rows, -1: columns): ``out[c, .., j] = sum_k taps[c, k]
-    src[c, .., j + k]``, summed in order of ``k`` from 0 in float32 (FLIP.h: the ``ix`` and
-    ``iy`` loops), strip by strip.
+def _filter(
+    src: torch.Tensor, taps: list[torch.Tensor], out: torch.Tensor, dim: int
+) -> torch.Tensor:
+    """One pass of a separable filter: ``out = sum_k taps[k] * src.narrow(dim, k, n)`` with
+    ``n = out.shape[dim]``, summed in order of ``k`` from 0, each product rounded to float32
+    and then added (FLIP.h: the ``ix`` and ``iy`` loops of computeColorDifference and
+    computeFeatureDifferenceAndFinalError, which start from 0 and add ``weight * value``:
+    the same rounding, bit for bit). ``taps[k]`` broadcasts against the slices (per-channel
+    weights); ``src`` holds the ``2r`` extra (replicated) pixels along ``dim``.
 
-    ``fused=False``: each term is rounded, then added (``acc + w * x``, FLIP's arithmetic bit
-    for bit); ``fused=True``: one fused multiply-add per term (``torch.addcmul``; half the
-    passes, the colour filters only, whose outputs are well conditioned)."""
-    k_n = taps.shape[1]
-    w = taps.unsqueeze(-1).unsqueeze(-1)  # (C, K, 1, 1)
-    for a, b in _strips(out.shape[1], src.shape[2], out.shape[0]):
-        acc = out[:, a:b]
-        size = b - a if dim == -2 else out.shape[2]
-        rows = slice(a, b + (k_n - 1 if dim == -2 else 0))
-        part = src[:, rows]
-        torch.mul(part.narrow(dim, 0, size), w[:, 0], out=acc)
-        tmp = None if fused else torch.empty_like(acc)
-        for k in range(1, k_n):
-            x = part.narrow(dim, k, size)
-            if fused:
-                acc.addcmul_(x, w[:, k])
-            else:
-                torch.mul(x, w[:, k], out=tmp)
-                acc.add_(tmp)
+    The fused multiply-add (``torch.addcmul``, one pass instead of two) is not used: its
+    single rounding moves FLIP's colour difference by up to 4e-5 where the two images differ
+    only under a filter's far, tiny taps (the power ``q_c = 0.7`` of a distance of a few
+    ulps), against 6e-6 with FLIP's two roundings."""
+    n = out.shape[dim]
+    torch.mul(src.narrow(dim, 0, n), taps[0], out=out)
+    tmp = torch.empty_like(out)
+    for k in range(1, len(taps)):
+        torch.mul(src.narrow(dim, k, n), taps[k], out=tmp)
+        out.add_(tmp)
+    return out
 
 
-def _padded(x: torch.Tensor, r: int) -> torch.Tensor:
-    """``(C, H, W)`` -> ``(C, H + 2r, W + 2r)`` with the edge pixels replicated: FLIP's
-    clamp-to-edge border (FLIP.h: ``Min(Max(0, x + ix), w - 1)`` in every filter loop)."""
-    return torch.nn.functional.pad(x[None], (r, r, r, r), mode="replicate")[0]
+def _replicate_border(x: torch.Tensor, r: int) -> None:
+    """Fill the ``r``-pixel border of ``x`` ``(..., H + 2r, W + 2r)`` (whose interior holds
+    an image) with copies of the image's edge pixels: FLIP's clamp-to-edge border (FLIP.h:
+    ``Min(Max(0, x + ix), w - 1)`` in every filter loop)."""
+    if r == 0:
+        return
+    x[..., :r] = x[..., r : r + 1]
+    x[..., -r:] = x[..., -r - 1 : -r]
+    x[..., :r, :] = x[..., r : r + 1, :]
+    x[..., -r:, :] = x[..., -r - 1 : -r, :]
 
 
-def _color_difference(ycc: torch.Tensor, ppd: float) -> torch.Tensor:
-    """FLIP's colour pipeline (FLIP §3; FLIP.h: computeColorDifference) on ``ycc`` ``(2, 3, H,
-    W)`` (reference, test in YCxCz): the ``(H, W)`` remapped colour difference in [0, 1]."""
-    taps, r = _spatial_filters(ppd)
-    _, _, h, w = ycc.shape
-    # channels: per image [Y, Cx, Cz, Cz], filtered by [Y, Cx, Cz1, Cz2]
-    src = _padded(ycc[:, (0, 1, 2, 2)].reshape(8, h, w), r)
-    wt = torch.from_numpy(np.tile(taps, (2, 1))).to(ycc.dtype)
-    mid = torch.empty(8, h + 2 * r, w, dtype=ycc.dtype)
-    _separable(src, wt, mid, -1, fused=True)
-    out = torch.empty(8, h, w, dtype=ycc.dtype)
-    _separable(mid, wt, out, -2, fused=True)
-    out = out.view(2, 4, h, w)
-    y, cx = out[:, 0], out[:, 1]
-    cz = out[:, 2] + out[:, 3]  # FLIP.h: filteredCz.x + filteredCz.y
+def _columns(taps: np.ndarray, shape: tuple[int, ...]) -> list[torch.Tensor]:
+    """Per tap ``k``, the ``(C, K)`` float32 ``taps[:, k]`` shaped to broadcast as ``shape``
+    (``C`` in the channel dimension, 1 elsewhere)."""
+    t = torch.from_numpy(np.array(taps, dtype=np.float32)).reshape(*shape, taps.shape[-1])
+    return list(t.unbind(-1))
+
+
+def _color_strip(src: torch.Tensor, taps: list[torch.Tensor], r: int) -> torch.Tensor:
+    """FLIP's colour pipeline (FLIP §3; FLIP.h: computeColorDifference) on a strip:
+    ``src`` ``(2, 4, n + 2r, W + 2r)`` holds the padded YCxCz rows ``[Y, Cx, Cz, Cz]`` of the
+    reference and the test, ``taps`` the ``(1, 4, 1, 1)`` CSF weights ``[Y, Cx, Cz1, Cz2]``
+    per tap. Returns the ``(n, W)`` remapped colour difference in [0, 1]."""
+    _, _, rows, wp = src.shape
+    n, w = rows - 2 * r, wp - 2 * r
+    mid = _filter(src, taps, torch.empty(2, 4, rows, w), -1)  # along x
+    out = _filter(mid, taps, torch.empty(2, 4, n, w), -2)  # along y
+    y, cx, cz = out[:, 0], out[:, 1], out[:, 2].add_(out[:, 3])  # FLIP.h: Cz.x + Cz.y
     # FLIP.h: color3::YCxCzToXYZ (inverse of FLIP §3.1's opponent transform)
-    yy = (y + 16.0) / 116.0
-    xyz = ((yy + cx / 500.0) * float(_ILLUM[0]), yy, (yy - cz / 200.0) * float(_ILLUM[2]))
+    yy = y.add_(16.0).div_(116.0)
+    xyz = (
+        cx.div_(500.0).add_(yy).mul_(float(_ILLUM[0])),
+        yy,
+        torch.sub(yy, cz.div_(200.0)).mul_(float(_ILLUM[2])),
+    )
     # FLIP.h: color3::XYZToLinearRGB, then clamp to [0, 1] (FLIP §3.1: into the sRGB gamut)
     rgb = [
-        (float(m[0]) * xyz[0] + float(m[1]) * xyz[1] + float(m[2]) * xyz[2]).clamp_(0.0, 1.0)
+        (xyz[0] * float(m[0])).add_(xyz[1] * float(m[1])).add_(xyz[2] * float(m[2])).clamp_(0, 1)
         for m in _XYZ2RGB
     ]
-    # FLIP.h: color3::LinearRGBToXYZ then color3::XYZToCIELab
+    # FLIP.h: color3::LinearRGBToXYZ then color3::XYZToCIELab (CIE 1976 L*a*b*, D65 white)
     f = []
     for c, m in enumerate(_RGB2XYZ):
-        t = (float(m[0]) * rgb[0] + float(m[1]) * rgb[1] + float(m[2]) * rgb[2]) * float(
-            _INV_ILLUM[c]
-        )
+        t = (rgb[0] * float(m[0])).add_(rgb[1] * float(m[1])).add_(rgb[2] * float(m[2]))
+        if c != 1:
+            t.mul_(float(_INV_ILLUM[c]))  # (the Y white is 1)
+        cube = _pow32(t, float(_F(1.0) / _F(3.0)))
         f.append(
             torch.where(
-                t > float(_DELTA_CUBE),
-                _pow32(t, float(_F(1.0) / _F(3.0))),
-                float(_LAB_FACTOR) * t + float(_LAB_TERM),
+                t > float(_DELTA_CUBE), cube, t.mul_(float(_LAB_FACTOR)).add_(float(_LAB_TERM))
             )
         )
-    lum = 116.0 * f[1] - 16.0
-    k = 0.01 * lum  # FLIP eq. 4 (Hunt): a* and b* scaled by 0.01 L*
-    a = k * (500.0 * (f[0] - f[1]))
-    b = k * (200.0 * (f[1] - f[2]))
-    da, db = a[0] - a[1], b[0] - b[1]
-    # FLIP eq. 3 (HyAB): |dL| + sqrt(da^2 + db^2), to the power q_c (FLIP eq. 5)
-    hyab = (lum[0] - lum[1]).abs_() + torch.sqrt(da * da + db * db)
+    lum = f[1].mul(116.0).sub_(16.0)
+    k = lum * 0.01  # FLIP eq. 4 (Hunt): a* and b* scaled by 0.01 L*
+    a = torch.sub(f[0], f[1]).mul_(500.0).mul_(k)
+    b = torch.sub(f[1], f[2]).mul_(200.0).mul_(k)
+    da, db = a[0].sub_(a[1]), b[0].sub_(b[1])
+    # FLIP eq. 3 (HyAB): |dL| + sqrt(da^2 + db^2), then to the power q_c (FLIP eq. 5)
+    hyab = torch.sub(lum[0], lum[1]).abs_().add_(da.mul_(da).add_(db.mul_(db)).sqrt_())
     cd = _pow32(hyab, float(_GQC))
     cmax, pccmax = _cmax()
     # FLIP eq. 6: [0, p_c cmax) -> [0, p_t), [p_c cmax, cmax] -> [p_t, 1]
     low = cd * float(_F(_GPT / _F(pccmax)))
-    high = float(_GPT) + ((cd - pccmax) / float(_F(_F(cmax) - _F(pccmax)))) * float(_F(1.0) - _GPT)
+    scale = float(_F(_F(cmax) - _F(pccmax)))
+    high = (cd - pccmax).div_(scale).mul_(float(_F(1.0) - _GPT)).add_(float(_GPT))
     return torch.where(cd < pccmax, low, high)
 
 
-def _feature_difference(ycc: torch.Tensor, ppd: float) -> torch.Tensor:
-    """FLIP's feature pipeline (FLIP §4; FLIP.h: computeFeatureDifferenceAndFinalError) on
-    ``ycc`` ``(2, 3, H, W)``: the ``(H, W)`` feature difference in [0, 1]."""
-    taps, r = _feature_filter(ppd)
-    _, _, h, w = ycc.shape
-    # FLIP.h: the achromatic channel normalised to [0, 1]: Y / 116 + 16 / 116
-    yn = ycc[:, 0] * float(_F(1.0) / _F(116.0)) + float(_F(16.0) / _F(116.0))
-    g, dg, ddg = torch.from_numpy(taps.copy()).to(ycc.dtype)
-    # along x: per image [dg, ddg, g] (FLIP.h: dx, ddx, Gaussian-filtered)
-    src = _padded(yn, r)[:, None].expand(2, 3, h + 2 * r, w + 2 * r).reshape(6, h + 2 * r, -1)
-    mid = torch.empty(6, h + 2 * r, w, dtype=ycc.dtype)
-    _separable(src, torch.stack((dg, ddg, g)).repeat(2, 1), mid, -1, fused=False)
-    # along y: per image [dx, ddx, gf, gf] by [g, g, dg, ddg] -> dx, ddx, dy, ddy
-    mid = mid.view(2, 3, h + 2 * r, w)[:, (0, 1, 2, 2)].reshape(8, h + 2 * r, w)
-    out = torch.empty(8, h, w, dtype=ycc.dtype)
-    _separable(mid, torch.stack((g, g, dg, ddg)).repeat(2, 1), out, -2, fused=False)
-    dx, ddx, dy, ddy = out.view(2, 4, h, w).unbind(1)
-    edge = torch.sqrt(dx * dx + dy * dy)  # FLIP eq. 9: |gradient| of the edge detector
-    point = torch.sqrt(ddx * ddx + ddy * ddy)  # FLIP eq. 9: the point detector
-    diff = torch.maximum((edge[0] - edge[1]).abs_(), (point[0] - point[1]).abs_())
-    # FLIP eq. 10: (max(|de|, |dp|) / sqrt(2)) ** q_f
-    return torch.sqrt(float(_F(1.0) / np.sqrt(_F(2.0))) * diff)  # ** q_f, q_f = 0.5
+def _feature_strip(
+    src: torch.Tensor, taps_x: list[torch.Tensor], taps_y: list[torch.Tensor], r: int
+) -> torch.Tensor:
+    """FLIP's feature pipeline (FLIP §4; FLIP.h: computeFeatureDifferenceAndFinalError) on a
+    strip: ``src`` ``(2, 1, n + 2r, W + 2r)`` holds the padded normalised achromatic rows of
+    the reference and the test; ``taps_x`` the ``(1, 3, 1, 1)`` weights ``[dg, ddg, g]`` and
+    ``taps_y`` the ``(1, 4, 1, 1)`` weights ``[g, g, dg, ddg]`` per tap. Returns the ``(n, W)``
+    feature difference in [0, 1]."""
+    _, _, rows, wp = src.shape
+    n, w = rows - 2 * r, wp - 2 * r
+    # along x: [dx, ddx, Gaussian-filtered] (FLIP.h: 1st and 2nd derivative, Gaussian)
+    mid = _filter(src, taps_x, torch.empty(2, 3, rows, w), -1)
+    # along y: [dx, ddx, gf, gf] by [g, g, dg, ddg] -> dx, ddx, dy, ddy
+    out = _filter(mid[:, (0, 1, 2, 2)], taps_y, torch.empty(2, 4, n, w), -2)
+    dx, ddx, dy, ddy = out.unbind(1)
+    edge = dx.mul_(dx).add_(dy.mul_(dy)).sqrt_()  # FLIP eq. 9: the edge detector's magnitude
+    point = ddx.mul_(ddx).add_(ddy.mul_(ddy)).sqrt_()  # FLIP eq. 9: the point detector's
+    diff = torch.maximum(edge[0].sub_(edge[1]).abs_(), point[0].sub_(point[1]).abs_())
+    # FLIP eq. 10: (max(|de|, |dp|) / sqrt(2)) ** q_f, q_f = 0.5 (powf(x, 0.5) = sqrt(x))
+    return diff.mul_(float(_F(1.0) / np.sqrt(_F(2.0)))).sqrt_()
 
 
 def flip_ldr_map(reference: torch.Tensor, test: torch.Tensor, ppd: float) -> np.ndarray:
@@ -368,10 +379,33 @@ def flip_ldr_map(reference: torch.Tensor, test: torch.Tensor, ppd: float) -> np.
     if not math.isfinite(ppd) or ppd <= 0:
         raise ValueError(f"ppd must be a finite number > 0, got {ppd!r}")
     ppd = float(_F(ppd))  # FLIP reads ppd as a float
+    ctaps, rc = _spatial_filters(ppd)
+    ftaps, rf = _feature_filter(ppd)
+    h, w = reference.shape[1:]
+    step = _strip_rows(w)
     with torch.no_grad():
-        imgs = torch.stack((reference, test)).detach().to("cpu", torch.float32)
-        ycc = _srgb_to_ycxcz(imgs)
-        cd = _color_difference(ycc, ppd)
-        fd = _feature_difference(ycc, ppd)
-        out = _pow32(cd, 1.0 - fd)  # FLIP eq. 11
-    return out.float().numpy()
+        pair = [x.detach().to("cpu") for x in (reference, test)]
+        # the filters' inputs, padded by replication (FLIP's clamp-to-edge): per image the
+        # YCxCz channels [Y, Cx, Cz, Cz] (the colour filters [Y, Cx, Cz1, Cz2] read them) and
+        # the achromatic channel normalised to [0, 1] (the feature filters read it)
+        csrc = torch.empty(2, 4, h + 2 * rc, w + 2 * rc)
+        fsrc = torch.empty(2, 1, h + 2 * rf, w + 2 * rf)
+        for a in range(0, h, step):
+            b = min(a + step, h)
+            ycc = _srgb_to_ycxcz(torch.stack([x[:, a:b] for x in pair]).float())
+            csrc[:, :, rc + a : rc + b, rc : rc + w] = ycc[:, (0, 1, 2, 2)]
+            # FLIP.h: Y / 116 + 16 / 116
+            yn = ycc[:, 0].mul_(float(_F(1.0) / _F(116.0))).add_(float(_F(16.0) / _F(116.0)))
+            fsrc[:, 0, rf + a : rf + b, rf : rf + w] = yn
+        _replicate_border(csrc, rc)
+        _replicate_border(fsrc, rf)
+        ct = _columns(ctaps, (1, 4, 1, 1))
+        fx = _columns(ftaps[(1, 2, 0),], (1, 3, 1, 1))
+        fy = _columns(ftaps[(0, 0, 1, 2),], (1, 4, 1, 1))
+        out = torch.empty(h, w)
+        for a in range(0, h, step):
+            b = min(a + step, h)
+            cd = _color_strip(csrc[:, :, a : b + 2 * rc], ct, rc)
+            fd = _feature_strip(fsrc[:, :, a : b + 2 * rf], fx, fy, rf)
+            out[a:b] = _pow32(cd, fd.neg_().add_(1.0))  # FLIP eq. 11: cd ** (1 - fd)
+    return out.numpy()
