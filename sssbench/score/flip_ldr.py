@@ -1,4 +1,4 @@
-"""LDR-FLIP in torch (DESIGN §1: ``sssbench/score/flip_ldr.py``).
+"""LDR-FLIP in torch.
 
 The per-pixel LDR-FLIP error map of Andersson et al. 2020, "FLIP: A Difference Evaluator for
 Alternating Images" (HPG 2020; ``FLIP`` below, equations numbered as in the paper), with every
@@ -9,7 +9,7 @@ NVlabs/flip, the single-header C++ code the ``flip-evaluator`` wheel wraps; func
 computeMeanError=False, parameters={"ppd": ppd})`` returns, in float32 as FLIP does, with
 FLIP's operations in FLIP's order: every filter tap is a product rounded to float32 and then
 added, from the first tap to the last (no fused multiply-add), and ``powf``/``expf`` are
-computed in float64 and rounded once, as glibc rounds them. What is left are last-bit
+computed in float64 and rounded once. What is left are last-bit
 differences of ``powf`` in rare values (glibc's is at most 0.82 ulp off; here the float64
 value is rounded once), which FLIP itself magnifies (``HyAB ** 0.7`` of a distance of an ulp
 or two; the square root of the feature filters' rounding noise on flat areas): max
