@@ -207,8 +207,7 @@ def _srgb_to_ycxcz(srgb: torch.Tensor) -> torch.Tensor:
     the opponent space YCxCz (FLIP §3.1; FLIP.h: color3::XYZToYCxCz)."""
     # powf(x, 2.4f) as glibc rounds it: in float64, rounded once (torch's float32 pow is off
     # by an ulp in ~1 % of values, which moves the feature filters' rounding noise)
-    base = ((srgb + 0.055) / 1.055).double()
-    powed = base.log_().mul_(float(_F(2.4))).exp_().float()  # x ** 2.4 = exp(2.4 log x)
+    powed = _pow32((srgb + 0.055) / 1.055, float(_F(2.4)))  # x ** 2.4 = exp(2.4 log x)
     lin = torch.where(srgb <= 0.04045, srgb / 12.92, powed)
     lin = lin.clamp_(0.0, 1.0)
     r, g, b = lin.unbind(-3)
@@ -219,19 +218,51 @@ def _srgb_to_ycxcz(srgb: torch.Tensor) -> torch.Tensor:
 
 
 def _pow32(x: torch.Tensor, y: float | torch.Tensor) -> torch.Tensor:
-    """``powf(x, y)`` elementwise for ``x >= 0``: ``exp(y log x)`` in float64, rounded once
-    to float32 (as glibc's ``powf`` rounds, but in rare near-ties; ``pow(0, 0) = 1``).
+    """``powf(x, y)`` elementwise for float32 ``x >= 0``: ``exp(y log x)`` in float64, rounded
+    once to float32 (as glibc's ``powf`` rounds, but in rare near-ties; ``pow(0, 0) = 1``).
 
-    Not torch's float32 ``pow``: it is an ulp off glibc's in ~10 % of values, and it takes a
-    vectorised path for most elements and a scalar one for a row's tail, which round
-    differently, so a pixel's value would depend on its position (a crop's map would not be
-    the whole image's). float64 ``exp`` and ``log`` err far below a float32 ulp on either path
-    (and are 2.3x cheaper than float64 ``pow``)."""
-    y64 = y.double() if isinstance(y, torch.Tensor) else float(_F(y))
-    out = x.double().log_().mul_(y64).exp_()
-    if isinstance(y, torch.Tensor):
+    Not torch's float32 ``pow``: it is an ulp off glibc's in ~10 % of values. float64 ``exp``
+    and ``log`` err far below a float32 ulp (and are 2.3x cheaper than float64 ``pow``), but
+    torch computes most of a tensor's elements in vectors (SLEEF) and a row's tail, or each
+    thread's, one at a time (the C library), and the two may differ by an ulp or two of
+    float64. Rounded to float32, that changes a value only where the float64 one lies that
+    close to a float32 rounding boundary; so those values (:func:`_near_ties`, about one in
+    2^15) are computed again one at a time by Python's ``math`` (the C library's ``log`` and
+    ``exp``): every value is then the same function of its input wherever it lies in a
+    tensor, and a crop's map is the whole image's bit for bit."""
+    if isinstance(y, torch.Tensor) and y.shape != x.shape:
+        raise ValueError(f"y must have x's shape {tuple(x.shape)}, got {tuple(y.shape)}")
+    x64 = x.double().reshape(-1)  # flat: the near-ties are indexed by position
+    y64 = y.double().reshape(-1) if isinstance(y, torch.Tensor) else float(_F(y))
+    out = x64.log().mul_(y64).exp_()
+    if isinstance(y64, torch.Tensor):
         out = out.nan_to_num_(nan=1.0)  # 0 ** 0 (= exp(0 * -inf)) is 1
-    return out.float()
+    near = _near_ties(out).nonzero().flatten()
+    if near.numel():
+        xs = x64[near].tolist()
+        ys = y64[near].tolist() if isinstance(y64, torch.Tensor) else [y64] * len(xs)
+        out[near] = torch.tensor(
+            [math.exp(b * math.log(a)) for a, b in zip(xs, ys, strict=True)], dtype=out.dtype
+        )
+    return out.float().view(x.shape)
+
+
+#: how close (relative) to a float32 rounding boundary a float64 ``exp(y log x)`` is computed
+#: again one at a time (:func:`_pow32`): SLEEF's and the C library's ``log`` and ``exp`` are
+#: each within 1.5 ulp of float64, so the two paths differ by at most ``(1.5 |y log x| + 1.5)``
+#: ulp = 2^-43.7 relative for ``|y log x| <= 210`` (``x >= 1e-38``, ``y <= 2.4``); 2^-40 leaves
+#: a factor 13
+_TIE_WINDOW = 2.0**-40
+
+
+def _near_ties(v: torch.Tensor) -> torch.Tensor:
+    """Where float64 ``v`` lies within :data:`_TIE_WINDOW` (relative) of a float32 rounding
+    boundary (a midpoint between two adjacent float32 values): where ``v (1 - 2 w)`` and
+    ``v (1 + 2 w)`` round to different float32 values (rounding is monotone, so they differ
+    exactly when a boundary lies between them). A bool tensor of ``v``'s shape; ``NaN`` is
+    never near."""
+    w = 2 * _TIE_WINDOW
+    return torch.ne(v.mul(1 - w).float(), v.mul(1 + w).float()).logical_and_(v == v)
 
 
 # Output rows per strip: about this many elements (channels x rows x columns) in a strip's
@@ -379,8 +410,10 @@ def flip_ldr_map(reference: torch.Tensor, test: torch.Tensor, ppd: float) -> np.
     1e-5); on 42 render maps (7 scenes x PreintegratedSSS / SumOfGaussiansSSS against
     ReferenceSSS x 30, 67, 120 ppd, 128^2) max 2.7e-5, above 1e-5 at no more than 6 pixels
     of a map, mean |difference| <= 2.2e-8 (the tests assert 3e-5); 0 on identical images,
-    as FLIP. CPU time, one thread, median of 9 rounds interleaved with FLIP 1.7: 0.068 s
-    against 0.289 s at 512^2, 0.59 s against 2.45 s at 1920x1080 (4.2x).
+    as FLIP. CPU time, one thread, median of rounds interleaved with FLIP 1.7: 0.074-0.083 s
+    against 0.27 s at 512^2 (7 rounds, two runs), 0.63 s against 2.28 s at 1920x1080 (3
+    rounds): 3.2-3.7x less (0.061-0.065 s and 0.56 s before :func:`_pow32` recomputed its
+    near-ties).
 
     Raises:
         TypeError: ``reference`` or ``test`` is not a tensor, ``ppd`` not a number.

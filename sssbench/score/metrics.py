@@ -370,8 +370,8 @@ def flip_map(
     is the map of NVIDIA's FLIP 1.7, ``flip_evaluator.evaluate(reference, test, "LDR",
     inputsRGB=True)``, within a measured max |difference| of 2e-6 on synthetic images and
     2.7e-5 on renders (at a few pixels of a map; mean 2e-8; ``tests/score/test_flip_ldr.py``
-    asserts 1e-5 and 3e-5), at about a quarter of its CPU time (4.2x less at 512^2 and
-    1080p, one thread). The mean FLIP of the stored runs moved by at most 3.5e-7 relative.
+    asserts 1e-5 and 3e-5), at under a third of its CPU time (3.2-3.7x less at 512^2, 3.6x
+    at 1080p, one thread). The mean FLIP of the stored runs moved by at most 3.5e-7 relative.
 
     Returns:
         ``(B, H, W)`` float32 FLIP map in ``[0, 1]`` (0 where the images agree).
@@ -515,8 +515,8 @@ def _flip_ldr(t_ref: torch.Tensor, t_res: torch.Tensor, ppd: float) -> np.ndarra
 
     Computed by :func:`sssbench.score.flip_ldr.flip_ldr_map` (FLIP 1.7's pipeline in torch,
     float32): within 3e-5 of NVIDIA's ``flip_evaluator`` (:func:`_flip_ldr_official`, the
-    oracle of ``tests/score/test_flip_ldr.py``; :func:`flip_map` gives the figures) and 4.2x
-    cheaper in CPU at 512^2."""
+    oracle of ``tests/score/test_flip_ldr.py``; :func:`flip_map` gives the figures) and
+    3.2-3.7x cheaper in CPU at 512^2."""
     a = t_ref.detach().to("cpu", torch.float32).contiguous()
     b = t_res.detach().to("cpu", torch.float32).contiguous()
 

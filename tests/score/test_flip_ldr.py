@@ -13,6 +13,8 @@ rounding noise)."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 import torch
@@ -147,3 +149,57 @@ def test_strips_do_not_change_the_map(monkeypatch: pytest.MonkeyPatch) -> None:
 def test_bad_input(ref: object, test: object, ppd: float, exc: type, name: str) -> None:
     with pytest.raises(exc, match=name):
         flip_ldr_map(ref, test, ppd)  # type: ignore[arg-type]
+
+
+def test_near_ties_are_the_values_by_a_float32_rounding_boundary() -> None:
+    """``_near_ties`` flags a float64 value within 2^-40 (relative) of the midpoint between two
+    adjacent float32 values, and nothing farther: midpoints built exactly from float32 pairs."""
+    from sssbench.score.flip_ldr import _near_ties
+
+    rng = np.random.default_rng(3)
+    f = rng.uniform(1e-6, 300.0, 2000).astype(np.float32)
+    up = np.nextafter(f, np.float32(np.inf))
+    mid = (f.astype(np.float64) + up.astype(np.float64)) / 2  # exact
+    for rel, expected in ((0.0, True), (2.0**-44, True), (-(2.0**-44), True), (2.0**-36, False)):
+        got = _near_ties(torch.from_numpy(mid * (1 + rel)))
+        assert bool(got.all()) if expected else not bool(got.any()), rel
+    assert not bool(_near_ties(torch.from_numpy(f.astype(np.float64))).any())
+    assert not bool(_near_ties(torch.tensor([0.0, math.inf, math.nan])).any())
+
+
+@pytest.mark.parametrize("y", [2.4, 1.0 / 3.0, 0.7])
+def test_pow_is_the_same_function_of_its_input_wherever_it_lies(y: float) -> None:
+    """``_pow32`` near float32 rounding boundaries (found by search: the values whose float64
+    power lies within 2^-40 of one) equals the C library's ``exp(y log x)`` rounded once
+    (Python's ``math``), whether the value sits in a vector of a long tensor, in its tail or
+    alone: torch's vectorised and one-at-a-time ``log`` / ``exp`` may differ there."""
+    from sssbench.score.flip_ldr import _near_ties, _pow32
+
+    y32 = float(np.float32(y))
+    x = torch.rand(1 << 20, generator=torch.Generator().manual_seed(5)) * 0.95 + 0.05
+    hits = x[_near_ties(x.double().log().mul_(y32).exp_())]
+    assert hits.numel() >= 3  # the search finds some (about 1 in 2^16)
+    oracle = [np.float32(math.exp(y32 * math.log(float(v)))) for v in hits]
+    filler = torch.rand(61, generator=torch.Generator().manual_seed(6)) + 0.1
+    for k, v in enumerate(hits.tolist()):
+        for at in (0, 17, 60):  # in a vector, at its end, in the tail of 61 elements
+            t = filler.clone()
+            t[at] = v
+            assert _pow32(t, y)[at].item() == oracle[k]
+            assert _pow32(t, torch.full_like(t, y32))[at].item() == oracle[k]  # a tensor y
+        assert _pow32(torch.tensor([v]), y).item() == oracle[k]
+
+
+def test_pow_of_an_image_shaped_tensor_is_the_flat_ones() -> None:
+    """``_pow32`` on a strided ``(2, 3, H, W)`` view (as the pipeline passes its channels) is
+    the same elementwise function as on the flat values: near-ties are found by position."""
+    from sssbench.score.flip_ldr import _pow32
+
+    x = torch.rand(2, 3, 40, 50, generator=torch.Generator().manual_seed(8)) + 1e-3
+    view = x.transpose(-1, -2)  # not contiguous
+    y = torch.rand(view.shape, generator=torch.Generator().manual_seed(9))
+    flat = _pow32(view.reshape(-1).contiguous(), y.reshape(-1).contiguous())
+    assert torch.equal(_pow32(view, y).reshape(-1), flat)
+    assert torch.equal(_pow32(view, 0.7).reshape(-1), _pow32(view.reshape(-1).contiguous(), 0.7))
+    with pytest.raises(ValueError, match="y must have"):
+        _pow32(view, y[..., :3])
