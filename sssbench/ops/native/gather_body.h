@@ -276,6 +276,23 @@ static inline __attribute__((always_inline)) SCALAR CAT(line_scales_, SUFFIX)(
     return max_abs;
 }
 
+/* PLANAR packing of one row: columns c0 .. c0 + cw - 1 of image row r, plane p (r, g, b,
+ * depth, then a fan-in's further inputs' r, g, b) at o + p * gap */
+static inline __attribute__((always_inline)) void CAT(pack_row_, SUFFIX)(
+    const CAT(job_, SUFFIX) *j, SCALAR *o, int64_t r, int64_t c0, int64_t cw, int64_t gap) {
+    const int64_t w = j->w, hw = j->h * w;
+    const int64_t nin = j->fan_in ? j->nsets : 1;
+    const SCALAR *rgb = j->src + r * w + c0;
+    const size_t bytes = sizeof(SCALAR) * (size_t)cw;
+    memcpy(o, rgb, bytes);
+    memcpy(o + gap, rgb + hw, bytes);
+    memcpy(o + 2 * gap, rgb + 2 * hw, bytes);
+    memcpy(o + 3 * gap, j->depth + r * w + c0, bytes);
+    for (int64_t i = 1; i < nin; ++i) /* a fan-in's further inputs, after depth */
+        for (int ch = 0; ch < 3; ++ch)
+            memcpy(o + (4 + 3 * (i - 1) + ch) * gap, rgb + i * j->set_stride + ch * hw, bytes);
+}
+
 /* the window and its samples in j->buf (see above), given the largest |scale|; or, for an
  * x pass of the vectorised loops that writes elsewhere (j->direct), the row's planes where
  * they are (ln->pl; measured on the 1080p close-up, issue 30: 7.5 % less CPU time for the
@@ -335,17 +352,8 @@ static inline __attribute__((always_inline)) void CAT(line_window_, SUFFIX)(
     if (PLANAR && AXIS_Y) return; /* line_pack_ */
     for (int64_t r = r0; r <= r1; ++r) {
         const SCALAR *rgb = j->src + r * w, *z = j->depth + r * w;
-        if (PLANAR) {
-            SCALAR *o = j->buf;
-            const size_t bytes = sizeof(SCALAR) * (size_t)cw;
-            memcpy(o, rgb + c0, bytes);
-            memcpy(o + gap, rgb + hw + c0, bytes);
-            memcpy(o + 2 * gap, rgb + 2 * hw + c0, bytes);
-            memcpy(o + 3 * gap, z + c0, bytes);
-            for (int64_t i = 1; i < nin; ++i) /* a fan-in's further inputs, after depth */
-                for (int ch = 0; ch < 3; ++ch)
-                    memcpy(o + (4 + 3 * (i - 1) + ch) * gap,
-                           rgb + i * j->set_stride + ch * hw + c0, bytes);
+        if (PLANAR) { /* an x row (a y strip: line_pack_) */
+            CAT(pack_row_, SUFFIX)(j, j->buf, r, c0, cw, gap);
             continue;
         }
         for (int64_t i = 0; i < nin; ++i) { /* input i's window 4 plane SCALARs further */
@@ -370,21 +378,10 @@ static inline __attribute__((always_inline)) void CAT(line_window_, SUFFIX)(
  * were, as when the whole window was packed at once. */
 static inline __attribute__((always_inline)) void CAT(line_pack_, SUFFIX)(
     const CAT(job_, SUFFIX) *j, CAT(line_, SUFFIX) *ln, int64_t upto) {
-    const int64_t w = j->w, hw = j->h * w, s0 = ln->s0, cw = ln->s1 - s0;
-    const int64_t nin = j->fan_in ? j->nsets : 1;
-    const size_t bytes = sizeof(SCALAR) * (size_t)cw;
+    const int64_t cw = ln->s1 - ln->s0;
     const int64_t end = upto < ln->hi ? upto : ln->hi;
-    for (int64_t r = ln->packed; r <= end; ++r) {
-        const SCALAR *rgb = j->src + r * w + s0;
-        SCALAR *o = j->buf + (r - ln->lo) * ln->pitch;
-        memcpy(o, rgb, bytes);
-        memcpy(o + cw, rgb + hw, bytes);
-        memcpy(o + 2 * cw, rgb + 2 * hw, bytes);
-        memcpy(o + 3 * cw, j->depth + r * w + s0, bytes);
-        for (int64_t i = 1; i < nin; ++i) /* a fan-in's further inputs, after depth */
-            for (int ch = 0; ch < 3; ++ch)
-                memcpy(o + (4 + 3 * (i - 1) + ch) * cw, rgb + i * j->set_stride + ch * hw, bytes);
-    }
+    for (int64_t r = ln->packed; r <= end; ++r) /* each row's planes side by side */
+        CAT(pack_row_, SUFFIX)(j, j->buf + (r - ln->lo) * ln->pitch, r, ln->s0, cw, cw);
     if (end >= ln->packed) ln->packed = end + 1;
 }
 
