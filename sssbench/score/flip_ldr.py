@@ -38,7 +38,7 @@ import math
 import numpy as np
 import torch
 
-__all__ = ["flip_ldr_map"]
+__all__ = ["filter_radii", "flip_ldr_map"]
 
 _F = np.float32
 
@@ -120,10 +120,20 @@ def _cmax() -> tuple[float, float]:
     return float(cmax), float(_F(_GPC * cmax))
 
 
-def _spatial_radius(ppd: float) -> int:
-    """FLIP.h: calculateSpatialFilterRadius: ``ceil(3 sqrt(b_max / (2 pi^2)) ppd)``, float32."""
+def filter_radii(ppd: float) -> tuple[int, int]:
+    """The radii in pixels of the map's two separable filters at ``ppd`` pixels per degree,
+    ``(colour, feature)``, each computed in float32 as FLIP 1.7 computes it (the map at a
+    pixel reads its inputs no farther than the larger):
+
+    * the colour CSF filter, FLIP.h: calculateSpatialFilterRadius:
+      ``ceil(3 sqrt(b_max / (2 pi^2)) ppd)``, ``b_max = 0.04`` (10 px at 67 ppd);
+    * the feature filters, FLIP.h: setFeatureFilter: ``ceil(3 sigma)``,
+      ``sigma = 0.5 w ppd``, ``w = 0.082`` degrees (9 px at 67 ppd)."""
+    ppd32 = _F(ppd)
     b_max = max(*_B1, *_B2)
-    return int(np.ceil(_F(_F(_F(3.0) * np.sqrt(_F(b_max / _F(_F(2.0) * _PI_SQ)))) * _F(ppd))))
+    colour = np.ceil(_F(_F(_F(3.0) * np.sqrt(_F(b_max / _F(_F(2.0) * _PI_SQ)))) * ppd32))
+    feature = np.ceil(_F(_F(3.0) * _F(_F(_F(0.5) * _GW) * ppd32)))
+    return int(colour), int(feature)
 
 
 @functools.cache
@@ -132,7 +142,7 @@ def _spatial_filters(ppd: float) -> tuple[np.ndarray, np.ndarray]:
     setSpatialFilters, misc/separatedConvolutions.pdf): ``(4, 2r+1)`` float32 rows
     ``[Y, Cx, Cz1, Cz2]`` (the blue-yellow filter is the sum of two separable Gaussians, so its
     2D filter is ``Cz1 x Cz1 + Cz2 x Cz2``) and the radius ``r``."""
-    r = _spatial_radius(ppd)
+    r = filter_radii(ppd)[0]
     dx = _F(_F(1.0) / _F(ppd))
     taps = np.zeros((4, 2 * r + 1), dtype=_F)
     sums = [_F(0.0)] * 4
@@ -170,7 +180,7 @@ def _feature_filter(ppd: float) -> tuple[np.ndarray, int]:
     to 1, its first derivative with positive and negative weights each summing to +-1, and its
     second derivative likewise — and the radius ``r = ceil(3 sigma)``."""
     sd = _F(_F(_F(0.5) * _GW) * _F(ppd))
-    r = int(np.ceil(_F(_F(3.0) * sd)))
+    r = filter_radii(ppd)[1]  # ceil(3 sd)
     taps = np.zeros((3, 2 * r + 1), dtype=_F)
     g_sum = dg_pos = dg_neg = ddg_pos = ddg_neg = _F(0.0)
     for i in range(2 * r + 1):

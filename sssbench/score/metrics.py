@@ -48,7 +48,7 @@ from skimage.util import crop
 
 from sssbench._checks import check_choice, check_range, check_scalar, check_tensor
 from sssbench._memo import by_content
-from sssbench.score.flip_ldr import flip_ldr_map
+from sssbench.score.flip_ldr import filter_radii, flip_ldr_map
 
 __all__ = [
     "tonemap",
@@ -397,13 +397,11 @@ def flip_support(ppd: float = 67.0) -> int:
       ``sigma = 0.5 w ppd``, ``w = 0.082`` degrees (FLIP, the feature pipeline;
       ``setFeatureFilter`` in ``FLIP.h``): 9 px at 67 ppd.
 
-    These are the radii of :func:`sssbench.score.flip_ldr.flip_ldr_map` (which computes the
-    map, in torch: within 3e-5 of NVIDIA's FLIP 1.7, see :func:`flip_map`) and of FLIP 1.7
-    alike.
-    Each radius is computed in float32 as FLIP does, and one pixel is added to each for a
-    ``ceil`` that float32 and float64 might round to different sides of (no ppd in use is
-    near one; the guard costs a pixel). ``tests/score/test_flip_crop.py`` measures that a
-    crop's map equals the whole image's at this distance from the cut, bit for bit.
+    The radii are those :func:`sssbench.score.flip_ldr.flip_ldr_map` filters with
+    (:func:`sssbench.score.flip_ldr.filter_radii`, computed in float32 as FLIP 1.7 does),
+    plus one pixel of margin (it costs a pixel of the crop; the reach alone suffices, as
+    ``tests/score/test_flip_crop.py`` measures, with the crop's map equal to the whole
+    image's at this distance from the cut, bit for bit).
 
     Args:
         ppd: pixels per degree of visual angle, > 0.
@@ -412,10 +410,7 @@ def flip_support(ppd: float = 67.0) -> int:
         the radius in pixels, >= 1.
     """
     ppd = check_scalar("ppd", ppd, 0.0, low_inclusive=False)
-    f = np.float32
-    csf = np.ceil(f(3.0) * np.sqrt(f(0.04) / (f(2.0) * f(math.pi) ** 2)) * f(ppd))
-    feature = np.ceil(f(3.0) * f(0.5) * f(0.082) * f(ppd))
-    return int(max(csf, feature)) + 1
+    return max(filter_radii(ppd)) + 1
 
 
 def _mask_windows(
