@@ -216,6 +216,32 @@ def test_native_lines_windows_and_threads_on_a_larger_image(simd, dtype, cover):
         torch.set_num_threads(threads)
 
 
+@pytest.mark.parametrize("direction", ["x", "y"])
+def test_native_result_independent_of_thread_count(simd, direction):
+    """Lines are handed to the threads in chunks, each thread taking the next unclaimed one
+    (gather_body.h, job.claim): which thread computes a line, and how many threads there are,
+    must change no bit of the result (every line is computed alone). 1, 2 and 4 threads on an
+    image with work for four (4 x 16384 active pixels and more), new output and in place."""
+    g = scene(seed=7, h=420, w=203, dtype=torch.float32, cover=0.95)
+    threads = torch.get_num_threads()
+    outs = []
+    try:
+        for n in (1, 2, 4):
+            torch.set_num_threads(n)
+            new = separable_pass(g.diffuse, kernel(9), direction, g, follow_surface="lerp",
+                                 surface_scale=3.0)  # fmt: skip
+            img = g.diffuse.clone()
+            separable_pass(img, kernel(9), direction, g, follow_surface="lerp",
+                           surface_scale=3.0, inplace=True)  # fmt: skip
+            outs.append((new, img))
+    finally:
+        torch.set_num_threads(threads)
+    assert not torch.equal(outs[0][0], g.diffuse)  # the pass changed the image
+    for new, img in outs[1:]:
+        assert torch.equal(new, outs[0][0]) and torch.equal(img, outs[0][1])
+    torch.testing.assert_close(outs[0][1], outs[0][0], rtol=0, atol=0)
+
+
 def _big_pass(seed):
     g = scene(seed=seed, h=BIG_H, w=203, cover=0.9)
     return separable_pass(g.diffuse, kernel(9), "y", g, follow_surface="lerp", surface_scale=3.0)

@@ -49,6 +49,12 @@ typedef struct {
     int64_t nsets, set_stride;
     int fan_in;
     const SCALAR *coef4; /* (nsets, 4) per-set per-channel coefficients (fan_in) */
+    /* several threads: the lines are handed out in chunks (chunk c: lines chunks[c] ..
+     * chunks[c + 1] - 1), each thread taking the next unclaimed one (*claim) until none is
+     * left; first / last are then the chunk's. NULL: this job's lines are [first, last) */
+    int64_t *claim;
+    const int64_t *chunks;
+    int64_t n_chunks;
 } CAT(job_, SUFFIX);
 
 /* most weight sets of one sweep (the stack arrays of the loops below) */
@@ -471,8 +477,21 @@ static inline __attribute__((always_inline)) void CAT(lines_, SUFFIX)(
             {{CAT(LINES, _y0s), CAT(LINES, _y0m)}, {CAT(LINES, _y1s), CAT(LINES, _y1m)},  \
              {CAT(LINES, _y2s), CAT(LINES, _y2m)}}};                                \
         const CAT(job_, SUFFIX) *j = (const CAT(job_, SUFFIX) *)arg;             \
+        void (*const lines)(const CAT(job_, SUFFIX) *) =                        \
+            table[j->axis_y != 0][j->follow][j->nsets > 1];                      \
         FTZ_BEGIN(j->follow == 2); /* the gaussian's underflow: FTZ_BEGIN in gather.c */ \
-        table[j->axis_y != 0][j->follow][j->nsets > 1](j);                       \
+        if (!j->claim) {                                                        \
+            lines(j);                                                           \
+        } else {                                                                \
+            CAT(job_, SUFFIX) part = *j;                                        \
+            for (;;) { /* the next unclaimed chunk of lines */                  \
+                const int64_t c = __atomic_fetch_add(j->claim, 1, __ATOMIC_RELAXED); \
+                if (c >= j->n_chunks) break;                                    \
+                part.first = j->chunks[c];                                      \
+                part.last = j->chunks[c + 1];                                   \
+                lines(&part);                                                   \
+            }                                                                   \
+        }                                                                       \
         FTZ_END();                                                              \
         return NULL;                                                            \
     }
@@ -676,19 +695,38 @@ int64_t CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const i
     const int64_t span_out = (fan_in ? 0 : (nsets - 1) * set_stride) + 3 * h * w;
     const int direct = dst + span_out <= src || src + span_in <= dst;
     CAT(job_, SUFFIX) jobs[MAX_THREADS];
-    int64_t q = 0, done = 0, total = 0;
+    int64_t total = 0;
     for (int64_t l = 0; l < n_lines; ++l) total += lines[3 * l + 2];
-    for (int t = 0; t < threads; ++t) { /* whole lines, split where the work passes 1/T */
-        const int64_t first = q;
-        while (q < n_lines && (t == threads - 1 || done < total * (t + 1) / threads))
-            done += lines[3 * q++ + 2];
+    /* several threads take whole lines in chunks of about 1 / (CHUNKS_PER_THREAD T) of the
+     * work, each the next unclaimed chunk (job.claim): a thread that gets less of its core
+     * (another process, or torch's OpenMP workers still spinning after an operation: 7-8 ms
+     * more per 1080p two-pass call right after kornia's blur with a fixed share per thread,
+     * 4 ms with chunks, measured, issue 30) computes fewer lines instead of the pass waiting
+     * for its fixed share. Which thread computes a line changes no result: every line is
+     * computed alone (tests/ops/test_gather_backends.py, 1, 2 and 4 threads bitwise). */
+    enum { CHUNKS_PER_THREAD = 16 };
+    int64_t chunks[MAX_THREADS * CHUNKS_PER_THREAD + 1], n_chunks = 0, claim = 0;
+    {
+        const int64_t parts = (int64_t)threads * CHUNKS_PER_THREAD;
+        int64_t q = 0, done = 0;
+        chunks[0] = 0;
+        for (int64_t c = 0; c < parts && q < n_lines; ++c) { /* split where the work passes c/P */
+            while (q < n_lines && (c == parts - 1 || done < total * (c + 1) / parts))
+                done += lines[3 * q++ + 2];
+            if (q > chunks[n_chunks]) chunks[++n_chunks] = q;
+        }
+        if (chunks[n_chunks] < n_lines) chunks[++n_chunks] = n_lines;
+    }
+    for (int t = 0; t < threads; ++t) {
+        const int64_t first = 0, q = n_lines; /* one thread: every line */
         SCALAR *mine = memory + taps + per_thread * (size_t)t;
         CAT(job_, SUFFIX) jb = {src, depth, spans, mask, width, ddepth, offsets_s, weights4,
                                 inv_s, dst, lines, ids, focal_px, width_scalar,
                                 correction, maxdd, max_offset, k, h, w, first, q, strip, axis_y, follow, copy,
                                 direct,
                                 mine, mine + 4 * (size_t)nin * (size_t)line_len, blend_out, blend_w,
-                                nsets, set_stride, fan_in, coef4};
+                                nsets, set_stride, fan_in, coef4,
+                                threads > 1 ? &claim : NULL, chunks, n_chunks};
         jobs[t] = jb;
     }
     void *(*run)(void *) = CAT(run_, SUFFIX); /* the widest loop the CPU allows (sss_set_simd) */
