@@ -11,6 +11,7 @@ from sssbench._checks import check_choice, check_int, check_method_options
 from sssbench.gbuffer import GBuffer
 from sssbench.kernels.preintegrated import shared_gaussian_taps
 from sssbench.kernels.sampling import MAX_SAMPLES, SAMPLINGS
+from sssbench.ops._gather_native import serial_copy
 from sssbench.ops.functional import functional
 from sssbench.ops.gather import MAX_SETS, separable_sweep
 from sssbench.ops.method import SeparableMethod
@@ -135,9 +136,7 @@ class FusedSumOfGaussiansSSS(SeparableMethod):
         per_gaussian = separable_sweep(image, self.kernels, "x", gbuffer, out=scratch,
                                        name="sog_fused.x", **opts)  # fmt: skip
         # y: the S results in, Σ_s c_s · pass_s out at the active pixels (the blend fused)
-        out = (
-            image if options.get("inplace") else image.clone(memory_format=torch.contiguous_format)
-        )
+        out = image if options.get("inplace") else serial_copy(image)
         coefficients = self.coefficients.to(dtype=image.dtype, device=image.device)
         return separable_sweep(
             per_gaussian, self.kernels, "y", gbuffer, coefficients=coefficients, out=out,

@@ -148,3 +148,30 @@ def test_fake_tensor_shape_and_opcheck():
             torch.full((3,), 0.25, dtype=torch.float64), 40.0, 1.0, 0.0, 0.0, False, 1)  # fmt: skip
     torch.library.opcheck(torch.ops.sssbench.gather.default, args)
     torch.library.opcheck(torch.ops.sssbench.gather_.default, (g.diffuse.clone(), *args[1:]))
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_serial_copy_equals_clone(dtype):
+    """serial_copy (a copy on the calling thread, before a native pass writes it) equals a
+    contiguous clone bitwise for contiguous, expanded, channels-last and inference tensors;
+    owns its memory; and stays a clone autograd records where the input requires a gradient."""
+    from sssbench.ops._gather_native import serial_copy
+
+    base = torch.rand(2, 3, 17, 23, dtype=dtype, generator=torch.Generator().manual_seed(3))
+    with torch.inference_mode():
+        inference = base * 2
+    for image in (
+        base,
+        base[:1, :1].expand(2, 3, 17, 23),
+        base.contiguous(memory_format=torch.channels_last),
+        base[:, :, ::2, 1:],
+        inference,
+    ):
+        out = serial_copy(image)
+        assert out.is_contiguous() and out.dtype == dtype and out.shape == image.shape
+        assert torch.equal(out, image.clone(memory_format=torch.contiguous_format))
+        assert out.untyped_storage().data_ptr() != image.untyped_storage().data_ptr()
+    leaf = base.clone().requires_grad_()
+    out = serial_copy(leaf)
+    out.sum().backward()
+    assert torch.equal(leaf.grad, torch.ones_like(base))

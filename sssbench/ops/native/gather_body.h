@@ -394,6 +394,17 @@ static inline __attribute__((always_inline)) void CAT(prefetch_strip_row_, SUFFI
     }
 }
 
+static inline __attribute__((always_inline)) void CAT(prefetch_fan_row_, SUFFIX)(
+    const CAT(job_, SUFFIX) *j, int64_t r, int64_t c0, int64_t cw) {
+    const int64_t w = j->w, hw = j->h * w, step = 64 / (int64_t)sizeof(SCALAR);
+    const SCALAR *rgb = j->src + r * w + c0, *z = j->depth + r * w + c0;
+    for (int64_t c = 0; c < cw; c += step) {
+        __builtin_prefetch(z + c);
+        for (int64_t i = 0; i < j->nsets; ++i)
+            for (int ch = 0; ch < 3; ++ch) __builtin_prefetch(rgb + i * j->set_stride + ch * hw + c);
+    }
+}
+
 /* A PLANAR y strip's window (line_window_), packed up to row 'upto' (clamped to the window):
  * the rows from ln->packed on, each row's planes side by side. The loop asks for the rows a
  * pixel on row p may read before it computes row p (p + margin + 2: window_'s margin plus
@@ -408,7 +419,11 @@ static inline __attribute__((always_inline)) void CAT(line_pack_, SUFFIX)(
     for (int64_t r = ln->packed; r <= end; ++r) { /* each row's planes side by side */
         CAT(pack_row_, SUFFIX)(j, j->buf + (r - ln->lo) * ln->pitch, r, ln->s0, cw, cw);
         const int64_t ahead = r + PACK_AHEAD;
+#ifndef FAN_AHEAD
+#define FAN_AHEAD 0
+#endif
         if (ahead <= ln->hi && !j->fan_in) CAT(prefetch_strip_row_, SUFFIX)(j, ahead, ln->s0, cw);
+        if (FAN_AHEAD && j->fan_in && r + FAN_AHEAD <= ln->hi) CAT(prefetch_fan_row_, SUFFIX)(j, r + FAN_AHEAD, ln->s0, cw);
     }
     if (end >= ln->packed) ln->packed = end + 1;
 }
