@@ -180,9 +180,10 @@ static inline int64_t CAT(window_, SUFFIX)(const CAT(job_, SUFFIX) *j, SCALAR ma
     return r; /* a pixel at p reads positions p - r .. p + r at most */
 }
 
-/* Ask for the cache lines an x pass will read on row `row` between columns c0 and c1 (its
+/* Ask for the cache lines a pass will read on row `row` between columns c0 and c1 (its
  * active pixels, a few pixels of the window around them): the planes, depth and the per-pixel
- * inputs. Called one active row ahead for rows of at most SHORT_ROW pixels, so that a far-away
+ * inputs. For a y strip: PACK_AHEAD rows before they are packed (line_pack_). For an x pass:
+ * called one active row ahead for rows of at most SHORT_ROW pixels, so that a far-away
  * object's short rows, which the hardware prefetcher does not see as streams, are fetched while
  * the row before is computed (measured on a 1 %-of-1080p object: 5 % less CPU time in its x
  * pass; a close-up's long rows are streams the hardware already fetches: not asked). */
@@ -375,36 +376,16 @@ static inline __attribute__((always_inline)) void CAT(line_window_, SUFFIX)(
     }
 }
 
-/* A single-input y strip's rows are fetched PACK_AHEAD rows before line_pack_ copies them: a
- * strip row is 512 bytes of each plane, a whole image row from the next, and its copy waited
- * for memory (perf: memmove 18 % of the CPU time of the two-pass; issue 30, 1080p close-up, 7-tap
+/* A single-input y strip's rows are asked for (prefetch_row_: the planes, depth and the
+ * per-pixel inputs its scales read) PACK_AHEAD rows before line_pack_ copies them: a strip row
+ * is 512 bytes of each plane, a whole image row from the next, and its copy waited for memory
+ * (perf: memmove 18 % of the CPU time of the two-pass; issue 30, 1080p close-up, 7-tap
  * two-pass, level avx512, 25 interleaved rounds in one process: 0.91x the wall time, 0.92x
- * the CPU time; distance 4 the same within noise). Not for a fan-in sweep's 3 S + 1 planes:
- * 19 planes' rows ahead made the fused sweep 1-6 % slower (same rounds). */
+ * the CPU time with the four planes asked for; distance 4 the same within noise; with
+ * prefetch_row_'s inputs too, 0.98x the CPU time of that, 15 rounds). Not for a fan-in
+ * sweep's 3 S + 1 planes: their rows ahead made the fused sweep 1-6 % slower, and at distances
+ * 1, 2 and 4 gained nothing (same rounds). */
 #define PACK_AHEAD ((int64_t)8)
-static inline __attribute__((always_inline)) void CAT(prefetch_strip_row_, SUFFIX)(
-    const CAT(job_, SUFFIX) *j, int64_t r, int64_t c0, int64_t cw) {
-    const int64_t w = j->w, hw = j->h * w, step = 64 / (int64_t)sizeof(SCALAR);
-    const SCALAR *rgb = j->src + r * w + c0, *z = j->depth + r * w + c0;
-    for (int64_t c = 0; c < cw; c += step) {
-        __builtin_prefetch(rgb + c);
-        __builtin_prefetch(rgb + hw + c);
-        __builtin_prefetch(rgb + 2 * hw + c);
-        __builtin_prefetch(z + c);
-    }
-}
-
-static inline __attribute__((always_inline)) void CAT(prefetch_fan_row_, SUFFIX)(
-    const CAT(job_, SUFFIX) *j, int64_t r, int64_t c0, int64_t cw) {
-    const int64_t w = j->w, hw = j->h * w, step = 64 / (int64_t)sizeof(SCALAR);
-    const SCALAR *rgb = j->src + r * w + c0, *z = j->depth + r * w + c0;
-    for (int64_t c = 0; c < cw; c += step) {
-        __builtin_prefetch(z + c);
-        for (int64_t i = 0; i < j->nsets; ++i)
-            for (int ch = 0; ch < 3; ++ch) __builtin_prefetch(rgb + i * j->set_stride + ch * hw + c);
-    }
-}
-
 /* A PLANAR y strip's window (line_window_), packed up to row 'upto' (clamped to the window):
  * the rows from ln->packed on, each row's planes side by side. The loop asks for the rows a
  * pixel on row p may read before it computes row p (p + margin + 2: window_'s margin plus
@@ -419,11 +400,7 @@ static inline __attribute__((always_inline)) void CAT(line_pack_, SUFFIX)(
     for (int64_t r = ln->packed; r <= end; ++r) { /* each row's planes side by side */
         CAT(pack_row_, SUFFIX)(j, j->buf + (r - ln->lo) * ln->pitch, r, ln->s0, cw, cw);
         const int64_t ahead = r + PACK_AHEAD;
-#ifndef FAN_AHEAD
-#define FAN_AHEAD 0
-#endif
-        if (ahead <= ln->hi && !j->fan_in) CAT(prefetch_strip_row_, SUFFIX)(j, ahead, ln->s0, cw);
-        if (FAN_AHEAD && j->fan_in && r + FAN_AHEAD <= ln->hi) CAT(prefetch_fan_row_, SUFFIX)(j, r + FAN_AHEAD, ln->s0, cw);
+        if (ahead <= ln->hi && !j->fan_in) CAT(prefetch_row_, SUFFIX)(j, ahead, ln->s0, ln->s1);
     }
     if (end >= ln->packed) ln->packed = end + 1;
 }
