@@ -382,7 +382,7 @@ static inline __attribute__((always_inline)) void CAT(line_window_, SUFFIX)(
  * (perf: memmove 18 % of the CPU time of the two-pass; issue 30, 1080p close-up, 7-tap
  * two-pass, level avx512, 25 interleaved rounds in one process: 0.91x the wall time, 0.92x
  * the CPU time with the four planes asked for; distance 4 the same within noise; with
- * prefetch_row_'s inputs too, 0.98x the CPU time of that, 15 rounds). Not for a fan-in
+ * prefetch_row_'s inputs too, the same within 1 %, 2 x 21 rounds). Not for a fan-in
  * sweep's 3 S + 1 planes: their rows ahead made the fused sweep 1-6 % slower, and at distances
  * 1, 2 and 4 gained nothing (same rounds). */
 #define PACK_AHEAD ((int64_t)8)
