@@ -166,12 +166,14 @@ def native_pass(
 
 def serial_copy(image: Tensor) -> Tensor:
     """A contiguous copy of ``image`` made on the calling thread alone, for a tensor a native
-    pass writes next (the fused sum of Gaussians' output: its inactive pixels are the
-    image's). torch's ``clone`` of a large tensor runs on its OpenMP threads, which then spin
-    for milliseconds waiting for more work, on the core the native pass's second thread
-    needs: measured 0.91x the wall time of the 1080p ``sum_of_gaussians_fused`` call with this
-    copy instead (21 interleaved rounds, issue 30). ``clone`` where autograd must see the
-    copy (``image`` requires a gradient)."""
+    pass writes next (the sums of Gaussians' outputs, whose inactive pixels are the image's:
+    the fused sweep's, the 12-pass schedule's blend target). torch's ``clone`` of a large
+    tensor runs on its OpenMP threads, which then spin for milliseconds waiting for more work,
+    on the core the native pass's second thread needs: measured 0.91x the wall time of the
+    1080p ``sum_of_gaussians_fused`` call with this copy instead (21 interleaved rounds,
+    issue 30; the 12-pass schedule's call 0.96-1.03x in three runs of 21 rounds: not
+    resolved, its one copy is amortised over 12 passes). ``clone`` where autograd must see
+    the copy (``image`` requires a gradient)."""
     if image.requires_grad or image.device.type != "cpu":
         return image.clone(memory_format=torch.contiguous_format)
     return torch.from_numpy(np.array(image.numpy(), order="C", copy=True))

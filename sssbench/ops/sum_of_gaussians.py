@@ -23,6 +23,7 @@ from sssbench.kernels.kernel1d import Kernel1D
 from sssbench.kernels.preintegrated import preintegrated
 from sssbench.kernels.sampling import MAX_SAMPLES, METHOD_SAMPLINGS, OPTIMISED
 from sssbench.kernels.sources import check_optimised_sampling, use_optimised
+from sssbench.ops._gather_native import serial_copy
 from sssbench.ops._stencil import image_spans
 from sssbench.ops.functional import functional
 from sssbench.ops.gather import Stretch, separable_pass
@@ -425,8 +426,8 @@ class SumOfGaussiansSSS(SeparableMethod):
             tmp = separable_pass(
                 rt1, step.kernel, "x", g, name=f"{name}.x", inplace=owned, **per_axis["x"]
             )
-            if rtf is gbuffer.diffuse:
-                rtf = rtf.clone(memory_format=torch.contiguous_format)
+            if rtf is gbuffer.diffuse:  # on this thread: see serial_copy
+                rtf = serial_copy(rtf)
             # 003 §7.3.3, Listing 7.2: rtf ← blend · rt1 + (1 − blend) · rtf, as one lerp, on
             # the stencil's pixels only (blend_on_stencil), done by the y pass as it writes
             # each pixel of rt1 (the native loop; after it otherwise)

@@ -710,11 +710,11 @@ int64_t CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const i
         if (chunks[n_chunks] < n_lines) chunks[++n_chunks] = n_lines;
     }
     for (int t = 0; t < threads; ++t) {
-        const int64_t first = 0, q = n_lines; /* one thread: every line */
+        const int64_t first = 0, last = n_lines; /* one thread: every line */
         SCALAR *mine = memory + taps + per_thread * (size_t)t;
         CAT(job_, SUFFIX) jb = {src, depth, spans, mask, width, ddepth, offsets_s, weights4,
                                 inv_s, dst, lines, ids, focal_px, width_scalar,
-                                correction, maxdd, max_offset, k, h, w, first, q, strip, axis_y, follow, copy,
+                                correction, maxdd, max_offset, k, h, w, first, last, strip, axis_y, follow, copy,
                                 direct,
                                 mine, mine + 4 * (size_t)nin * (size_t)line_len, blend_out, blend_w,
                                 nsets, set_stride, fan_in, coef4,
