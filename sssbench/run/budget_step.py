@@ -18,6 +18,7 @@ from sssbench.store.refcache import cached_reference
 __all__ = [
     "BUDGET_START",
     "BUDGET_MAX",
+    "LADDER_DTYPE",
     "BudgetInputs",
     "bilinear_reference",
     "budget_inputs",
@@ -30,6 +31,15 @@ __all__ = [
 #: the tap ladder of the converged method in a run's budget: 17, 33, 65, 129, 257 taps
 #: (independent of the run's own count, so one cached limit serves a whole samples sweep)
 BUDGET_START, BUDGET_MAX = 17, 257
+#: the dtype the ladder's passes run in (their outputs and differences are taken in float64).
+#: A choice (issue 30: the ladder was about a tenth of a cold paper benchmark's CPU time, and
+#: the native loop runs twice the float32 pixels per vector): the ladder stops at a change of
+#: 1e-4 rel RMS (``CONVERGED_TOL``), and float32 moves the converged image by far less —
+#: measured against the float64 ladder on the 512² benchmark scenes: at most 1.9e-6 rel RMS
+#: (``light_dot`` at 0.1 mm/px, whose RMS is small against its peak), 5e-8–3e-7 elsewhere,
+#: the same stopping tap count everywhere, at 0.4–0.7× the CPU time (tested on a small scene
+#: against the float64 ladder in tests/test_budget_ladder.py)
+LADDER_DTYPE = torch.float32
 
 
 @dataclass
@@ -79,9 +89,10 @@ def budget_limit(
     spec: RunSpec, profile: Any, gbuffer: Any, reference: torch.Tensor
 ) -> tuple[torch.Tensor, int, float]:
     """The run's method converged in taps (:func:`sssbench.score.budget.converged` from
-    :data:`BUDGET_START` to :data:`BUDGET_MAX` taps, float64): ``(image, taps, last change)``,
-    from the reference cache (computed and stored on a miss). Independent of the run's tap
-    count: one entry serves a whole samples sweep."""
+    :data:`BUDGET_START` to :data:`BUDGET_MAX` taps, the passes in :data:`LADDER_DTYPE`, the
+    image and its changes in float64): ``(image, taps, last change)``, from the reference
+    cache (computed and stored on a miss). Independent of the run's tap count: one entry
+    serves a whole samples sweep."""
     from sssbench.score import budget
 
     key = scene_key(spec, profile)
@@ -90,13 +101,14 @@ def budget_limit(
     limit_key = {
         **key,
         "budget_limit": [spec.method, spec.method_params, limit_sampling, BUDGET_START, BUDGET_MAX],
+        # a new key for the float32 ladder: entries of the float64 one are not reused
+        "ladder_dtype": str(LADDER_DTYPE),
     }
     build = _builder(spec, profile)
 
-    def compute_limit() -> torch.Tensor:  # the float64 G-buffer on a miss only
-        g64 = gbuffer.to(torch.float64)
+    def compute_limit() -> torch.Tensor:  # the ladder's G-buffer on a miss only
         image, n, change = budget.converged(
-            build, BUDGET_START, g64, max_samples=BUDGET_MAX, scale=scale
+            build, BUDGET_START, gbuffer.to(LADDER_DTYPE), max_samples=BUDGET_MAX, scale=scale
         )
         return torch.cat([image.reshape(-1), torch.tensor([float(n), change], dtype=image.dtype)])
 
