@@ -116,6 +116,71 @@ def test_a_worker_waiting_to_time_holds_back_new_shared_work(tmp_path):
         os.close(other)
 
 
+def test_work_while_waiting_runs_beside_others_work_never_beside_a_timed_section(tmp_path):
+    """exclusive_timing(while_waiting): the untimed calls run after the gate is closed (no
+    new shared work starts), under the shared lock (never while another worker times: it
+    holds the exclusive lock), beside the others' current work; then the section times
+    alone."""
+    lock = tmp_path / "timing.lock"
+    other, other_gate = os.open(lock, os.O_RDWR | os.O_CREAT, 0o600), _gate(lock)
+    seen: dict[str, bool] = {}
+    go, waited, timed = threading.Event(), threading.Event(), threading.Event()
+
+    def while_waiting() -> None:
+        seen["gate closed"] = not _try_lock(str(lock) + ".gate", fcntl.LOCK_SH)
+        seen["others may work"] = _try_lock(lock, fcntl.LOCK_SH)
+        seen["nobody may time"] = not _try_lock(lock, fcntl.LOCK_EX)
+        waited.set()
+
+    def timer() -> None:
+        with timing_slot(lock):
+            go.wait(20)
+            with exclusive_timing(while_waiting):
+                seen["alone"] = not _try_lock(lock, fcntl.LOCK_SH)
+                timed.set()
+
+    def take(kind: int) -> bool:
+        try:
+            fcntl.flock(other, kind | fcntl.LOCK_NB)
+            return True
+        except BlockingIOError:
+            return False
+
+    worker = threading.Thread(target=timer)
+    try:
+        worker.start()
+        assert _eventually(lambda: not _try_lock(lock, fcntl.LOCK_EX))  # in its slot
+        fcntl.flock(other_gate, fcntl.LOCK_EX)  # the other worker waits to time …
+        go.set()  # … and this one wants to time too: it lets its shared lock go
+        assert _eventually(lambda: take(fcntl.LOCK_EX))  # the other one times
+        fcntl.flock(other_gate, fcntl.LOCK_UN)
+        assert _eventually(lambda: not _try_lock(str(lock) + ".gate", fcntl.LOCK_SH))
+        time.sleep(0.2)
+        assert not waited.is_set()  # not beside the other worker's timed section
+        fcntl.flock(other, fcntl.LOCK_SH)  # its section ends: back at shared work
+        assert _eventually(waited.is_set)
+        time.sleep(0.2)
+        assert not timed.is_set()  # the other worker has not reached a checkpoint
+        fcntl.flock(other, fcntl.LOCK_UN)  # it does
+        worker.join(20)
+        assert timed.is_set()
+        assert seen == dict.fromkeys(
+            ("gate closed", "others may work", "nobody may time", "alone"), True
+        )
+    finally:
+        go.set()
+        os.close(other)
+        os.close(other_gate)
+        worker.join(20)
+
+
+def test_work_while_waiting_runs_outside_a_slot_too():
+    calls = []
+    with exclusive_timing(lambda: calls.append(1)):
+        calls.append(2)
+    assert calls == [1, 2]
+
+
 def _grid(tmp_path, name: str):
     return budget_grid(tmp_path, name, "cache", (("preintegrated", 5), ("identity", None)))
 

@@ -9,7 +9,8 @@ function in the module of its job:
    (:func:`sssbench.run.inputs.build`);
 3. **time** the pipeline: ``warmup`` untimed runs, ``repeats`` timed ones (per pass: median /
    min / max; run time = sum of the pass medians; :func:`sssbench.run.settings.time_runs`;
-   alone among a sweep's processes: :func:`sssbench.run.settings.exclusive_timing`),
+   the timed ones alone among a sweep's processes, the untimed ones while the others finish
+   their current step: :func:`sssbench.run.settings.exclusive_timing`),
    then check that the method left its G-buffer as built (bit for bit against a pristine
    copy). From here to the record the G-buffer is sealed (:meth:`sssbench.gbuffer.GBuffer.sealed`):
    the memo trusts its stencils and masks in O(1) per call, and a write into it is an error
@@ -82,6 +83,7 @@ from sssbench.run.settings import (
     times_on_device,
     torch_settings,
     versions,
+    warm_runs,
 )
 from sssbench.run.spec import RunSpec
 from sssbench.run.stochastic import is_stochastic, seed_split
@@ -251,11 +253,16 @@ def _measure_sealed(
 ) -> tuple[dict[str, Any], list[PassStats]]:
     """Steps 3.–6. of :func:`measure` on the run's sealed G-buffer (``pristine``: a separate
     copy of the scene as built)."""
-    with exclusive_timing():  # alone among a sweep's processes (run.settings.timing_slot)
+    on_device = times_on_device(spec.backend, spec.method)  # GL: timed by the device
+    cpu_runs = (0, 1) if on_device else (warmup, repeats)  # the image once, not timed twice
+
+    def warm() -> None:  # the untimed calls, while the other processes finish their step
+        warm_runs(built.pipeline, built.gbuffer, cpu_runs[0])
+
+    # 3. time, alone among a sweep's processes (run.settings.timing_slot)
+    with exclusive_timing(warm if cpu_runs[0] else None):
         t0 = time.perf_counter()
-        on_device = times_on_device(spec.backend, spec.method)  # GL: timed by the device
-        cpu_runs = (0, 1) if on_device else (warmup, repeats)  # the image once, not timed twice
-        out, stats = time_runs(built.pipeline, built.gbuffer, *cpu_runs)  # 3. time
+        out, stats = time_runs(built.pipeline, built.gbuffer, 0, cpu_runs[1])
         device = None
         if on_device:
             device = gl_times(spec.method, built.pipeline, built.gbuffer, warmup, repeats)
