@@ -368,11 +368,18 @@ def _flat(ker: torch.Tensor, e: torch.Tensor, m: torch.Tensor, k: int) -> torch.
 
     tag = ("flat_source_spectrum", shape, torch.get_num_threads())
     src_spec = by_content((e, m), tag, source_spectrum)
-    spec = torch.fft.rfft2(ker.flip(-2, -1), s=shape).repeat(2, 1, 1)
-    res = torch.fft.irfft2(src_spec * spec, s=shape)
+    # the 2D transforms as their two 1D stages, each over what it needs (the same transforms,
+    # summed in another order: equal to rounding): the kernel's rows along the rows first,
+    # only its 2k+1 rows that are not zero padding, then along the columns; the inverse
+    # along the columns, then along the rows only for the h rows kept (measured on 512² at
+    # k = 30, 150, 512: 0.66–0.68× the time of rfft2 / irfft2 over the whole grid, issue 30)
+    kf = torch.fft.rfft(ker.flip(-2, -1), n=shape[1], dim=-1)  # (3, 2k+1, Q/2+1)
+    spec = torch.fft.fft(kf, n=shape[0], dim=-2)  # (3, P, Q/2+1)
+    prod = src_spec.view(2, *spec.shape) * spec  # numerator and denominator sources
     # output (i, j) of the image sits at (i + top + k, j + left + k)
     rows, cols = slice(top + k, top + k + h), slice(left + k, left + k + w)
-    num, den = res[:3, rows, cols], res[3:, rows, cols]
+    res = torch.fft.irfft(torch.fft.ifft(prod, dim=-2)[..., rows, :], n=shape[1], dim=-1)
+    num, den = res[0, :, :, cols], res[1, :, :, cols]
     scattered = total.view(3, 1, 1) * num / den.clamp_min(torch.finfo(torch.float64).tiny)
     out = e + m * (scattered[None] - e)
     return torch.where(m > 0, out, e)
