@@ -6,11 +6,11 @@ from __future__ import annotations
 
 import pytest
 import torch
+from specs import small_spec
 
 from sssbench.run import registry
 from sssbench.run.budget_step import BUDGET_MAX, BUDGET_START, LADDER_DTYPE, budget_limit
 from sssbench.score.budget import CONVERGED_TOL, converged
-from tests.specs import small_spec
 
 
 @pytest.mark.parametrize(
