@@ -29,14 +29,17 @@ def _package_root(name: str) -> Path:
 
 @functools.cache
 def code_digest() -> str:
-    """A digest of every Python source file of :mod:`sssbench` and :mod:`data_synth` (read
-    once per process). Cached images depend on the scene builders, the profiles, the
-    reference, the methods and the pipeline; keying on all of the code is conservative (any
-    change recomputes) and can never serve an image made by other code."""
+    """A digest of every source file of :mod:`sssbench` and :mod:`data_synth`: the Python
+    files and the native tap loop's C sources (``*.c``, ``*.h``: the budget's converged
+    limits are cached images the native loop computes), read once per process. Cached images
+    depend on the scene builders, the profiles, the reference, the methods and the pipeline;
+    keying on all of the code is conservative (any change recomputes) and can never serve an
+    image made by other code."""
     h = hashlib.sha256()
     for package in ("sssbench", "data_synth"):
         root = _package_root(package)
-        for path in sorted(root.rglob("*.py")):
+        files = [p for suffix in ("*.py", "*.c", "*.h") for p in root.rglob(suffix)]
+        for path in sorted(files):
             h.update(str(path.relative_to(root.parent)).encode())
             h.update(path.read_bytes())
     return h.hexdigest()[:16]

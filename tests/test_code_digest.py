@@ -1,0 +1,30 @@
+"""The cache keys' code digest (sssbench._digest.code_digest) covers every source a cached
+image depends on: the Python files and the native tap loop's C sources (the budget's
+converged limits are computed by the native loop), and nothing else."""
+
+from __future__ import annotations
+
+from sssbench import _digest
+
+
+def test_code_digest_changes_with_python_and_c_sources_only(tmp_path, monkeypatch):
+    for package in ("sssbench", "data_synth"):
+        (tmp_path / package / "ops" / "native").mkdir(parents=True)
+        (tmp_path / package / "__init__.py").write_text("x = 1\n")
+    native = tmp_path / "sssbench" / "ops" / "native"
+    (native / "gather.c").write_text("int f(void) { return 1; }\n")
+    (native / "gather_body.h").write_text("#define K 1\n")
+    (native / "notes.txt").write_text("not a source\n")
+    monkeypatch.setattr(_digest, "_package_root", lambda name: tmp_path / name)
+    digest = _digest.code_digest.__wrapped__  # uncached: the files are re-read
+    base = digest()
+    (native / "notes.txt").write_text("still not a source\n")
+    assert digest() == base
+    for path, text in [
+        (native / "gather_body.h", "#define K 2\n"),
+        (native / "gather.c", "int f(void) { return 2; }\n"),
+        (tmp_path / "data_synth" / "__init__.py", "x = 2\n"),
+    ]:
+        before = digest()
+        path.write_text(text)
+        assert digest() != before
