@@ -37,10 +37,17 @@ import math
 import numpy as np
 import torch
 
+from sssbench.ops import _reference_quad as _quad
+from sssbench.ops._reference_quad import native_cell_sums
 from sssbench.profiles.base import _gauss_legendre
-from sssbench.profiles.sum_of_gaussians import SumOfGaussians, interval_mass
+from sssbench.profiles.sum_of_gaussians import (
+    SumOfGaussians,
+    flat_cell_mass,
+    interval_mass,
+    narrow_tilted_cell_mass,
+)
 
-__all__ = ["HAT_OFFSETS", "hat_masses", "hat_cell_weights", "hat_cell_sums"]
+__all__ = ["HAT_OFFSETS", "box_cell_sums", "hat_masses", "hat_cell_weights", "hat_cell_sums"]
 
 #: the nine neighbour offsets ``(a, b)`` of the bilinear reconstruction, in the order of the
 #: weights' second axis (column offset ``a``, row offset ``−b``: ``t`` runs upward)
@@ -276,6 +283,7 @@ def hat_cell_sums(
     values: torch.Tensor,
     cells: torch.Tensor,
     hat: torch.Tensor,
+    native: bool | None = None,
 ) -> torch.Tensor:
     """The bilinear near field's contribution of each cell, ``(6, M)``: rows 0–2
     ``Σ_ab W_ab q_{n+(a,b)}`` (numerator, per channel) and rows 3–5 ``Σ_ab W_ab s_{n+(a,b)}``
@@ -294,6 +302,12 @@ def hat_cell_sums(
     and 9 per ``s`` node and ``t`` hat (the ``s`` sums) instead of 27 per node. The same
     terms summed in another order: equal to rounding (tested to 1e-13 relative; measured
     2.5e-15 on the reference of the 128² face at 0.3 mm/px, float64).
+
+    ``native``: ``None`` (default) computes each block's Gauss–Legendre sums and its
+    contraction in the native quadrature (:func:`~sssbench.ops._reference_quad.native_cell_sums`,
+    node values in registers: the same terms in another order, equal to rounding, tested)
+    when its library is available and the tensors are float64, else with torch as above;
+    ``False`` always with torch; ``True`` requires the native quadrature.
     """
     m = dx.shape[0]
     out = dx.new_empty(6, m)
@@ -301,14 +315,38 @@ def hat_cell_sums(
     w = profile.weights.to(dx)  # (G, 3)
     quad = [i for i, r in enumerate(rule) if isinstance(r, int)]
     closed = [(i, r) for i, r in enumerate(rule) if r in ("flat", "narrow")]
+    fused = native is not False and dx.dtype == torch.float64 and _quad.available()
+    if native and not fused:
+        raise RuntimeError("native=True: the native quadrature needs float64 and its library")
     if quad:
         order = [int(rule[i]) for i in quad]  # type: ignore[arg-type]
-        a_mat, per = _quadrant_tables([v[i] for i in quad], order, dx.dtype)
-        w_quad = w[quad].t().contiguous()  # (3, Gq)
+        if fused:
+            tables = _native_tables([v[i] for i in quad], order)
+            w_quad_g = w[quad].contiguous()  # (Gq, 3)
+        else:
+            a_mat, per = _quadrant_tables([v[i] for i in quad], order, dx.dtype)
+            w_quad = w[quad].t().contiguous()  # (3, Gq)
+    elif fused:
+        tables = _native_tables([], [])
+        w_quad_g = w.new_zeros(0, 3)
     for lo in range(0, m, _CELL_BLOCK):
         blk = slice(lo, min(m, lo + _CELL_BLOCK))
         bdx, bdy, bdz, bh, bsx, bsy = dx[blk], dy[blk], dz[blk], hh[blk], sx[blk], sy[blk]
         nb = bdx.shape[0]
+        if fused:
+            extra = None
+            for i, r in closed:
+                if r == "flat":
+                    term = _flat_hat(bdx, bdy, bdz, bh, v[i])
+                else:
+                    term = _narrow_hat(bdx, bdy, bdz, bh, bsx, bsy, v[i])
+                term = w[i][:, None, None] * term[None]
+                extra = term if extra is None else extra.add_(term)
+            geom = torch.stack([bdx, bdy, bdz, bh, bsx, bsy])
+            out[:, blk] = native_cell_sums(
+                geom, extra, values, cells[blk].contiguous(), hat, tables, w_quad_g, 3
+            )
+            continue
         if quad:
             sums = _quadrant_sums(a_mat, per, bdx, bdy, bdz, bsx, bsy, bh)  # (Gq, 9·nb)
             wgt = (w_quad @ sums).view(3, 9, nb)
@@ -331,6 +369,29 @@ def hat_cell_sums(
             res[:3].addcmul_(wgt[:, j], q[1:])
             res[3:].addcmul_(wgt[:, j], q[0].expand(3, -1))
     return out
+
+
+def _native_tables(
+    v: list[float], n: list[int]
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """:func:`_quadrant_tables` in the layout of the native quadrature
+    (:func:`~sssbench.ops._reference_quad.native_cell_sums`): per Gaussian its ``2n`` nodes
+    per axis (n = :func:`quadrant_order`), the ``t`` (row) reduction ``hat_b × weight ×
+    1/2πv`` and the ``s`` (column) one ``hat_a × weight``, each ``(3, 2n)`` row-major, and
+    ``−1/2v``; concatenated over the Gaussians."""
+    order, xis, red_t, red_s = [], [], [], []
+    for vg, nc in zip(v, n, strict=True):
+        xi, wt, hat = _quadrant_nodes(quadrant_order(nc))
+        order.append(xi.size)
+        xis.append(xi)
+        red_t.append((hat * wt / (2 * math.pi * vg)).ravel())
+        red_s.append((hat * wt).ravel())
+
+    def cat(parts: list[np.ndarray]) -> torch.Tensor:
+        return torch.from_numpy(np.concatenate(parts) if parts else np.zeros(0))
+
+    coef = torch.tensor([-0.5 / vg for vg in v], dtype=torch.float64)
+    return torch.tensor(order, dtype=torch.int64), cat(xis), cat(red_t), cat(red_s), coef
 
 
 def _quadrant_sums(
@@ -363,3 +424,59 @@ def _quadrant_sums(
             out[g, :, :, lo:hi] = torch.matmul(red_s, part)  # (3_b, 3_a, M)
     out.view(len(per), 9, m).mul_(area)
     return out.view(len(per), 9 * m)
+
+
+def box_cell_sums(
+    profile: SumOfGaussians,
+    rule: tuple[int | str | None, ...],
+    geom: torch.Tensor,
+    values: torch.Tensor,
+    cells: torch.Tensor,
+) -> torch.Tensor:
+    """The box reconstruction's near field per cell through the native quadrature, ``(6, M)``:
+    rows 0–2 ``Σ_c-weights W q`` and rows 3–5 ``W`` with ``W`` the cell integral of
+    :meth:`SumOfGaussians.cell_integral` (the reference's ``_sog_cell_weights``: the same
+    n×n Gauss–Legendre rule over the whole cell and the same closed forms, summed in another
+    order: equal to rounding, tested).
+
+    ``geom`` ``(6, M)`` float64: offset from the target, half-size, slopes (mm); ``values``
+    ``(N, 4)``: 1, then irradiance · stencil per cell (a zero-size cell has weight exactly 0,
+    so the denominator needs no stencil); ``cells`` ``(M,)`` int64 rows of ``values``.
+    """
+    dx, dy, dz, hh, sx, sy = geom
+    v = profile.variances.to(geom)
+    w = profile.weights.to(geom)
+    extra = None
+    for i, r in enumerate(rule):
+        if r == "flat":
+            term = flat_cell_mass(dx, dy, dz, hh, hh, v[i])
+        elif r == "narrow":
+            term = narrow_tilted_cell_mass(dx, dy, dz, hh, hh, sx, sy, v[i])
+        else:
+            continue
+        term = w[i][:, None] * term[None]
+        extra = term if extra is None else extra.add_(term)
+    quad = [i for i, r in enumerate(rule) if isinstance(r, int)]
+    order, xis, red, coef = [], [], [], []
+    for i in quad:
+        x, wt = _gauss_legendre(int(rule[i]))  # type: ignore[arg-type]
+        vg = float(v[i])
+        order.append(x.size)
+        xis.append(x)
+        red.append((wt / (2 * math.pi * vg), wt))
+        coef.append(-0.5 / vg)
+
+    def cat(parts: list[np.ndarray]) -> torch.Tensor:
+        return torch.from_numpy(np.concatenate(parts) if parts else np.zeros(0))
+
+    tables = (
+        torch.tensor(order, dtype=torch.int64),
+        cat(xis),
+        cat([r[0] for r in red]),
+        cat([r[1] for r in red]),
+        torch.tensor(coef, dtype=torch.float64),
+    )
+    hat = torch.zeros(1, dtype=torch.int64)
+    extra = None if extra is None else extra.view(3, 1, -1).contiguous()
+    wq = w[quad].contiguous() if quad else w.new_zeros(0, 3)
+    return native_cell_sums(geom, extra, values, cells, hat, tables, wq, 1)

@@ -21,9 +21,10 @@ from torch import nn
 from sssbench._checks import check_choice, check_int, check_scalar
 from sssbench._console import bar as progress_bar
 from sssbench.gbuffer import GBuffer, pixel_size_mm
+from sssbench.ops import _reference_quad
 from sssbench.ops._reference_far import Surface, gather, map_threads, with_border
 from sssbench.ops._reference_flat import flat_kernel
-from sssbench.ops._reference_near import HAT_OFFSETS, hat_cell_sums, node_sums
+from sssbench.ops._reference_near import HAT_OFFSETS, box_cell_sums, hat_cell_sums, node_sums
 from sssbench.ops.timing import timed_pass
 from sssbench.profiles.base import Profile, _gauss_legendre
 from sssbench.profiles.sum_of_gaussians import (
@@ -52,8 +53,9 @@ FAR_RATIO = 2.0
 
 def reference_code_digest() -> str:
     """A digest of the source that computes references (this module and its private
-    ``_reference_*`` modules, every profile module, the camera): caches of reference images
-    add it to their key, so a changed reference is never served from a stale cache."""
+    ``_reference_*`` modules, the native quadrature's C sources ``native/quad*``, every profile
+    module, the camera): caches of reference images add it to their key, so a changed
+    reference is never served from a stale cache."""
     import hashlib
     from pathlib import Path
 
@@ -62,6 +64,7 @@ def reference_code_digest() -> str:
 
     here = Path(__file__)
     files = [here, *sorted(here.parent.glob("_reference_*.py"))]
+    files += sorted((here.parent / "native").glob("quad*"))  # the near field's C sums
     files += sorted(Path(sssbench.profiles.__file__).parent.glob("*.py"))
     files.append(Path(sssbench.gbuffer.__file__))
     text = "".join(f.name + "\n" + f.read_text() for f in files)
@@ -643,6 +646,9 @@ def _gather_sog(
     if reconstruction == "bilinear":  # flat-index shifts of the 3×3 neighbours (row −b)
         hat = torch.tensor([a - b * wp for a, b in HAT_OFFSETS], dtype=centre.dtype)
         values = fields[6:10].t().contiguous()  # (N, 4): a neighbour's row is one gather
+    elif fields.dtype == torch.float64 and _reference_quad.available():
+        # the box rule through the native quadrature: rows (1, q) (the denominator is W)
+        values = torch.cat([torch.ones_like(fields[6, :, None]), fields[6:9].t()], 1)
     if progress is not None:
         progress.reset(total=shift.numel() * math.ceil(e / _CENTRES))
 
@@ -673,7 +679,10 @@ def _sog_chunk(
     neighbour table, ``shift``: flat offsets nearest first; ``hat``: the flat shifts of the
     nine bilinear neighbours, ``None`` for the box reconstruction, whose table has no
     stencil row; ``values``: the bilinear reconstruction's ``(N, 4)`` stencil and irradiance ·
-    stencil per cell, see :func:`~sssbench.ops._reference_near.hat_cell_sums`)."""
+    stencil per cell, see :func:`~sssbench.ops._reference_near.hat_cell_sums`; for the box
+    reconstruction ``(N, 4)`` rows ``(1, irradiance · stencil)`` when its cells are summed by
+    the native quadrature (:func:`~sssbench.ops._reference_near.box_cell_sums`), else
+    ``None``)."""
     e = centre.numel()
     acc = torch.zeros(e, 3, dtype=torch.float64)
     wsum = torch.zeros_like(acc)
@@ -723,6 +732,16 @@ def _sog_chunk(
                         geom = [t.index_select(0, on) for t in geom]
                         got = hat_cell_sums(profile, rule, *geom, values, cells[on], hat)
                         part.index_copy_(1, on, got)
+                part = part.view(6, -1, e).sum(1)
+                acc += part[:3].t()
+                wsum += part[3:].t()
+                continue
+            if values is not None:  # the box rule, native (box_cell_sums)
+                cells = idx[0].view(c, e)
+                if len(rows) < c:
+                    cells = cells.index_select(0, sel)
+                geom = torch.stack([t.reshape(-1) for t in sub[:6]])
+                part = box_cell_sums(profile, rule, geom, values, cells.reshape(-1))
                 part = part.view(6, -1, e).sum(1)
                 acc += part[:3].t()
                 wsum += part[3:].t()

@@ -173,7 +173,17 @@ def test_gauss_legendre_block_equals_the_per_gaussian_rule(order):
 
 @pytest.mark.parametrize(
     "name",
-    ["reference.py", "_reference_far.py", "_reference_flat.py", "burley.py", "base.py"],
+    [
+        "reference.py",
+        "_reference_far.py",
+        "_reference_flat.py",
+        "_reference_near.py",
+        "_reference_quad.py",
+        "quad.c",
+        "quad_simd.h",
+        "burley.py",
+        "base.py",
+    ],
 )
 def test_code_digest_covers_every_reference_module(name, monkeypatch):
     # caches of references are keyed by the digest: editing any module that computes them

@@ -12,6 +12,7 @@ from oracles import brute_force_reference
 from scipy.integrate import quad
 
 from sssbench.ops import _reference_near as near
+from sssbench.ops import _reference_quad as _quad
 from sssbench.ops._reference_near import (
     HAT_OFFSETS,
     hat_cell_sums,
@@ -106,8 +107,12 @@ def _unfused_hat_cell_sums(profile, rule, dx, dy, dz, hh, sx, sy, values, cells,
     return torch.cat([num, den])
 
 
+@pytest.mark.parametrize("native", [False, True])
 @pytest.mark.parametrize("tilted", [False, True])
-def test_hat_cell_sums_equal_the_contracted_nine_weights(tilted, monkeypatch):
+def test_hat_cell_sums_equal_the_contracted_nine_weights(tilted, native, monkeypatch):
+    # native: the Gauss–Legendre sums and the contraction in native/quad.c (issue 30)
+    if native and not _quad.available():
+        pytest.skip("the native reference quadrature is not available (no C compiler)")
     # several blocks and node sub-blocks, every rule: flat or narrow (σ = 0.01 mm) and
     # Gauss–Legendre orders 3..10
     monkeypatch.setattr(near, "_CELL_BLOCK", 40)
@@ -133,7 +138,7 @@ def test_hat_cell_sums_equal_the_contracted_nine_weights(tilted, monkeypatch):
         assert {r for rule in rules for r in rule} >= {"narrow", 3, 4, 6, 7, 8, 10}
     for rule in rules:
         args = (prof, rule, dx, dy, dz, hh, sx, sy, values, cells, hat)
-        got, want = hat_cell_sums(*args), _unfused_hat_cell_sums(*args)
+        got, want = hat_cell_sums(*args, native=native), _unfused_hat_cell_sums(*args)
         assert got.shape == (6, n)
         # the same terms summed in another order: rounding
         torch.testing.assert_close(got, want, rtol=1e-13, atol=1e-15 * float(want.abs().max()))

@@ -12,6 +12,9 @@ Python package beyond the declared ones is needed; on a machine without a C comp
 ``disk.c`` (with ``disk_body.h`` and the vectorised ``disk_simd.h``), the disk's sample loop
 (:mod:`sssbench.ops._disk_native`), is a second translation unit of the same command and
 library, at the same SIMD level.
+``quad.c`` (with ``quad_simd.h``), the Gauss–Legendre cell sums of the exact reference's near
+field (:mod:`sssbench.ops._reference_quad`), is a library of its own (:func:`quad_library`):
+it builds in about a second, so a reference never waits for the tap loop's long build.
 The torch loop (:mod:`sssbench.ops._gather_torch`) is the specification: the native loop
 performs the same float operations in the same order and is tested bitwise equal to it (but
 for ``exp``); :mod:`sssbench.ops._gather_native` registers it as a torch operator.
@@ -37,6 +40,7 @@ from pathlib import Path
 
 __all__ = [
     "library",
+    "quad_library",
     "cache_dir",
     "FALLBACK_NOTE",
     "SIMD_LEVELS",
@@ -56,8 +60,11 @@ _SOURCES = (
     "disk_body.h",
     "disk_simd.h",
 )
+#: the reference quadrature's library (:func:`quad_library`): its sources, its one unit
+_QUAD_SOURCES = ("quad.c", "quad_simd.h")
 _FLAGS = ["-O3", "-fPIC", "-shared", "-ffp-contract=off", "-fno-math-errno", "-Wno-psabi"]
 _STATE: dict[str, object] = {"lib": None, "tried": False}
+_QUAD_STATE: dict[str, object] = {"lib": None, "tried": False}
 _BUILD_TIMEOUT_S = 1800
 log = logging.getLogger("sssbench")
 
@@ -76,14 +83,21 @@ def _compiler() -> str | None:
     return None
 
 
-def _build(cc: str, fresh: bool = False) -> Path:
-    """The library for the current sources and ``cc``: the cached one, or a new build
-    (``fresh``: build anew even when one is cached, replacing it atomically)."""
+def _build(
+    cc: str,
+    fresh: bool = False,
+    sources: tuple[str, ...] = _SOURCES,
+    units: tuple[str, ...] = ("gather.c", "disk.c"),  # disk.c: the disk's loop
+    prefix: str = "sssgather",
+) -> Path:
+    """The library of ``units`` (``sources``: every file it is built from) for the current
+    sources and ``cc``: the cached one, or a new build (``fresh``: build anew even when one is
+    cached, replacing it atomically)."""
     digest = hashlib.sha256()
-    for name in _SOURCES:
+    for name in sources:
         digest.update((_HERE / name).read_bytes())
     digest.update(" ".join([cc, *_FLAGS]).encode())
-    name = f"sssgather-{digest.hexdigest()[:16]}.so"
+    name = f"{prefix}-{digest.hexdigest()[:16]}.so"
     fallback = Path(tempfile.gettempdir()) / f"sssbench-native-{os.getuid()}"
     for folder in (cache_dir(), fallback):  # an unwritable home: the temp dir
         try:
@@ -101,11 +115,11 @@ def _build(cc: str, fresh: bool = False) -> Path:
     target = folder / name
     os.close(fd)
     try:
-        units = [str(_HERE / "gather.c"), str(_HERE / "disk.c")]  # disk.c: the disk's loop
-        cmd = [cc, *_FLAGS, "-o", tmp, *units, "-lm", "-lpthread"]
+        cmd = [cc, *_FLAGS, "-o", tmp, *(str(_HERE / u) for u in units), "-lm", "-lpthread"]
         log.info(  # the first run's longest silence otherwise (issue 28: nothing silent for long)
-            "building the native gather library with %s into %s (once per source version: "
-            "about 35 s of CPU with gcc 12)",
+            "building the native library %s with %s into %s (once per source version: "
+            "about 35 s of CPU with gcc 12 for the gather library, 1 s for the quadrature's)",
+            prefix,
             cc,
             folder,
         )
@@ -139,10 +153,46 @@ def _declare(lib: ctypes.CDLL) -> None:
         fn.restype, fn.argtypes = None, [p]  # a disk_args * (sssbench.ops._disk_native)
 
 
-def _load(path: Path) -> ctypes.CDLL:
+def _declare_quad(lib: ctypes.CDLL) -> None:
+    p, i64, i32 = ctypes.c_void_p, ctypes.c_int64, ctypes.c_int
+    lib.quad_cell_sums.restype, lib.quad_cell_sums.argtypes = i32, [p]  # a quad_args *
+    lib.quad_exp_array.restype, lib.quad_exp_array.argtypes = None, [p, p, i64]
+    for fn in (lib.quad_best_level, lib.quad_get_level):
+        fn.restype, fn.argtypes = i32, []
+    lib.quad_set_level.restype, lib.quad_set_level.argtypes = i32, [i32]
+
+
+def _load(path: Path, declare=_declare) -> ctypes.CDLL:
     lib = ctypes.CDLL(str(path))
-    _declare(lib)  # AttributeError: a symbol is missing
+    declare(lib)  # AttributeError: a symbol is missing
     return lib
+
+
+def quad_library() -> ctypes.CDLL | None:
+    """The reference quadrature's native library (``quad.c``), building it on first use (about
+    a second); ``None`` if it cannot be had, with ONE warning per process, and the reference
+    computes the same sums with torch (equal to rounding, slower)."""
+    if not _QUAD_STATE["tried"]:
+        _QUAD_STATE["tried"] = True
+        spec = {"sources": _QUAD_SOURCES, "units": ("quad.c",), "prefix": "sssquad"}
+        try:
+            cc = _compiler()
+            if cc is None:
+                raise OSError("no C compiler found ($CC, cc, gcc, clang)")
+            try:
+                lib = _load(_build(cc, **spec), _declare_quad)
+            except (OSError, AttributeError):  # a corrupt or stale cached file: build anew
+                lib = _load(_build(cc, fresh=True, **spec), _declare_quad)
+            _QUAD_STATE["lib"] = lib
+        except Exception as exc:  # any failure: the torch sums
+            detail = getattr(exc, "stderr", None) or f"{type(exc).__name__}: {exc}"
+            warnings.warn(
+                f"sssbench: native reference quadrature unavailable ({str(detail).strip()[:300]});"
+                " the reference uses its torch sums instead (equal to rounding, slower)",
+                UserWarning,
+                stacklevel=3,
+            )
+    return _QUAD_STATE["lib"]  # type: ignore[return-value]
 
 
 #: what the fallback gives (the warning says it; tests/reliability/test_gather_safety.py

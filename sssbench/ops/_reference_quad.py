@@ -1,0 +1,168 @@
+"""The reference near field's Gauss–Legendre cell sums through the native quadrature
+(``native/quad.c``), fused with the contraction against the neighbours' values.
+
+:func:`native_cell_sums` computes what :func:`sssbench.ops._reference_near.hat_cell_sums`
+computes for one block of cells with torch (the exponents as a matrix product, one ``exp``, the
+quadrature reductions as products, then the contraction with the nine neighbours): per cell
+and Gauss–Legendre Gaussian the node exponents from the cell's six features, their exp and the
+quadrature and hat reductions in registers, never as an array of node values in memory. The
+closed-form rules (``"flat"``, ``"narrow"``) stay torch code and are handed in as ``extra``.
+The same terms summed in another order, and an exp within a few ulp of libm's
+(:data:`QUAD_EXP_ULP`): equal to the torch sums to rounding (tests/ops/test_reference_quad.py:
+against the direct contraction of ``hat_cell_weights``, 1e-13 relative).
+
+Levels (:data:`QUAD_LEVELS`): the loop is compiled for SSE2 (any x86-64), AVX2 and AVX-512F
+through target attributes and the widest the CPU has is used; every lane performs the same
+IEEE operations (no fused multiply-add), so the levels agree bitwise (tested).
+"""
+
+from __future__ import annotations
+
+import ctypes
+
+import torch
+
+from sssbench.ops import native
+
+__all__ = ["QUAD_LEVELS", "QUAD_EXP_ULP", "available", "native_cell_sums", "quad_level"]
+
+#: the quadrature loop's instruction-set levels, narrowest first (``native/quad.c``)
+QUAD_LEVELS = ("sse2", "avx2", "avx512")
+#: the native exp's largest error against libm's (ulp of the result, where it is normal),
+#: asserted by tests/ops/test_reference_quad.py
+QUAD_EXP_ULP = 4
+
+
+class _QuadArgs(ctypes.Structure):
+    """``quad_args`` of ``native/quad.c`` (field order matters)."""
+
+    _fields_ = [
+        (name, ctypes.c_void_p)
+        for name in (
+            "geom",
+            "extra",
+            "values",
+            "cells",
+            "hat",
+            "order",
+            "xi",
+            "red_t",
+            "red_s",
+            "coef",
+            "w",
+            "out",
+        )
+    ] + [("m", ctypes.c_int64), ("n_gauss", ctypes.c_int64), ("rows", ctypes.c_int64)]
+
+
+def available() -> bool:
+    """Whether the native quadrature can be used (the library built and loaded)."""
+    return native.quad_library() is not None
+
+
+class quad_level:  # noqa: N801 - used as a context manager, like torch.no_grad
+    """``with quad_level("avx2"): ...`` runs the block's native cell sums at that level
+    (capped at the CPU's); ``as`` gives the level in use. For tests and timings."""
+
+    def __init__(self, level: str) -> None:
+        if level not in QUAD_LEVELS:
+            raise ValueError(f"level must be one of {QUAD_LEVELS}, got {level!r}")
+        self.level = level
+        self.previous = -1
+
+    def __enter__(self) -> str:
+        lib = native.quad_library()
+        if lib is None:
+            raise RuntimeError("the native reference quadrature is not available")
+        self.previous = lib.quad_get_level()
+        return QUAD_LEVELS[lib.quad_set_level(QUAD_LEVELS.index(self.level))]
+
+    def __exit__(self, *exc: object) -> None:
+        native.quad_library().quad_set_level(self.previous)  # type: ignore[union-attr]
+
+
+def native_exp(x: torch.Tensor) -> torch.Tensor:
+    """The native quadrature's exp of a float64 tensor (for the test of its error)."""
+    lib = native.quad_library()
+    if lib is None:
+        raise RuntimeError("the native reference quadrature is not available")
+    x = x.detach().to(torch.float64).contiguous().reshape(-1)
+    y = torch.empty_like(x)
+    lib.quad_exp_array(x.data_ptr(), y.data_ptr(), x.numel())
+    return y
+
+
+def _ptr(t: torch.Tensor | None) -> int | None:
+    return None if t is None else t.data_ptr()
+
+
+def native_cell_sums(
+    geom: torch.Tensor,
+    extra: torch.Tensor | None,
+    values: torch.Tensor,
+    cells: torch.Tensor,
+    hat: torch.Tensor,
+    tables: tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor],
+    weights: torch.Tensor,
+    rows: int,
+) -> torch.Tensor:
+    """The contracted cell sums ``(6, M)``: rows 0–2 ``Σ_j W_cj values[cell + hat_j, 1 + c]``,
+    rows 3–5 ``Σ_j W_cj values[cell + hat_j, 0]``, ``W = Σ_g w_gc A Σ_ab … + extra``
+    (``native/quad.c``, 001 eq. 7 by Gauss–Legendre per cell or quadrant).
+
+    Args:
+        geom: ``(6, M)`` float64: offset ``dx, dy, dz`` from the target, half-size, slopes
+            (mm).
+        extra: ``(3, rows², M)`` float64 added to the weights before the contraction (the
+            closed-form rules), or ``None``.
+        values: ``(N, 4)`` float64: stencil, then the channels times the stencil, per cell.
+        cells: ``(M,)`` int64 rows of ``values``; ``hat`` ``(rows²,)`` int64 the neighbours'
+            row shifts (``j = b · rows + a``).
+        tables: per Gauss–Legendre Gaussian, concatenated: nodes per axis ``(G,)`` int64, the
+            nodes ``(Σ n,)``, the row and column weights ``(Σ rows · n,)`` each (row-major
+            ``(rows, n)`` per Gaussian) and ``-1 / 2v`` ``(G,)``, all float64 but the first.
+        weights: ``(G, 3)`` float64 channel weights.
+        rows: 3 (the bilinear reconstruction's hats) or 1 (the box's whole cell).
+    """
+    lib = native.quad_library()
+    if lib is None:
+        raise RuntimeError("the native reference quadrature is not available")
+    m = geom.shape[1]
+    for name, t in (("geom", geom), ("values", values), ("weights", weights)):
+        if t.dtype != torch.float64 or not t.is_contiguous():
+            raise ValueError(f"{name} must be contiguous float64, got {t.dtype}")
+    for name, t in (("cells", cells), ("hat", hat)):
+        if t.dtype != torch.int64 or not t.is_contiguous():
+            raise ValueError(f"{name} must be contiguous int64, got {t.dtype}")
+    if m and (
+        int(cells.min()) + int(hat.min()) < 0
+        or int(cells.max()) + int(hat.max()) >= values.shape[0]
+    ):  # the C loop reads values[cell + hat_j] unchecked
+        raise IndexError(f"cells + hat must index the {values.shape[0]} rows of values")
+    if extra is not None and (extra.shape != (3, rows * rows, m) or not extra.is_contiguous()):
+        raise ValueError(f"extra must be contiguous (3, {rows * rows}, {m}), got {extra.shape}")
+    order, xi, red_t, red_s, coef = tables
+    out = geom.new_empty(6, m)
+    args = _QuadArgs(
+        _ptr(geom),
+        _ptr(extra),
+        _ptr(values),
+        _ptr(cells),
+        _ptr(hat),
+        _ptr(order),
+        _ptr(xi),
+        _ptr(red_t),
+        _ptr(red_s),
+        _ptr(coef),
+        _ptr(weights),
+        _ptr(out),
+        m,
+        order.numel(),
+        rows,
+    )
+    if lib.quad_cell_sums(ctypes.byref(args)) != 0:
+        raise ValueError(
+            f"native cell sums rejected their arguments (rows {rows}, nodes per axis "
+            f"{order.tolist()}: rows must be 1 or 3 and every rule 1 to 64 nodes per axis)"
+        )
+    return out

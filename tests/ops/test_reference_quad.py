@@ -1,0 +1,137 @@
+"""The native reference quadrature (sssbench/ops/native/quad.c, issue 30): its cell sums
+against the torch code's direct forms (the box rule's cell integral, the nine hat-weighted
+weights contracted with the neighbours), its levels against each other, its exp against
+libm, its argument checks, and the whole reference with and without it."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from sssbench.ops import _reference_quad as quad
+from sssbench.ops._reference_near import box_cell_sums
+from sssbench.ops.reference import _sog_cell_weights, reference_sss
+from sssbench.profiles import SumOfGaussians
+from sssbench.profiles.sum_of_gaussians import cell_rules
+from tests.ops.test_reference_far import scene
+
+pytestmark = pytest.mark.skipif(
+    not quad.available(), reason="the native reference quadrature needs a C compiler"
+)
+
+
+def _cells(n: int, tilted: bool, seed: int = 5):
+    rng = np.random.default_rng(seed)
+    dx, dy, dz = (torch.from_numpy(rng.uniform(-0.8, 0.8, n)) for _ in range(3))
+    hh = torch.from_numpy(rng.uniform(0.1, 0.25, n))
+    hh[::7] = 0.0  # cells off the surface: weight exactly 0
+    sx = torch.from_numpy(rng.uniform(-2, 2, n)) if tilted else torch.zeros(n).double()
+    sy = torch.from_numpy(rng.uniform(-2, 2, n)) if tilted else torch.zeros(n).double()
+    return dx, dy, dz, hh, sx, sy
+
+
+PROFILE = SumOfGaussians(
+    torch.tensor([0.01, 0.1, 0.2, 0.3, 0.6]) ** 2,
+    torch.from_numpy(np.random.default_rng(3).uniform(0.05, 0.5, (5, 3))),
+)
+
+
+@pytest.mark.parametrize("tilted", [False, True])
+def test_box_cell_sums_equal_the_cell_integral_times_the_values(tilted):
+    # the oracle: SumOfGaussians.cell_integral's rules as the reference's torch code sums
+    # them (_sog_cell_weights), times each cell's own values; every rule kind
+    n, size = 157, 300  # not a multiple of any vector width: the tail lanes
+    geom = _cells(n, tilted)
+    rng = np.random.default_rng(4)
+    q = torch.from_numpy(rng.uniform(0, 1, (size, 3)))
+    values = torch.cat([torch.ones(size, 1, dtype=torch.float64), q], 1)
+    cells = torch.from_numpy(rng.integers(0, size, n))
+    v = PROFILE.variances.tolist()
+    rules = [cell_rules(v, near2, 0.25, tilted) for near2 in (0.0, 0.05, 0.5)]
+    if tilted:
+        assert {r for rule in rules for r in rule} >= {"narrow", 3, 4, 6, 7, 8, 10}
+    for rule in rules:
+        want_w = _sog_cell_weights(PROFILE, rule, *geom)  # (3, n)
+        want = torch.cat([want_w * q[cells].t(), want_w])
+        got = box_cell_sums(PROFILE, rule, torch.stack(geom), values, cells)
+        torch.testing.assert_close(got, want, rtol=1e-13, atol=1e-15 * float(want.abs().max()))
+
+
+def test_levels_agree_bitwise():
+    # every lane performs the same IEEE operations at every instruction-set level
+    geom = torch.stack(_cells(203, True))
+    size = 400
+    values = torch.from_numpy(np.random.default_rng(6).uniform(0, 1, (size, 4)))
+    cells = torch.from_numpy(np.random.default_rng(7).integers(0, size, 203))
+    rule = cell_rules(PROFILE.variances.tolist(), 0.0, 0.25, True)
+    outs = {}
+    for level in quad.QUAD_LEVELS:
+        with quad.quad_level(level) as used:
+            outs[used] = box_cell_sums(PROFILE, rule, geom, values, cells)
+    first = next(iter(outs.values()))
+    assert len(outs) >= 1 and all(torch.equal(o, first) for o in outs.values())
+
+
+def test_exp_against_libm():
+    # a few ulp where the result is normal, 0 where libm's is subnormal, NaN kept
+    rng = np.random.default_rng(8)
+    x = np.concatenate(
+        [rng.uniform(-745, 0, 20000), rng.uniform(-1, 1e-12, 5000), [0.0, -708.0, -750.0]]
+    )
+    got = quad.native_exp(torch.from_numpy(x)).numpy()
+    want = np.array([math.exp(t) for t in x])
+    normal = want >= np.finfo(np.float64).tiny
+    ulp = np.abs(got - want)[normal] / np.spacing(want[normal])
+    assert ulp.max() <= quad.QUAD_EXP_ULP
+    assert np.abs(got[~normal] - want[~normal]).max() < 3.4e-308
+    assert math.isnan(float(quad.native_exp(torch.tensor([math.nan]))[0]))
+
+
+def test_bad_arguments_are_refused():
+    geom = torch.stack(_cells(8, True))
+    values = torch.ones(10, 4, dtype=torch.float64)
+    tables = (
+        torch.tensor([3]),
+        torch.zeros(3, dtype=torch.float64),
+        torch.zeros(3, dtype=torch.float64),
+        torch.zeros(3, dtype=torch.float64),
+        torch.tensor([-1.0], dtype=torch.float64),
+    )
+    w = torch.ones(1, 3, dtype=torch.float64)
+    ok = torch.arange(8)
+    hat = torch.zeros(1, dtype=torch.int64)
+    assert quad.native_cell_sums(geom, None, values, ok, hat, tables, w, 1).shape == (6, 8)
+    with pytest.raises(IndexError, match="rows of values"):
+        quad.native_cell_sums(geom, None, values, ok + 3, hat, tables, w, 1)
+    with pytest.raises(ValueError, match="rows must be 1 or 3"):
+        quad.native_cell_sums(geom, None, values, ok, hat, tables, w, 2)
+    big = (torch.tensor([65]), *(torch.zeros(65, dtype=torch.float64),) * 3, tables[4])
+    with pytest.raises(ValueError, match="1 to 64 nodes"):
+        quad.native_cell_sums(geom, None, values, ok, hat, big, w, 1)
+    with pytest.raises(ValueError, match="geom must be contiguous float64"):
+        quad.native_cell_sums(geom.float(), None, values, ok, hat, tables, w, 1)
+    with pytest.raises(ValueError, match="level must be one of"):
+        quad.quad_level("sse4")
+
+
+@pytest.mark.parametrize("reconstruction", ["box", "bilinear"])
+def test_reference_is_the_same_with_and_without_the_native_sums(reconstruction, monkeypatch):
+    # the curved, masked scene with a depth step and a shadow edge, and the face close-up
+    # with the six-Gaussian skin: the torch sums (the library switched off) are the oracle
+    from data_synth import make_scene
+
+    skin = SumOfGaussians.from_table("skin_deon6")
+    narrow = SumOfGaussians(
+        torch.tensor([0.01, 0.03, 0.2]) ** 2,
+        torch.tensor([[0.4, 0.2, 0.1], [0.3, 0.4, 0.3], [0.3, 0.4, 0.6]]),
+    )
+    cases = [(scene(), narrow)]
+    cases.append((make_scene("face", (24, 24), dtype=torch.float64, pixel_mm=0.1), skin))
+    for g, prof in cases:
+        new = reference_sss(g, prof, reconstruction=reconstruction)
+        with monkeypatch.context() as m:
+            m.setattr(quad, "available", lambda: False)
+            old = reference_sss(g, prof, reconstruction=reconstruction)
+        assert not torch.equal(new, old)  # the native path did run: another summation order
+        torch.testing.assert_close(new, old, rtol=1e-13, atol=1e-15 * float(old.abs().max()))
