@@ -135,8 +135,10 @@ def test_flip_map_is_flip_of_the_images_bit_for_bit_hit_or_miss(monkeypatch):
     res, ref, _ = _images(shape=(2, 3, 40, 36))
     direct = _flip_direct(res, ref)
     calls = []
-    real = metrics.flip_ldr_map
-    monkeypatch.setattr(metrics, "flip_ldr_map", lambda *a, **k: calls.append(1) or real(*a, **k))
+    real = metrics.flip_from_planes  # one call per pair of images FLIP compares
+    monkeypatch.setattr(
+        metrics, "flip_from_planes", lambda *a, **k: calls.append(1) or real(*a, **k)
+    )
     cold = metrics.flip_map(res, ref)
     assert len(calls) == 2 and np.array_equal(cold, direct)
     warm = metrics.flip_map(res.clone(), ref.clone())  # new tensors: FLIP is not run again

@@ -27,7 +27,10 @@ every position (no elementwise function whose vectorised and scalar paths round 
 so a crop's map equals the whole image's bit for bit wherever the crop holds the pixel's
 window (:func:`sssbench.score.metrics.flip_map_over`; ``tests/score/test_flip_crop.py``). The
 map is computed in strips of rows, each through both pipelines, so that a strip's
-intermediates stay in the cache; the strips change no value.
+intermediates stay in the cache; the strips change no value. The pipelines run on each image
+alone up to their last per-image planes (:func:`flip_planes`: L*, a*, b*, edge, point) and
+only then compare the two (:func:`flip_from_planes`), so a reference's planes can be computed
+once for every image compared with it, bit for bit the same map.
 """
 
 from __future__ import annotations
@@ -38,7 +41,7 @@ import math
 import numpy as np
 import torch
 
-__all__ = ["filter_radii", "flip_ldr_map"]
+__all__ = ["filter_radii", "flip_from_planes", "flip_ldr_map", "flip_planes"]
 
 _F = np.float32
 
@@ -328,15 +331,18 @@ def _columns(taps: np.ndarray, shape: tuple[int, ...]) -> list[torch.Tensor]:
     return list(t.unbind(-1))
 
 
-def _color_strip(src: torch.Tensor, taps: list[torch.Tensor], r: int) -> torch.Tensor:
-    """FLIP's colour pipeline (FLIP §3; FLIP.h: computeColorDifference) on a strip:
-    ``src`` ``(2, 4, n + 2r, W + 2r)`` holds the padded YCxCz rows ``[Y, Cx, Cz, Cz]`` of the
-    reference and the test, ``taps`` the ``(1, 4, 1, 1)`` CSF weights ``[Y, Cx, Cz1, Cz2]``
-    per tap. Returns the ``(n, W)`` remapped colour difference in [0, 1]."""
-    _, _, rows, wp = src.shape
+def _color_strip(
+    src: torch.Tensor, taps: list[torch.Tensor], r: int
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """FLIP's colour pipeline (FLIP §3; FLIP.h: computeColorDifference) on a strip, up to
+    what each image gives on its own: ``src`` ``(B, 4, n + 2r, W + 2r)`` holds the padded
+    YCxCz rows ``[Y, Cx, Cz, Cz]`` of B images, ``taps`` the ``(1, 4, 1, 1)`` CSF weights
+    ``[Y, Cx, Cz1, Cz2]`` per tap. Returns ``L*``, and ``a*``, ``b*`` scaled by ``0.01 L*``
+    (FLIP eq. 4), each ``(B, n, W)``; :func:`_color_difference` compares two images'."""
+    nb, _, rows, wp = src.shape
     n, w = rows - 2 * r, wp - 2 * r
-    mid = _filter(src, taps, torch.empty(2, 4, rows, w), -1)  # along x
-    out = _filter(mid, taps, torch.empty(2, 4, n, w), -2)  # along y
+    mid = _filter(src, taps, torch.empty(nb, 4, rows, w), -1)  # along x
+    out = _filter(mid, taps, torch.empty(nb, 4, n, w), -2)  # along y
     y, cx, cz = out[:, 0], out[:, 1], out[:, 2].add_(out[:, 3])  # FLIP.h: Cz.x + Cz.y
     # FLIP.h: color3::YCxCzToXYZ (inverse of FLIP §3.1's opponent transform)
     yy = y.add_(16.0).div_(116.0)
@@ -366,6 +372,13 @@ def _color_strip(src: torch.Tensor, taps: list[torch.Tensor], r: int) -> torch.T
     k = lum * 0.01  # FLIP eq. 4 (Hunt): a* and b* scaled by 0.01 L*
     a = torch.sub(f[0], f[1]).mul_(500.0).mul_(k)
     b = torch.sub(f[1], f[2]).mul_(200.0).mul_(k)
+    return lum, a, b
+
+
+def _color_difference(lum: torch.Tensor, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """FLIP's remapped colour difference in [0, 1] of the planes of :func:`_color_strip` of
+    two images (the leading axis of each: reference, test), ``(..., W)`` (consumes ``a``
+    and ``b``)."""
     da, db = a[0].sub_(a[1]), b[0].sub_(b[1])
     # FLIP eq. 3 (HyAB): |dL| + sqrt(da^2 + db^2), then to the power q_c (FLIP eq. 5)
     hyab = torch.sub(lum[0], lum[1]).abs_().add_(da.mul_(da).add_(db.mul_(db)).sqrt_())
@@ -380,21 +393,28 @@ def _color_strip(src: torch.Tensor, taps: list[torch.Tensor], r: int) -> torch.T
 
 def _feature_strip(
     src: torch.Tensor, taps_x: list[torch.Tensor], taps_y: list[torch.Tensor], r: int
-) -> torch.Tensor:
+) -> tuple[torch.Tensor, torch.Tensor]:
     """FLIP's feature pipeline (FLIP §4; FLIP.h: computeFeatureDifferenceAndFinalError) on a
-    strip: ``src`` ``(2, 1, n + 2r, W + 2r)`` holds the padded normalised achromatic rows of
-    the reference and the test; ``taps_x`` the ``(1, 3, 1, 1)`` weights ``[dg, ddg, g]`` and
-    ``taps_y`` the ``(1, 4, 1, 1)`` weights ``[g, g, dg, ddg]`` per tap. Returns the ``(n, W)``
-    feature difference in [0, 1]."""
-    _, _, rows, wp = src.shape
+    strip, up to what each image gives on its own: ``src`` ``(B, 1, n + 2r, W + 2r)`` holds
+    the padded normalised achromatic rows of B images; ``taps_x`` the ``(1, 3, 1, 1)`` weights
+    ``[dg, ddg, g]`` and ``taps_y`` the ``(1, 4, 1, 1)`` weights ``[g, g, dg, ddg]`` per tap.
+    Returns the edge and point detectors' magnitudes (FLIP eq. 9), each ``(B, n, W)``;
+    :func:`_feature_difference` compares two images'."""
+    nb, _, rows, wp = src.shape
     n, w = rows - 2 * r, wp - 2 * r
     # along x: [dx, ddx, Gaussian-filtered] (FLIP.h: 1st and 2nd derivative, Gaussian)
-    mid = _filter(src, taps_x, torch.empty(2, 3, rows, w), -1)
+    mid = _filter(src, taps_x, torch.empty(nb, 3, rows, w), -1)
     # along y: [dx, ddx, gf, gf] by [g, g, dg, ddg] -> dx, ddx, dy, ddy
-    out = _filter(mid[:, (0, 1, 2, 2)], taps_y, torch.empty(2, 4, n, w), -2)
+    out = _filter(mid[:, (0, 1, 2, 2)], taps_y, torch.empty(nb, 4, n, w), -2)
     dx, ddx, dy, ddy = out.unbind(1)
     edge = dx.mul_(dx).add_(dy.mul_(dy)).sqrt_()  # FLIP eq. 9: the edge detector's magnitude
     point = ddx.mul_(ddx).add_(ddy.mul_(ddy)).sqrt_()  # FLIP eq. 9: the point detector's
+    return edge, point
+
+
+def _feature_difference(edge: torch.Tensor, point: torch.Tensor) -> torch.Tensor:
+    """FLIP's feature difference in [0, 1] of the planes of :func:`_feature_strip` of two
+    images (the leading axis of each: reference, test), ``(..., W)`` (consumes them)."""
     diff = torch.maximum(edge[0].sub_(edge[1]).abs_(), point[0].sub_(point[1]).abs_())
     # FLIP eq. 10: (max(|de|, |dp|) / sqrt(2)) ** q_f, q_f = 0.5 (powf(x, 0.5) = sqrt(x))
     return diff.mul_(float(_F(1.0) / np.sqrt(_F(2.0)))).sqrt_()
@@ -441,38 +461,82 @@ def flip_ldr_map(reference: torch.Tensor, test: torch.Tensor, ppd: float) -> np.
             f"test must have the reference's shape {tuple(reference.shape)}, "
             f"got {tuple(test.shape)}"
         )
+    _check_ppd(ppd)
+    with torch.no_grad():
+        pair = torch.stack([x.detach().to("cpu") for x in (reference, test)])
+        return flip_from_planes(_planes(pair, ppd))
+
+
+def _check_ppd(ppd: float) -> float:
     if isinstance(ppd, bool) or not isinstance(ppd, (int, float)):
         raise TypeError(f"ppd must be a number, got {type(ppd).__name__}")
     if not math.isfinite(ppd) or ppd <= 0:
         raise ValueError(f"ppd must be a finite number > 0, got {ppd!r}")
-    ppd = float(_F(ppd))  # FLIP reads ppd as a float
+    return float(_F(ppd))  # FLIP reads ppd as a float
+
+
+def flip_planes(image: torch.Tensor, ppd: float) -> torch.Tensor:
+    """What FLIP computes from one image alone, ``(5, H, W)`` float32: ``L*``, ``a*`` and
+    ``b*`` (scaled by ``0.01 L*``, FLIP eq. 4) of the CSF-filtered image and the edge and
+    point detectors' magnitudes (FLIP eq. 9) of its achromatic channel. Two images' planes
+    give their map (:func:`flip_from_planes`) bit for bit as :func:`flip_ldr_map`, so a
+    sweep can compute a reference's planes once for all its methods.
+
+    Args:
+        image: ``(3, H, W)`` sRGB in [0, 1] (read as float32).
+        ppd: pixels per degree of visual angle, > 0.
+    """
+    if not isinstance(image, torch.Tensor):
+        raise TypeError(f"image must be a torch.Tensor, got {type(image).__name__}")
+    if image.ndim != 3 or image.shape[0] != 3 or min(image.shape[1:]) < 1:
+        raise ValueError(f"image must have shape (3, H, W), got {tuple(image.shape)}")
+    with torch.no_grad():
+        return _planes(image.detach().to("cpu")[None], ppd)[0]
+
+
+def _planes(images: torch.Tensor, ppd: float) -> torch.Tensor:
+    """:func:`flip_planes` of ``(B, 3, H, W)`` images, ``(B, 5, H, W)``: the filters run in
+    strips of rows over all B images at once (the strips and the batch change no value:
+    every value is the same float32 operations on its own filter window)."""
+    ppd = _check_ppd(ppd)
     ctaps, rc = _spatial_filters(ppd)
     ftaps, rf = _feature_filter(ppd)
-    h, w = reference.shape[1:]
-    step = _strip_rows(w)
-    with torch.no_grad():
-        pair = [x.detach().to("cpu") for x in (reference, test)]
-        # the filters' inputs, padded by replication (FLIP's clamp-to-edge): per image the
-        # YCxCz channels [Y, Cx, Cz, Cz] (the colour filters [Y, Cx, Cz1, Cz2] read them) and
-        # the achromatic channel normalised to [0, 1] (the feature filters read it)
-        csrc = torch.empty(2, 4, h + 2 * rc, w + 2 * rc)
-        fsrc = torch.empty(2, 1, h + 2 * rf, w + 2 * rf)
-        for a in range(0, h, step):
-            b = min(a + step, h)
-            ycc = _srgb_to_ycxcz(torch.stack([x[:, a:b] for x in pair]).float())
-            csrc[:, :, rc + a : rc + b, rc : rc + w] = ycc[:, (0, 1, 2, 2)]
-            # FLIP.h: Y / 116 + 16 / 116
-            yn = ycc[:, 0].mul_(float(_F(1.0) / _F(116.0))).add_(float(_F(16.0) / _F(116.0)))
-            fsrc[:, 0, rf + a : rf + b, rf : rf + w] = yn
-        _replicate_border(csrc, rc)
-        _replicate_border(fsrc, rf)
-        ct = _columns(ctaps, (1, 4, 1, 1))
-        fx = _columns(ftaps[(1, 2, 0),], (1, 3, 1, 1))
-        fy = _columns(ftaps[(0, 0, 1, 2),], (1, 4, 1, 1))
-        out = torch.empty(h, w)
-        for a in range(0, h, step):
-            b = min(a + step, h)
-            cd = _color_strip(csrc[:, :, a : b + 2 * rc], ct, rc)
-            fd = _feature_strip(fsrc[:, :, a : b + 2 * rf], fx, fy, rf)
-            out[a:b] = _pow32(cd, fd.neg_().add_(1.0))  # FLIP eq. 11: cd ** (1 - fd)
-    return out.numpy()
+    nb, _, h, w = images.shape
+    step = max(1, _strip_rows(w) * 2 // nb)  # about the same elements per strip
+    # the filters' inputs, padded by replication (FLIP's clamp-to-edge): per image the
+    # YCxCz channels [Y, Cx, Cz, Cz] (the colour filters [Y, Cx, Cz1, Cz2] read them) and
+    # the achromatic channel normalised to [0, 1] (the feature filters read it)
+    csrc = torch.empty(nb, 4, h + 2 * rc, w + 2 * rc)
+    fsrc = torch.empty(nb, 1, h + 2 * rf, w + 2 * rf)
+    for a in range(0, h, step):
+        b = min(a + step, h)
+        ycc = _srgb_to_ycxcz(images[:, :, a:b].float())
+        csrc[:, :, rc + a : rc + b, rc : rc + w] = ycc[:, (0, 1, 2, 2)]
+        # FLIP.h: Y / 116 + 16 / 116
+        yn = ycc[:, 0].mul_(float(_F(1.0) / _F(116.0))).add_(float(_F(16.0) / _F(116.0)))
+        fsrc[:, 0, rf + a : rf + b, rf : rf + w] = yn
+    _replicate_border(csrc, rc)
+    _replicate_border(fsrc, rf)
+    ct = _columns(ctaps, (1, 4, 1, 1))
+    fx = _columns(ftaps[(1, 2, 0),], (1, 3, 1, 1))
+    fy = _columns(ftaps[(0, 0, 1, 2),], (1, 4, 1, 1))
+    out = torch.empty(nb, 5, h, w)
+    for a in range(0, h, step):
+        b = min(a + step, h)
+        lum, sa, sb = _color_strip(csrc[:, :, a : b + 2 * rc], ct, rc)
+        edge, point = _feature_strip(fsrc[:, :, a : b + 2 * rf], fx, fy, rf)
+        for k, plane in enumerate((lum, sa, sb, edge, point)):
+            out[:, k, a:b] = plane
+    return out
+
+
+def flip_from_planes(planes: torch.Tensor) -> np.ndarray:
+    """The LDR-FLIP map ``(H, W)`` float32 of two images from their :func:`flip_planes`
+    stacked ``(2, 5, H, W)`` (reference, test): FLIP eq. 3–6 (the colour difference), eq.
+    10 (the feature difference) and eq. 11 (``deltaE_c ** (1 - deltaE_f)``)."""
+    if planes.ndim != 4 or planes.shape[:2] != (2, 5):
+        raise ValueError(f"planes must have shape (2, 5, H, W), got {tuple(planes.shape)}")
+    p = planes.transpose(0, 1).clone()  # (5, 2, H, W): the differences consume their inputs
+    cd = _color_difference(p[0], p[1], p[2])
+    fd = _feature_difference(p[3], p[4])
+    return _pow32(cd, fd.neg_().add_(1.0)).numpy()  # FLIP eq. 11: cd ** (1 - fd)

@@ -203,3 +203,38 @@ def test_pow_of_an_image_shaped_tensor_is_the_flat_ones() -> None:
     assert torch.equal(_pow32(view, 0.7).reshape(-1), _pow32(view.reshape(-1).contiguous(), 0.7))
     with pytest.raises(ValueError, match="y must have"):
         _pow32(view, y[..., :3])
+
+
+def test_planes_give_the_map_bit_for_bit_and_the_official_one():
+    # each image's planes alone (what a sweep memoises for its reference), then compared:
+    # the same bits as flip_ldr_map, and within TOL of FLIP 1.7 itself
+    from sssbench.score.flip_ldr import flip_from_planes, flip_planes
+
+    g = torch.Generator().manual_seed(11)
+    ref = torch.rand(3, 97, 130, generator=g)
+    # a random pair (TOL) and a nearly equal one, where FLIP magnifies last-bit differences
+    # of powf (TOL_RENDER, see the module docstring; measured 1.8e-5 here)
+    pairs = ((torch.rand(3, 97, 130, generator=g), TOL), ((ref + 1e-6).clamp(0, 1), TOL_RENDER))
+    for test, tol in pairs:
+        for ppd in (30.0, 67.0):
+            planes = torch.stack([flip_planes(ref, ppd), flip_planes(test, ppd)])
+            assert planes.shape == (2, 5, 97, 130) and planes.dtype == torch.float32
+            got = flip_from_planes(planes)
+            assert np.array_equal(got, flip_ldr_map(ref, test, ppd))
+            official = metrics._flip_ldr_official(ref, test, ppd)
+            assert np.abs(got.astype(np.float64) - official).max() <= tol
+    # the metric's path (the reference's planes memoised on its bits) for two tests in turn
+    other = torch.rand(3, 97, 130, generator=g)
+    for test in (other, other.flip(-1)):
+        assert np.array_equal(metrics._flip_ldr(ref, test, 67.0), flip_ldr_map(ref, test, 67.0))
+
+
+def test_planes_reject_bad_shapes():
+    from sssbench.score.flip_ldr import flip_from_planes, flip_planes
+
+    with pytest.raises(ValueError, match=r"image must have shape \(3, H, W\)"):
+        flip_planes(torch.rand(4, 8, 8), 67.0)
+    with pytest.raises(ValueError, match="ppd must be a finite number"):
+        flip_planes(torch.rand(3, 8, 8), 0.0)
+    with pytest.raises(ValueError, match=r"planes must have shape \(2, 5, H, W\)"):
+        flip_from_planes(torch.rand(3, 5, 8, 8))
