@@ -24,7 +24,14 @@ import torch
 
 from sssbench.ops import native
 
-__all__ = ["QUAD_LEVELS", "QUAD_EXP_ULP", "available", "native_cell_sums", "quad_level"]
+__all__ = [
+    "QUAD_LEVELS",
+    "QUAD_EXP_ULP",
+    "available",
+    "native_cell_sums",
+    "offset_fields",
+    "quad_level",
+]
 
 #: the quadrature loop's instruction-set levels, narrowest first (``native/quad.c``)
 QUAD_LEVELS = ("sse2", "avx2", "avx512")
@@ -165,4 +172,42 @@ def native_cell_sums(
             f"native cell sums rejected their arguments (rows {rows}, nodes per axis "
             f"{order.tolist()}: rows must be 1 or 3 and every rule 1 to 64 nodes per axis)"
         )
+    return out
+
+
+def offset_fields(fields: torch.Tensor, centre: torch.Tensor, shift: torch.Tensor) -> torch.Tensor:
+    """The neighbour fields of the reference's near field, ``(F, C, E)``:
+    ``fields[f, centre[i] + shift[j]]``, minus ``fields[f, centre[i]]`` for ``f < 3`` (the
+    offset from the centre, mm) — what ``torch.gather`` and one subtraction give, the same
+    values (tested), in one pass over the indices (``native/quad.c: quad_offset_fields``).
+
+    Args:
+        fields: ``(F, N)`` float64, field-major (contiguous).
+        centre: ``(E,)`` int64 flat indices; ``shift`` ``(C,)`` int64 flat offsets.
+    """
+    lib = native.quad_library()
+    if lib is None:
+        raise RuntimeError("the native reference quadrature is not available")
+    if fields.dtype != torch.float64 or not fields.is_contiguous() or fields.ndim != 2:
+        raise ValueError(f"fields must be contiguous (F, N) float64, got {fields.dtype}")
+    for name, t in (("centre", centre), ("shift", shift)):
+        if t.dtype != torch.int64 or not t.is_contiguous() or t.ndim != 1:
+            raise ValueError(f"{name} must be a contiguous 1D int64 tensor")
+    nf, n = fields.shape
+    e, c = centre.numel(), shift.numel()
+    if (
+        e
+        and c
+        and (
+            int(centre.min()) + int(shift.min()) < 0
+            or int(centre.max()) + int(shift.max()) >= n
+            or int(centre.min()) < 0
+            or int(centre.max()) >= n
+        )
+    ):  # the C loop reads unchecked
+        raise IndexError(f"centre + shift must index the {n} columns of fields")
+    out = fields.new_empty(nf, c, e)
+    lib.quad_offset_fields(
+        fields.data_ptr(), nf, n, centre.data_ptr(), e, shift.data_ptr(), c, out.data_ptr()
+    )
     return out

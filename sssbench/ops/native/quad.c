@@ -109,3 +109,23 @@ void quad_exp_array(const double *x, double *y, int64_t n) {
         default: quad_exp_array_sse2(x, y, n); break;
     }
 }
+
+/* The reference's per-offset neighbour fields (reference._sog_chunk): for the offsets
+ * shift[j] (flat, in the padded surface) of the centres centre[i], out[f][j][i] =
+ * fields[f][centre[i] + shift[j]], minus fields[f][centre[i]] for the first three fields (the
+ * offset dx, dy, dz from the centre): torch.gather and one subtraction, the same values. The
+ * caller checks the indices. fields (nf, n) field-major; out (nf, c, e). */
+void quad_offset_fields(const double *fields, int64_t nf, int64_t n, const int64_t *centre,
+                        int64_t e, const int64_t *shift, int64_t c, double *out) {
+    for (int64_t f = 0; f < nf; ++f) {
+        const double *src = fields + f * n;
+        for (int64_t j = 0; j < c; ++j) {
+            double *dst = out + (f * c + j) * e;
+            const double *at = src + shift[j];
+            if (f < 3)
+                for (int64_t i = 0; i < e; ++i) dst[i] = at[centre[i]] - src[centre[i]];
+            else
+                for (int64_t i = 0; i < e; ++i) dst[i] = at[centre[i]];
+        }
+    }
+}
