@@ -135,3 +135,18 @@ def test_reference_is_the_same_with_and_without_the_native_sums(reconstruction, 
             old = reference_sss(g, prof, reconstruction=reconstruction)
         assert not torch.equal(new, old)  # the native path did run: another summation order
         torch.testing.assert_close(new, old, rtol=1e-13, atol=1e-15 * float(old.abs().max()))
+
+
+def test_offset_fields_equal_torch_gather_and_subtraction():
+    # the values torch.gather and one subtraction give, bit for bit; indices checked
+    g = torch.Generator().manual_seed(9)
+    fields = torch.rand(10, 900, generator=g, dtype=torch.float64) * 100
+    centre = torch.arange(200, 260)
+    shift = torch.tensor([0, -31, 30, 1, -1, 62])
+    got = quad.offset_fields(fields, centre, shift)
+    idx = (centre[None, :] + shift[:, None]).reshape(1, -1).expand(10, -1)
+    want = torch.gather(fields, 1, idx).view(10, 6, 60)
+    want[:3] = want[:3] - fields[:3, centre][:, None]
+    assert torch.equal(got, want)
+    with pytest.raises(IndexError, match="centre \\+ shift"):
+        quad.offset_fields(fields, centre, torch.tensor([700]))
