@@ -117,9 +117,9 @@ def _build(
     try:
         cmd = [cc, *_FLAGS, "-o", tmp, *(str(_HERE / u) for u in units), "-lm", "-lpthread"]
         log.info(  # the first run's longest silence otherwise (issue 28: nothing silent for long)
-            "building the native library %s with %s into %s (once per source version: "
+            "building the native %s library with %s into %s (once per source version: "
             "about 35 s of CPU with gcc 12 for the gather library, 1 s for the quadrature's)",
-            prefix,
+            "reference quadrature" if prefix == "sssquad" else "gather",
             cc,
             folder,
         )
