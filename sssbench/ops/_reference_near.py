@@ -38,7 +38,7 @@ import numpy as np
 import torch
 
 from sssbench.ops import _reference_quad as _quad
-from sssbench.ops._reference_quad import native_cell_sums
+from sssbench.ops._reference_quad import native_cell_sums, quad_tables
 from sssbench.profiles.base import _gauss_legendre
 from sssbench.profiles.sum_of_gaussians import (
     SumOfGaussians,
@@ -333,16 +333,10 @@ def hat_cell_sums(
         blk = slice(lo, min(m, lo + _CELL_BLOCK))
         bdx, bdy, bdz, bh, bsx, bsy = dx[blk], dy[blk], dz[blk], hh[blk], sx[blk], sy[blk]
         nb = bdx.shape[0]
+        geo = (bdx, bdy, bdz, bh, bsx, bsy)
         if fused:
-            extra = None
-            for i, r in closed:
-                if r == "flat":
-                    term = _flat_hat(bdx, bdy, bdz, bh, v[i])
-                else:
-                    term = _narrow_hat(bdx, bdy, bdz, bh, bsx, bsy, v[i])
-                term = w[i][:, None, None] * term[None]
-                extra = term if extra is None else extra.add_(term)
-            geom = torch.stack([bdx, bdy, bdz, bh, bsx, bsy])
+            extra = _add_closed(closed, v, w, bdx.new_zeros(3, 9, nb), *geo) if closed else None
+            geom = torch.stack(geo)
             out[:, blk] = native_cell_sums(
                 geom, extra, values, cells[blk].contiguous(), hat, tables, w_quad_g, 3
             )
@@ -352,12 +346,7 @@ def hat_cell_sums(
             wgt = (w_quad @ sums).view(3, 9, nb)
         else:
             wgt = bdx.new_zeros(3, 9, nb)
-        for i, r in closed:
-            if r == "flat":
-                term = _flat_hat(bdx, bdy, bdz, bh, v[i])
-            else:
-                term = _narrow_hat(bdx, bdy, bdz, bh, bsx, bsy, v[i])
-            wgt.addcmul_(w[i][:, None, None], term[None])
+        _add_closed(closed, v, w, wgt, *geo)
         # the nine neighbours' rows (stencil, q): one row gather, then one fused
         # multiply-add per neighbour into the block's six sums (all in cache)
         qn = values.index_select(0, (hat[:, None] + cells[blk][None, :]).view(-1))
@@ -371,27 +360,30 @@ def hat_cell_sums(
     return out
 
 
+def _add_closed(closed, v, w, into, dx, dy, dz, hh, sx, sy) -> torch.Tensor:
+    """``into`` ``(3, 9, M)`` += the channel-weighted nine weights of the closed-form rules
+    ``closed`` (``(index, "flat" | "narrow")`` per Gaussian); returns ``into``."""
+    for i, r in closed:
+        if r == "flat":
+            term = _flat_hat(dx, dy, dz, hh, v[i])
+        else:
+            term = _narrow_hat(dx, dy, dz, hh, sx, sy, v[i])
+        into.addcmul_(w[i][:, None, None], term[None])
+    return into
+
+
 def _native_tables(
     v: list[float], n: list[int]
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """:func:`_quadrant_tables` in the layout of the native quadrature
-    (:func:`~sssbench.ops._reference_quad.native_cell_sums`): per Gaussian its ``2n`` nodes
-    per axis (n = :func:`quadrant_order`), the ``t`` (row) reduction ``hat_b × weight ×
-    1/2πv`` and the ``s`` (column) one ``hat_a × weight``, each ``(3, 2n)`` row-major, and
-    ``−1/2v``; concatenated over the Gaussians."""
-    order, xis, red_t, red_s = [], [], [], []
+    (:func:`~sssbench.ops._reference_quad.quad_tables`): per Gaussian its ``2n`` nodes per
+    axis (n = :func:`quadrant_order`), the ``t`` (row) reduction ``hat_b × weight × 1/2πv``
+    and the ``s`` (column) one ``hat_a × weight``, each ``(3, 2n)``."""
+    parts = []
     for vg, nc in zip(v, n, strict=True):
         xi, wt, hat = _quadrant_nodes(quadrant_order(nc))
-        order.append(xi.size)
-        xis.append(xi)
-        red_t.append((hat * wt / (2 * math.pi * vg)).ravel())
-        red_s.append((hat * wt).ravel())
-
-    def cat(parts: list[np.ndarray]) -> torch.Tensor:
-        return torch.from_numpy(np.concatenate(parts) if parts else np.zeros(0))
-
-    coef = torch.tensor([-0.5 / vg for vg in v], dtype=torch.float64)
-    return torch.tensor(order, dtype=torch.int64), cat(xis), cat(red_t), cat(red_s), coef
+        parts.append((xi, hat * wt / (2 * math.pi * vg), hat * wt, vg))
+    return quad_tables(parts)
 
 
 def _quadrant_sums(
@@ -457,25 +449,12 @@ def box_cell_sums(
         term = w[i][:, None] * term[None]
         extra = term if extra is None else extra.add_(term)
     quad = [i for i, r in enumerate(rule) if isinstance(r, int)]
-    order, xis, red, coef = [], [], [], []
+    parts = []
     for i in quad:
         x, wt = _gauss_legendre(int(rule[i]))  # type: ignore[arg-type]
         vg = float(v[i])
-        order.append(x.size)
-        xis.append(x)
-        red.append((wt / (2 * math.pi * vg), wt))
-        coef.append(-0.5 / vg)
-
-    def cat(parts: list[np.ndarray]) -> torch.Tensor:
-        return torch.from_numpy(np.concatenate(parts) if parts else np.zeros(0))
-
-    tables = (
-        torch.tensor(order, dtype=torch.int64),
-        cat(xis),
-        cat([r[0] for r in red]),
-        cat([r[1] for r in red]),
-        torch.tensor(coef, dtype=torch.float64),
-    )
+        parts.append((x, (wt / (2 * math.pi * vg))[None], wt[None], vg))
+    tables = quad_tables(parts)
     hat = torch.zeros(1, dtype=torch.int64)
     extra = None if extra is None else extra.view(3, 1, -1).contiguous()
     wq = w[quad].contiguous() if quad else w.new_zeros(0, 3)

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import ctypes
 
+import numpy as np
 import torch
 
 from sssbench.ops import native
@@ -31,6 +32,7 @@ __all__ = [
     "native_cell_sums",
     "offset_fields",
     "quad_level",
+    "quad_tables",
 ]
 
 #: the quadrature loop's instruction-set levels, narrowest first (``native/quad.c``)
@@ -211,3 +213,26 @@ def offset_fields(fields: torch.Tensor, centre: torch.Tensor, shift: torch.Tenso
         fields.data_ptr(), nf, n, centre.data_ptr(), e, shift.data_ptr(), c, out.data_ptr()
     )
     return out
+
+
+def quad_tables(
+    parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, float]],
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The ``tables`` of :func:`native_cell_sums` from, per Gauss–Legendre Gaussian, its nodes
+    per axis ``(n,)`` in [−1, 1], its row and column weights ``(R, n)`` and its variance ``v``
+    (mm²): nodes per axis, the nodes, the weights (each ``(R, n)`` row-major) concatenated
+    over the Gaussians, and ``−1/2v``."""
+
+    def cat(arrays: list[np.ndarray]) -> torch.Tensor:
+        flat = [np.ascontiguousarray(a, dtype=np.float64).ravel() for a in arrays]
+        return torch.from_numpy(np.concatenate(flat) if flat else np.zeros(0))
+
+    order = torch.tensor([p[0].size for p in parts], dtype=torch.int64)
+    coef = torch.tensor([-0.5 / p[3] for p in parts], dtype=torch.float64)
+    return (
+        order,
+        cat([p[0] for p in parts]),
+        cat([p[1] for p in parts]),
+        cat([p[2] for p in parts]),
+        coef,
+    )
