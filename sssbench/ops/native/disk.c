@@ -234,6 +234,23 @@ typedef struct {
     ((__typeof__(x))_mm256_round_pd((__m256d)(x), _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC))
 #define VSQRT_AVX2(x) ((__typeof__(x))_mm256_sqrt_pd((__m256d)(x)))
 #define VANY_AVX2(m) (_mm256_movemask_pd((__m256d)(m)) != 0)
+/* 2^(j/32) of the vectorised exp (vexp_, disk_simd.h), j = n32 mod 32 per lane (n32: VW int32
+ * lanes): AVX2 by a gather from disk_exp2_32; AVX-512 from the same table held in four
+ * registers, by two two-source permutes (bits 0-3 of j) and a blend (bit 4), with no memory
+ * access per lane. The same table entries: the levels agree bitwise. Measured on the 512²
+ * close-up (32 samples, skin_deon6), the disk's call 7 % faster than with the gather: its
+ * exps' gathers (six per sample) wait on memory; the permutes do not. */
+#define VEXP2_32_AVX2(n32) \
+    _mm256_i64gather_pd(disk_exp2_32, _mm256_cvtepi32_epi64((__m128i)((n32) & 31)), 8)
+#define VEXP2_32_AVX512(n32)                                                                  \
+    ({                                                                                        \
+        const __m512i j_ = _mm512_cvtepi32_epi64((__m256i)(n32));                             \
+        const __m512d lo_ = _mm512_permutex2var_pd(_mm512_load_pd(disk_exp2_32), j_,        \
+                                                   _mm512_load_pd(disk_exp2_32 + 8));        \
+        const __m512d hi_ = _mm512_permutex2var_pd(_mm512_load_pd(disk_exp2_32 + 16), j_,   \
+                                                   _mm512_load_pd(disk_exp2_32 + 24));       \
+        _mm512_mask_blend_pd(_mm512_test_epi64_mask(j_, _mm512_set1_epi64(16)), lo_, hi_); \
+    })
 #else
 #define DISK_SIMD 0
 #endif

@@ -48,10 +48,10 @@ typedef SCALAR DV(vs_) __attribute__((vector_size(VW * sizeof(SCALAR))));
  * 32 n + j = round(32 x / ln 2), |r| <= ln 2 / 64 (ln 2 / 32 as two doubles, the first with
  * 17 trailing zero bits: its product by 32 n + j, |32 n + j| < 2^16, is exact), then
  * exp(x) = 2^n 2^(j/32) (1 + q), 2^(j/32) from the correctly rounded table disk_exp2_32
- * (disk.c) by a gather, q = e^r - 1 by its Taylor polynomial of degree 6 (truncation below
+ * (disk.c; VEXP2_32: a gather on AVX2, permutes of the table in registers on AVX-512), q = e^r - 1 by its Taylor polynomial of degree 6 (truncation below
  * 4e-18 relative), 2^n built in the exponent bits; +0 where 2^n is subnormal (x < -708.4:
  * an absolute error below 2.3e-308 against libm's subnormal results). About 25 vector
- * operations and one gather. Measured against libm's exp (tests/ops/test_disk_native.py,
+ * operations and one gather (AVX2) or three permutes and a blend (AVX-512). Measured against libm's exp (tests/ops/test_disk_native.py,
  * test_vectorised_disk_exp_against_libm): within DISK_EXP_ULP (_disk_native.py) where the
  * result is normal. */
 DV_FN DV(vd_) DV(vexp_)(DV(vd_) x) {
@@ -75,7 +75,7 @@ DV_FN DV(vd_) DV(vexp_)(DV(vd_) x) {
     q = q * r + 0.5;
     q = q * r + 1.0;
     q = q * r;
-    const vd tab = GF64(disk_exp2_32, __builtin_convertvector(n32 & 31, vl));
+    const vd tab = (vd)VEXP2_32(n32); /* 2^((n32 mod 32) / 32) */
     const vi biased = (n32 >> 5) + 1023; /* > 0: 2^n is normal */
     const vl e = __builtin_convertvector(biased, vl) << 52;
     const vl normal = __builtin_convertvector(biased > 0, vl);
@@ -298,3 +298,4 @@ __attribute__((target(ISA_TARGET))) static void DV(disk_vec_)(const disk_args *a
 #undef VTRUNC
 #undef VSQRT
 #undef VANY
+#undef VEXP2_32
