@@ -202,9 +202,12 @@ def gather(
     *,
     turn_key: int | None = None,
     shift_key: int | None = None,
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    moments: bool = True,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
     """:meth:`DiskSSS._gather <sssbench.ops.disk.DiskSSS._gather>` in C: ``Σ w E``, ``Σ w``
-    ``(M, 3)`` and the moments ``(M, 3, 3)`` in the image dtype. ``pix`` ``(M,)`` the centre
+    ``(M, 3)`` and the moments ``(M, 3, 3)`` in the image dtype (``moments=False``: ``None``,
+    and the loop does not form them: the same sums, bit for bit, with nine fewer per
+    sample). ``pix`` ``(M,)`` the centre
     pixels (flat), ``turn`` ``(M,)`` 2π × their rotation (radians), ``shift`` ``(M,)`` their
     radial shift or ``None`` (no jitter), ``step`` ``(M,)`` pixels per mm at the centre,
     ``u0``/``theta0`` ``(n,)`` the pattern (float64). ``turn_key`` (with ``turn=None``) and
@@ -225,8 +228,8 @@ def gather(
     a.u0, a.theta0, a.n = call.ptr(u0), call.ptr(theta0), u0.numel()
     a.area = None if ctx.area is None else call.ptr(ctx.area, ctx.dtype)
     a.bilinear = int(bilinear)
-    mom = torch.empty(pix.numel(), 3, 3, dtype=ctx.dtype)
-    a.mom = mom.data_ptr()
+    mom = torch.empty(pix.numel(), 3, 3, dtype=ctx.dtype) if moments else None
+    a.mom = None if mom is None else mom.data_ptr()
     lib = native.library()
     (lib.sss_disk_f32 if ctx.dtype == torch.float32 else lib.sss_disk_f64)(ctypes.byref(a))
     return call.num, call.den, mom

@@ -536,11 +536,13 @@ class DiskSSS(nn.Module):
         n: int,
         frame: int,
         stream: int,
-    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        moments: bool = True,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
         """``Σ w E``, ``Σ w`` per channel ``(M, 3)`` and the second moments ``(M, 3, 3)``
         ``[Σ (w E)², Σ w² E, Σ w²]`` over ``n`` samples of the pattern with ``kernel`` for the
         active pixels ``sel`` (indices into ``ctx``); ``accept`` (flat, 1 / 0) says which
-        pixels a sample may land on.
+        pixels a sample may land on. ``moments=False``: the moments are not formed (``None``;
+        only the adaptive pilot reads them), the sums are the same bit for bit.
 
         Geometry in differences (float32 keeps them): the sample's screen offset ``(Δr, Δc)``
         from its centre pixel, its depth as ``Δz = z_i − z_p`` (fetched as differences of
@@ -563,6 +565,7 @@ class DiskSSS(nn.Module):
                 self.fetch == "bilinear",
                 turn_key=hash_key(self.seed, frame, 2 * stream) if hashed else None,
                 shift_key=hash_key(self.seed, frame, 2 * stream + 1) if jitter else None,
+                moments=moments,
             )  # fmt: skip
         phase = self._phase(ctx, sel, frame, stream)
         shift = (
@@ -574,7 +577,7 @@ class DiskSSS(nn.Module):
         m = pix.numel()
         num = torch.zeros(m, 3, dtype=dt)
         den = torch.zeros(m, 3, dtype=dt)
-        mom = torch.zeros(m, 3, 3, dtype=dt)
+        mom = torch.zeros(m, 3, 3, dtype=dt) if moments else None
         # the sample's geometry in float64 whatever the dtype (issue 29 class 3): a weight is
         # R(d) at a distance formed from a sub-pixel offset and interpolated depths, which the
         # long fuzz profile showed off by 6e-5 in float32 at 1 km depth; only colours stay in dt
@@ -599,7 +602,8 @@ class DiskSSS(nn.Module):
             f = w * rgb
             num += f
             den += w
-            mom += torch.stack([f * f, w * f, w * w], 2)
+            if mom is not None:
+                mom += torch.stack([f * f, w * f, w * w], 2)
         return num, den, mom
 
     def _estimate(self, num: torch.Tensor, den: torch.Tensor, n: torch.Tensor | int, centre):
@@ -635,7 +639,9 @@ class DiskSSS(nn.Module):
         centre = ctx.rgb[ctx.index[sel]]
         if self.adaptive is None:
             with timed_pass("disk", self.samples, sel.numel()):
-                num, den, _ = self._gather(ctx, kernel, accept, sel, self.samples, frame, 0)
+                num, den, _ = self._gather(
+                    ctx, kernel, accept, sel, self.samples, frame, 0, moments=False
+                )
             return self._estimate(num, den, self.samples, centre)
         lo, hi = self.adaptive
         with timed_pass("disk.pilot", lo, sel.numel()):
@@ -651,7 +657,9 @@ class DiskSSS(nn.Module):
         for level in sorted(set(count_i.tolist()) - {lo}):
             part = torch.nonzero(count_i == level).squeeze(1)
             with timed_pass(f"disk.adaptive{level}", level - lo, part.numel()):
-                n2, d2, _ = self._gather(ctx, kernel, accept, sel[part], level - lo, frame, level)
+                n2, d2, _ = self._gather(
+                    ctx, kernel, accept, sel[part], level - lo, frame, level, moments=False
+                )
             num[part] += n2
             den[part] += d2
         self.last_counts[sel] = count_i

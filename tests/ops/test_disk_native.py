@@ -179,6 +179,36 @@ def test_hashed_noise_in_c_equals_the_torch_hash():
     assert not torch.equal(moved[0], given[0])
 
 
+@pytest.mark.parametrize("level", [None, "scalar", "torch"])
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_sums_without_the_moments_are_the_same_bits(level, dtype):
+    """``moments=False`` (the plain and the adaptive refinement calls: nobody reads the
+    moments) leaves the nine moment sums out of the loop: ``Σ w E`` and ``Σ w`` are bitwise
+    those of the call that forms the moments, in the vectorised and the scalar C loop and the
+    torch loop, and the moments come back as ``None``."""
+    from sssbench.ops import disk as disk_mod
+
+    g = scene(dtype, seed=6, h=40, w=30)
+    op = DiskSSS(SKIN, 16)
+    ctx = disk_mod._Pixels(g)
+    kernel, accept, sel = op._groups(g, ctx)[0]
+
+    def both():
+        full = op._gather(ctx, kernel, accept, sel, 16, 0, 0)
+        lean = op._gather(ctx, kernel, accept, sel, 16, 0, 0, moments=False)
+        return full, lean
+
+    if level == "torch":
+        with backend("torch"):
+            full, lean = both()
+    else:
+        with native.simd(level):
+            full, lean = both()
+    assert lean[2] is None and full[2].shape == (sel.numel(), 3, 3)
+    assert float(full[2].abs().sum()) > 0  # the full call did form them
+    assert torch.equal(full[0], lean[0]) and torch.equal(full[1], lean[1])
+
+
 def test_kilometre_float32_geometry_through_the_native_loop():
     """docs/reliability.md class 3 (float64 geometry in every dtype) holds in the C loop: at
     1 km depth and 0.001 rad the float32 bilinear result is float64's to 1e-7 relative."""
