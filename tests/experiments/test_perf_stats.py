@@ -1,0 +1,78 @@
+"""The perf section's ratio statistics (issue 30): the median of per-round ratios, its
+bootstrapped standard error and the three-way verdict (met / not met / not resolved). The
+section's quick run is ``tests/experiments/test_experiments.py`` (every registered section)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from experiments.perf import (
+    DISK_SAMPLES,
+    disk_line,
+    median_ratio,
+    ratio_text,
+    verdict_at_most,
+)
+
+
+def test_median_ratio_of_constant_ratios_has_no_spread():
+    value, se = median_ratio([2.0, 4.0, 6.0, 8.0, 10.0], [1.0, 2.0, 3.0, 4.0, 5.0], scale=0.5)
+    assert value == 1.0 and se == 0.0
+
+
+def test_median_ratio_is_the_median_of_the_per_round_ratios():
+    nums, dens = [3.0, 10.0, 1.0, 8.0], [1.0, 2.0, 1.0, 1.0]  # ratios 3, 5, 1, 8
+    value, se = median_ratio(nums, dens)
+    assert value == 4.0  # (3 + 5) / 2
+    assert se > 0
+
+
+def test_bootstrap_standard_error_approaches_the_asymptotic_one():
+    # the median of n normal draws has standard error √(π/2) σ / √n = 1.2533 σ / √n
+    n, sigma = 401, 0.1
+    z = np.random.default_rng(5).standard_normal(n)
+    value, se = median_ratio(list(1.0 + sigma * z), [1.0] * n)
+    assert value == pytest.approx(1.0, abs=4 * 1.2533 * sigma / math.sqrt(n))
+    assert se == pytest.approx(math.sqrt(math.pi / 2) * sigma / math.sqrt(n), rel=0.25)
+
+
+def test_one_round_has_no_standard_error():
+    value, se = median_ratio([3.0], [2.0])
+    assert value == 1.5 and math.isnan(se)
+
+
+@pytest.mark.parametrize(
+    ("value", "se", "want"),
+    [
+        (0.8, 0.1, "met"),
+        (1.2, 0.1, "not met"),
+        (1.05, 0.1, "not resolved"),
+        (0.95, 0.1, "not resolved"),
+        (1.0, 0.0, "not resolved"),  # on the target exactly: no side is shown
+        (1.05, math.nan, "not met"),  # no error estimate: the plain comparison
+        (0.95, math.nan, "met"),
+    ],
+)
+def test_verdict_at_most(value, se, want):
+    assert verdict_at_most(value, se, 1.0) == want
+
+
+def test_disk_line_states_the_error_and_its_verdict():
+    d = {
+        "ratio": 1.55,
+        "ratio_se": 0.1,
+        "ratio_cpu": 1.5,
+        "ratio_scalar": None,
+        "disk_ms": 10.0,
+        "two_pass_ms": 1.0,
+        "loop": "test loop",
+    }
+    line, verdict = disk_line(d, "512²")
+    assert verdict == "not resolved"
+    assert line.endswith("— **not resolved**.")
+    assert ratio_text(1.55, 0.1) in line and f"{DISK_SAMPLES} samples" in line
+    line, verdict = disk_line(dict(d, ratio=21.0), "512²")
+    assert verdict == "not met" and line.endswith("— **not met**.")
