@@ -53,7 +53,7 @@ import torch
 
 from sssbench.profiles.base import _gauss_legendre
 
-__all__ = ["Pyramid", "cell_moments", "far_field", "map_threads", "surface_pyramid"]
+__all__ = ["Pyramid", "cell_moments", "exp_in_place", "far_field", "map_threads", "surface_pyramid"]
 
 _T = TypeVar("_T")
 _R = TypeVar("_R")
@@ -256,6 +256,32 @@ def _monomials(x: torch.Tensor) -> torch.Tensor:
     return torch.cat([one, x, quad], 1)
 
 
+def exp_in_place(t: torch.Tensor) -> torch.Tensor:
+    """``exp`` of every element of ``t``, written over it; returns ``t``.
+
+    A contiguous float64 CPU tensor outside autograd (the reference's) goes through NumPy's
+    vectorised ``exp`` on the same memory (no copy), anything else through ``torch.exp_``
+    (NumPy's float32 ``exp`` is up to 2 ulp off: not used).
+    Why: the far field's ``(targets, sources)`` matrices are its largest elementwise work, and
+    on the 2-core AMD EPYC (AVX-512) NumPy's float64 ``exp`` takes 0.77 ns per element against
+    1.85 ns for ``torch.exp_`` (one thread, 380 000 elements in [−40, 0]). Its error: at most
+    1 ulp from the correctly rounded result on 20 000 points of [−40, 0] (mean 0.045 ulp;
+    torch's: at most 1, mean 0.006), checked by tests/ops/test_reference_far.py against
+    ``math.exp``. Elementwise and single-threaded: the result does not depend on how the
+    work is split into tiles or threads. NumPy releases the GIL in the loop, so the
+    reference's Python threads (:func:`map_threads`) still run side by side."""
+    if (
+        t.device.type == "cpu"
+        and t.dtype == torch.float64
+        and t.is_contiguous()
+        and not t.requires_grad
+    ):
+        a = t.numpy()
+        np.exp(a, out=a)
+        return t
+    return torch.exp_(t)
+
+
 def _gaussian_matrix(
     targets: torch.Tensor, sources: torch.Tensor, v: float
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -263,7 +289,9 @@ def _gaussian_matrix(
 
     The exponent is one product ``[x, 1, |x|²] · [p/v, −|p|²/2v, −1/2v]ᵀ`` (both relative to
     the origin, so the cancellation is of the window's size, not of the view distance; its
-    rounding may leave an exponent of a few ulps above 0, harmless to ``exp``).
+    rounding may leave an exponent of a few ulps above 0, harmless to ``exp``); the exp by
+    :func:`exp_in_place` (measured on the 512² face at 0.3 mm/px, bilinear, one thread: the
+    whole reference 9 % less CPU than with ``torch.exp_``, max |Δ| / max |out| = 2.9e-15).
     """
     origin = targets.mean(0)
     x = targets - origin
@@ -272,7 +300,7 @@ def _gaussian_matrix(
     rhs = torch.cat(
         [p / v, (-(p * p).sum(1) / (2 * v))[:, None], torch.full_like(p[:, :1], -0.5 / v)], 1
     )
-    return x, p, torch.exp_(lhs @ rhs.t())
+    return x, p, exp_in_place(lhs @ rhs.t())
 
 
 def far_field(
