@@ -31,11 +31,15 @@ def _package_root(name: str) -> Path:
 def code_digest() -> str:
     """A digest of every source file of :mod:`sssbench` and :mod:`data_synth`: the Python
     files and the native tap loop's C sources (``*.c``, ``*.h``: the budget's converged
-    limits are cached images the native loop computes), read once per process. Cached images
+    limits are cached images the native loop computes), read once per process, and of the
+    versions of torch and NumPy, whose kernels' rounding the cached images carry (the
+    reference's far field takes NumPy's ``exp``, its FFTs and products torch's). Cached images
     depend on the scene builders, the profiles, the reference, the methods and the pipeline;
     keying on all of the code is conservative (any change recomputes) and can never serve an
-    image made by other code."""
-    h = hashlib.sha256()
+    image made by other code or by other numeric libraries."""
+    import numpy
+
+    h = hashlib.sha256(f"torch {torch.__version__} numpy {numpy.__version__}\n".encode())
     for package in ("sssbench", "data_synth"):
         root = _package_root(package)
         files = [p for suffix in ("*.py", "*.c", "*.h") for p in root.rglob(suffix)]

@@ -1,8 +1,12 @@
 """The cache keys' code digest (sssbench._digest.code_digest) covers every source a cached
 image depends on: the Python files and the native tap loop's C sources (the budget's
-converged limits are computed by the native loop), and nothing else."""
+converged limits are computed by the native loop) and the numeric libraries' versions, and
+nothing else."""
 
 from __future__ import annotations
+
+import numpy
+import torch
 
 from sssbench import _digest
 
@@ -28,3 +32,18 @@ def test_code_digest_changes_with_python_and_c_sources_only(tmp_path, monkeypatc
         before = digest()
         path.write_text(text)
         assert digest() != before
+
+
+def test_code_digest_changes_with_the_numeric_libraries_versions(monkeypatch):
+    """A reference cached under another torch or NumPy (other exp / FFT rounding) is not
+    served: their versions are part of the key."""
+    digest = _digest.code_digest.__wrapped__
+    base = digest()
+    monkeypatch.setattr(torch, "__version__", torch.__version__ + ".other")
+    moved_torch = digest()
+    monkeypatch.undo()
+    monkeypatch.setattr(numpy, "__version__", numpy.__version__ + ".other")
+    moved_numpy = digest()
+    monkeypatch.undo()
+    assert moved_torch != base and moved_numpy != base and moved_torch != moved_numpy
+    assert digest() == base
