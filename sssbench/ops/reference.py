@@ -53,7 +53,8 @@ FAR_RATIO = 2.0
 
 def reference_code_digest() -> str:
     """A digest of the source that computes references (this module and its private
-    ``_reference_*`` modules, the native quadrature's C sources ``native/quad*``, every profile
+    ``_reference_*`` modules, the native quadrature's C sources ``native/quad*`` and
+    ``native/exp2_32.h``, every profile
     module, the camera): caches of reference images add it to their key, so a changed
     reference is never served from a stale cache."""
     import hashlib
@@ -65,6 +66,7 @@ def reference_code_digest() -> str:
     here = Path(__file__)
     files = [here, *sorted(here.parent.glob("_reference_*.py"))]
     files += sorted((here.parent / "native").glob("quad*"))  # the near field's C sums
+    files.append(here.parent / "native" / "exp2_32.h")  # and their exp's table
     files += sorted(Path(sssbench.profiles.__file__).parent.glob("*.py"))
     files.append(Path(sssbench.gbuffer.__file__))
     text = "".join(f.name + "\n" + f.read_text() for f in files)

@@ -59,9 +59,10 @@ _SOURCES = (
     "disk.c",
     "disk_body.h",
     "disk_simd.h",
+    "exp2_32.h",
 )
 #: the reference quadrature's library (:func:`quad_library`): its sources, its one unit
-_QUAD_SOURCES = ("quad.c", "quad_simd.h")
+_QUAD_SOURCES = ("quad.c", "quad_simd.h", "exp2_32.h")
 _FLAGS = ["-O3", "-fPIC", "-shared", "-ffp-contract=off", "-fno-math-errno", "-Wno-psabi"]
 _STATE: dict[str, object] = {"lib": None, "tried": False}
 _QUAD_STATE: dict[str, object] = {"lib": None, "tried": False}

@@ -175,17 +175,8 @@ static inline __attribute__((always_inline)) double radial_sample(const disk_arg
 /* samples positioned (and their pixels prefetched) ahead of their fetches */
 enum { DISK_CHUNK = 16 };
 
-/* 2^(j/32), j = 0..31, correctly rounded (computed in 60-digit decimal arithmetic): the
- * vectorised exp's table (disk_simd.h vexp_) */
-static const double disk_exp2_32[32] __attribute__((aligned(64))) = {
-    1.0, 1.0218971486541166, 1.0442737824274138, 1.0671404006768237,
-    1.0905077326652577, 1.1143867425958924, 1.1387886347566916, 1.1637248587775775,
-    1.189207115002721, 1.215247359980469, 1.241857812073484, 1.2690509571917332,
-    1.2968395546510096, 1.3252366431597413, 1.3542555469368927, 1.383909881963832,
-    1.4142135623730951, 1.4451808069770467, 1.4768261459394993, 1.5091644275934228,
-    1.5422108254079407, 1.5759808451078865, 1.6104903319492543, 1.645755478153965,
-    1.681792830507429, 1.718619298122478, 1.7562521603732995, 1.7947090750031072,
-    1.8340080864093424, 1.8741676341103, 1.9152065613971474, 1.9571441241754002};
+/* 2^(j/32) of the vectorised exp (disk_simd.h vexp_): sss_exp2_32, shared with quad.c */
+#include "exp2_32.h"
 
 /* what the vectorised loop (disk_simd.h) computes once per call: per sample, per node of the
  * tabulated sampler, per Gaussian or channel of the profile (disk_consts_make) */
@@ -235,20 +226,20 @@ typedef struct {
 #define VSQRT_AVX2(x) ((__typeof__(x))_mm256_sqrt_pd((__m256d)(x)))
 #define VANY_AVX2(m) (_mm256_movemask_pd((__m256d)(m)) != 0)
 /* 2^(j/32) of the vectorised exp (vexp_, disk_simd.h), j = n32 mod 32 per lane (n32: VW int32
- * lanes): AVX2 by a gather from disk_exp2_32; AVX-512 from the same table held in four
+ * lanes): AVX2 by a gather from sss_exp2_32; AVX-512 from the same table held in four
  * registers, by two two-source permutes (bits 0-3 of j) and a blend (bit 4), with no memory
  * access per lane. The same table entries: the levels agree bitwise. Measured on the 512²
  * close-up (32 samples, skin_deon6), the disk's call 7 % faster than with the gather: its
  * exps' gathers (six per sample) wait on memory; the permutes do not. */
 #define VEXP2_32_AVX2(n32) \
-    _mm256_i64gather_pd(disk_exp2_32, _mm256_cvtepi32_epi64((__m128i)((n32) & 31)), 8)
+    _mm256_i64gather_pd(sss_exp2_32, _mm256_cvtepi32_epi64((__m128i)((n32) & 31)), 8)
 #define VEXP2_32_AVX512(n32)                                                                  \
     ({                                                                                        \
         const __m512i j_ = _mm512_cvtepi32_epi64((__m256i)(n32));                             \
-        const __m512d lo_ = _mm512_permutex2var_pd(_mm512_load_pd(disk_exp2_32), j_,        \
-                                                   _mm512_load_pd(disk_exp2_32 + 8));        \
-        const __m512d hi_ = _mm512_permutex2var_pd(_mm512_load_pd(disk_exp2_32 + 16), j_,   \
-                                                   _mm512_load_pd(disk_exp2_32 + 24));       \
+        const __m512d lo_ = _mm512_permutex2var_pd(_mm512_load_pd(sss_exp2_32), j_,        \
+                                                   _mm512_load_pd(sss_exp2_32 + 8));        \
+        const __m512d hi_ = _mm512_permutex2var_pd(_mm512_load_pd(sss_exp2_32 + 16), j_,   \
+                                                   _mm512_load_pd(sss_exp2_32 + 24));       \
         _mm512_mask_blend_pd(_mm512_test_epi64_mask(j_, _mm512_set1_epi64(16)), lo_, hi_); \
     })
 #else

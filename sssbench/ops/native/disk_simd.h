@@ -47,8 +47,8 @@ typedef SCALAR DV(vs_) __attribute__((vector_size(VW * sizeof(SCALAR))));
 /* exp(x) for x <= 0 in every lane (NaN stays NaN): x = (32 n + j) ln 2 / 32 + r with
  * 32 n + j = round(32 x / ln 2), |r| <= ln 2 / 64 (ln 2 / 32 as two doubles, the first with
  * 17 trailing zero bits: its product by 32 n + j, |32 n + j| < 2^16, is exact), then
- * exp(x) = 2^n 2^(j/32) (1 + q), 2^(j/32) from the correctly rounded table disk_exp2_32
- * (disk.c; VEXP2_32: a gather on AVX2, permutes of the table in registers on AVX-512), q = e^r - 1 by its Taylor polynomial of degree 6 (truncation below
+ * exp(x) = 2^n 2^(j/32) (1 + q), 2^(j/32) from the correctly rounded table sss_exp2_32
+ * (exp2_32.h; VEXP2_32: a gather on AVX2, permutes of the table in registers on AVX-512), q = e^r - 1 by its Taylor polynomial of degree 6 (truncation below
  * 4e-18 relative), 2^n built in the exponent bits; +0 where 2^n is subnormal (x < -708.4:
  * an absolute error below 2.3e-308 against libm's subnormal results). About 25 vector
  * operations and one gather (AVX2) or three permutes and a blend (AVX-512). Measured against libm's exp (tests/ops/test_disk_native.py,

@@ -50,6 +50,8 @@ typedef struct {
 #define QUAD_MAX_NB (QUAD_MAX_ROWS * QUAD_MAX_ROWS)
 #define QUAD_MAX_NODES 64 /* nodes per axis of a rule (the largest in use: 12) */
 
+#include "exp2_32.h" /* sss_exp2_32: the table of qexp (quad_simd.h) */
+
 #define QCAT_(a, b) a##_##b
 #define QCAT(a, b) QCAT_(a, b)
 
