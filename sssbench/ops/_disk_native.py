@@ -206,14 +206,13 @@ def gather(
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
     """:meth:`DiskSSS._gather <sssbench.ops.disk.DiskSSS._gather>` in C: ``Σ w E``, ``Σ w``
     ``(M, 3)`` and the moments ``(M, 3, 3)`` in the image dtype (``moments=False``: ``None``,
-    and the loop does not form them: the same sums, bit for bit, with nine fewer per
-    sample). ``pix`` ``(M,)`` the centre
-    pixels (flat), ``turn`` ``(M,)`` 2π × their rotation (radians), ``shift`` ``(M,)`` their
-    radial shift or ``None`` (no jitter), ``step`` ``(M,)`` pixels per mm at the centre,
-    ``u0``/``theta0`` ``(n,)`` the pattern (float64). ``turn_key`` (with ``turn=None``) and
-    ``shift_key`` (with ``shift=None``): the C loop draws the rotation (``2π ×``) and the radial
-    shift of pixel ``p`` as ``disk.hash_uniform`` does, ``lowbias32((p mod H·W) ^ key) / 2³²``
-    (``disk.hash_key``): the same integers, so the same float64 values."""
+    and the loop does not form them: the same sums, bit for bit, with nine fewer per sample).
+    ``pix`` ``(M,)`` the centre pixels (flat), ``turn`` ``(M,)`` 2π × their rotation (radians),
+    ``shift`` ``(M,)`` their radial shift or ``None`` (no jitter), ``step`` ``(M,)`` pixels per
+    mm at the centre, ``u0``/``theta0`` ``(n,)`` the pattern (float64). ``turn_key`` (with
+    ``turn=None``) and ``shift_key`` (with ``shift=None``): the C loop draws the rotation (``2π
+    ×``) and the radial shift of pixel ``p`` as ``disk.hash_uniform`` does, ``lowbias32((p mod
+    H·W) ^ key) / 2³²`` (``disk.hash_key``): the same integers, so the same float64 values."""
     if (turn is None) == (turn_key is None):
         raise ValueError("gather needs exactly one of turn and turn_key")
     if shift is not None and shift_key is not None:

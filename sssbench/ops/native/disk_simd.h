@@ -44,16 +44,13 @@ typedef SCALAR DV(vs_) __attribute__((vector_size(VW * sizeof(SCALAR))));
 #define DSEL(m, a, b) \
     ((__typeof__(a))((((DV(vl_))(a)) & (m)) | (((DV(vl_))(b)) & ~(m))))
 
-/* exp(x) for x <= 0 in every lane (NaN stays NaN): x = (32 n + j) ln 2 / 32 + r with
- * 32 n + j = round(32 x / ln 2), |r| <= ln 2 / 64 (ln 2 / 32 as two doubles, the first with
- * 17 trailing zero bits: its product by 32 n + j, |32 n + j| < 2^16, is exact), then
- * exp(x) = 2^n 2^(j/32) (1 + q), 2^(j/32) from the correctly rounded table sss_exp2_32
- * (exp2_32.h; VEXP2_32: a gather on AVX2, permutes of the table in registers on AVX-512), q = e^r - 1 by its Taylor polynomial of degree 6 (truncation below
- * 4e-18 relative), 2^n built in the exponent bits; +0 where 2^n is subnormal (x < -708.4:
- * an absolute error below 2.3e-308 against libm's subnormal results). About 25 vector
- * operations and one gather (AVX2) or three permutes and a blend (AVX-512). Measured against libm's exp (tests/ops/test_disk_native.py,
- * test_vectorised_disk_exp_against_libm): within DISK_EXP_ULP (_disk_native.py) where the
- * result is normal. */
+/* exp(x) for x <= 0 in every lane (NaN stays NaN), the scheme of exp2_32.h: 32 n + j by
+ * truncating 32 x / ln 2 - 1/2 (< 0), 2^(j/32) by VEXP2_32 (a gather on AVX2, permutes of the
+ * table in registers on AVX-512), 2^n built in the exponent bits; +0 where 2^n is subnormal
+ * (x < -708.4: an absolute error below 2.3e-308 against libm's subnormal results). About 25
+ * vector operations and one gather (AVX2) or three permutes and a blend (AVX-512). Measured
+ * against libm's exp (tests/ops/test_disk_native.py, test_vectorised_disk_exp_against_libm):
+ * within DISK_EXP_ULP (_disk_native.py) where the result is normal. */
 DV_FN DV(vd_) DV(vexp_)(DV(vd_) x) {
     typedef DV(vd_) vd;
 #ifdef DISK_PROF_NOEXP
@@ -65,16 +62,11 @@ DV_FN DV(vd_) DV(vexp_)(DV(vd_) x) {
     const vl nan = x != x;
     const vd x0 = x;
     x = DSEL(x > zero - 746.0, x, zero - 746.0);
-    const vd t = x * 46.16624130844683 - 0.5; /* 32 x / ln 2 - 1/2 < 0: trunc = round */
+    const vd t = x * SSS_32_OVER_LN2 - 0.5; /* 32 x / ln 2 - 1/2 < 0: trunc = round */
     const vi n32 = __builtin_convertvector(t, vi);
     const vd nf = __builtin_convertvector(n32, vd);
-    const vd r = (x - nf * 0.021660849392446835) - nf * 5.145609244655338e-14;
-    vd q = r * (1.0 / 720) + 1.0 / 120;
-    q = q * r + 1.0 / 24;
-    q = q * r + 1.0 / 6;
-    q = q * r + 0.5;
-    q = q * r + 1.0;
-    q = q * r;
+    const vd r = (x - nf * SSS_LN2_32_HI) - nf * SSS_LN2_32_LO;
+    const vd q = SSS_EXPM1_DEG6(r);
     const vd tab = (vd)VEXP2_32(n32); /* 2^((n32 mod 32) / 32) */
     const vi biased = (n32 >> 5) + 1023; /* > 0: 2^n is normal */
     const vl e = __builtin_convertvector(biased, vl) << 52;

@@ -1,9 +1,20 @@
-/* 2^(j/32), j = 0..31, correctly rounded (computed in 60-digit decimal arithmetic): the table
- * of the vectorised exps of the disk's loop (disk_simd.h vexp_) and of the reference's
- * quadrature (quad_simd.h qexp). Included by disk.c and quad.c; part of both libraries'
- * sources (sssbench/ops/native/__init__.py) and of the reference's code digest. */
+/* What the vectorised double exps of the disk's loop (disk_simd.h vexp_) and of the reference's
+ * quadrature (quad_simd.h qexp) share: exp(x) = 2^n 2^(j/32) (1 + q) with 32 n + j =
+ * round(32 x / ln 2), r = x - (32 n + j) ln 2 / 32 by the two-part ln 2 / 32 below (the high
+ * part has 17 trailing zero bits: its product by 32 n + j, |32 n + j| < 2^16, is exact),
+ * |r| <= ln 2 / 64, q = e^r - 1 by its Taylor polynomial of degree 6 (truncation below 4e-18
+ * relative), and 2^(j/32) from the table. Each loop keeps its own rounding of 32 x / ln 2 and
+ * its own lane types. Included by disk.c and quad.c; part of both libraries' sources
+ * (sssbench/ops/native/__init__.py) and of the reference's code digest. */
 #ifndef SSS_EXP2_32_H
 #define SSS_EXP2_32_H
+#define SSS_32_OVER_LN2 46.16624130844683
+#define SSS_LN2_32_HI 0.021660849392446835
+#define SSS_LN2_32_LO 5.145609244655338e-14
+/* e^r - 1, Horner's scheme from 1/6! (no FMA: the libraries build with -ffp-contract=off) */
+#define SSS_EXPM1_DEG6(r) \
+    (((((((r) * (1.0 / 720) + 1.0 / 120) * (r) + 1.0 / 24) * (r) + 1.0 / 6) * (r) + 0.5) * (r) + 1.0) * (r))
+/* 2^(j/32), j = 0..31, correctly rounded (computed in 60-digit decimal arithmetic) */
 static const double sss_exp2_32[32] __attribute__((aligned(64))) = {
     1.0, 1.0218971486541166, 1.0442737824274138, 1.0671404006768237,
     1.0905077326652577, 1.1143867425958924, 1.1387886347566916, 1.1637248587775775,

@@ -33,17 +33,14 @@ QFN QV(qd) QV(qexp2_32)(QV(ql) j) {
     return tab;
 }
 
-/* exp(x) lane-wise: x = (32 n + j) ln 2 / 32 + r with 32 n + j = round(32 x / ln 2) (the
- * 1.5 2^52 shift: round to nearest), |r| <= ln 2 / 64 + ulp by the two-part ln 2 / 32 of the
- * disk's exp (its high part has 17 trailing zero bits: its product by 32 n + j, |32 n + j| <
- * 2^16 here, is exact), e^r - 1 = q by its Taylor polynomial of degree 6 (truncation below
- * 4e-18 relative), and exp(x) = s + s q with s = 2^(j/32) 2^n (the table, qexp2_32, times 2^n
- * built in the exponent bits: exact); +0 below x = -708.4 (where 2^n would be subnormal: an
- * absolute error below 2.3e-308), x clamped to [-746, 709] (the reference never gets above 0
- * but by rounding: its exponents are -|distance|^2 / 2v), NaN kept. Since 2026-12-03 (before:
- * no table, a degree-13 polynomial on |r| <= ln 2 / 2): 8 fewer products and sums per exp;
- * the whole bilinear reference of a 256² face at 0.1 mm/px took 18 % less CPU (one thread,
- * both builds alternated in one process), and moved by 4.3e-16 of its largest value. Within
+/* exp(x) lane-wise, the scheme of exp2_32.h: 32 n + j = round(32 x / ln 2) by the 1.5 2^52
+ * shift (round to nearest), s = 2^(j/32) 2^n (qexp2_32 times 2^n built in the exponent bits:
+ * exact) and exp(x) = s + s q; +0 below x = -708.4 (where 2^n would be subnormal: an absolute
+ * error below 2.3e-308), x clamped to [-746, 709] (the reference never gets above 0 but by
+ * rounding: its exponents are -|distance|^2 / 2v), NaN kept. Since 2026-12-03 (before: no
+ * table, a degree-13 polynomial on |r| <= ln 2 / 2): 8 fewer products and sums per exp; the
+ * whole bilinear reference of a 256² face at 0.1 mm/px took 18 % less CPU (one thread, both
+ * builds alternated in one process), and moved by 4.3e-16 of its largest value. Within
  * QUAD_EXP_ULP of libm (tests/ops/test_reference_quad.py). */
 QFN QV(qd) QV(qexp)(QV(qd) x) {
     typedef QV(qd) vd;
@@ -53,15 +50,10 @@ QFN QV(qd) QV(qexp)(QV(qd) x) {
     x = QV(qsel)(x > zero - 746.0, x, zero - 746.0);
     x = QV(qsel)(x < zero + 709.0, x, zero + 709.0);
     const double shifter = 6755399441055744.0; /* 1.5 2^52 */
-    const vd t = x * 46.16624130844683 + shifter; /* 32 x / ln 2, rounded by the shift */
+    const vd t = x * SSS_32_OVER_LN2 + shifter; /* 32 x / ln 2, rounded by the shift */
     const vd nf = t - shifter;
-    const vd r = (x - nf * 0.021660849392446835) - nf * 5.145609244655338e-14;
-    vd q = r * (1.0 / 720) + 1.0 / 120;
-    q = q * r + 1.0 / 24;
-    q = q * r + 1.0 / 6;
-    q = q * r + 0.5;
-    q = q * r + 1.0;
-    q = q * r;
+    const vd r = (x - nf * SSS_LN2_32_HI) - nf * SSS_LN2_32_LO;
+    const vd q = SSS_EXPM1_DEG6(r);
     const vl n32 = (vl)t - (vl)(zero + shifter);
     const vl biased = (n32 >> 5) + 1023; /* n = floor((32 n + j) / 32) */
     const vl normal = biased > 0;
