@@ -83,19 +83,114 @@ OVERRIDES_ENV = "SSSBENCH_BENCHMARK"
 COLD_TARGET_S = {(512, 512): 300.0, (1080, 1920): 1800.0}
 
 
-def _cold_clause(table: pd.DataFrame) -> str:
-    """``", in all N s from a cold reference cache (target ≤ T s: met)"`` from the run's
-    timings; the target only where the run was cold at a resolution of :data:`COLD_TARGET_S`."""
-    total = table.attrs.get("warm_s", float("nan")) + table.attrs.get("runs_s", float("nan"))
+#: one JSON line per cold run of a preset at a resolution of :data:`COLD_TARGET_S` (appended
+#: by :func:`preset_section`, committed with the report): the 2-core machines' speed drifts
+#: between runs by more than the target's margin (eight cold runs of the 512² preset on
+#: 2026-12-02/03 took 282–349 s, while code changes moved its CPU time by under 10 %), so the
+#: target is judged on every logged run of the same code (:func:`sssbench._digest.
+#: code_digest`), not on the last one alone
+COLD_LOG = Path(__file__).resolve().parent / "cold_runs.jsonl"
+
+
+def _run_size(table: pd.DataFrame) -> tuple[int, int] | None:
+    """The one resolution of ``table``'s points (``None`` when it holds several or none)."""
+    sizes = {tuple(int(v) for v in r.split("x")) for r in table["resolution"].dropna()}
+    return next(iter(sizes)) if len(sizes) == 1 else None  # type: ignore[return-value]
+
+
+def _run_total(table: pd.DataFrame) -> float:
+    """Warm-up plus runs (s) from ``table.attrs``; NaN when the table has no timings."""
+    return table.attrs.get("warm_s", float("nan")) + table.attrs.get("runs_s", float("nan"))
+
+
+def log_cold_run(table: pd.DataFrame, log: Path = COLD_LOG) -> dict | None:
+    """Append this run's record to ``log`` when it ran from cold at a resolution of
+    :data:`COLD_TARGET_S`; returns the record (``None``: nothing logged)."""
+    import datetime
+    import json
+
+    from sssbench._digest import code_digest
+
+    size, total = _run_size(table), _run_total(table)
+    if not table.attrs.get("cold") or size not in COLD_TARGET_S or total != total:
+        return None
+    attrs = table.attrs
+    record = {
+        "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "resolution": f"{size[0]}x{size[1]}",
+        "code": code_digest(),
+        "total_s": round(total, 1),
+        "warm_s": round(attrs["warm_s"], 1),
+        "runs_s": round(attrs["runs_s"], 1),
+        "load_start": round(attrs.get("load_start", float("nan")), 2),
+        "load_end": round(attrs.get("load_end", float("nan")), 2),
+    }
+    with open(log, "a", encoding="utf-8") as out:
+        out.write(json.dumps(record) + "\n")
+    return record
+
+
+def cold_totals(log: Path, resolution: str, code: str) -> list[float]:
+    """The totals (s) of ``log``'s cold runs at ``resolution`` (``"512x512"``) of the code
+    whose digest is ``code``, in the order logged (unreadable lines are skipped)."""
+    import json
+
+    if not log.exists():
+        return []
+    totals = []
+    for line in log.read_text(encoding="utf-8").splitlines():
+        try:
+            rec = json.loads(line)
+            if rec["resolution"] == resolution and rec["code"] == code:
+                totals.append(float(rec["total_s"]))
+        except (ValueError, KeyError, TypeError):
+            continue
+    return totals
+
+
+def cold_verdict(totals: list[float], target: float) -> str:
+    """``"over the 3 cold runs of this code: 282, 290, 301 s, mean 291 s ± 5.5 — met"``: the
+    mean of the logged runs and its standard error (sample standard deviation / √n), judged by
+    :func:`experiments.perf.verdict_at_most` (not resolved when the target lies within one
+    standard error); one run: that run's figure, ``"this run only"``."""
+    import math
+    import statistics
+
+    from experiments.perf import verdict_at_most
+
+    n = len(totals)
+    mean = statistics.fmean(totals)
+    se = statistics.stdev(totals) / math.sqrt(n) if n >= 2 else math.nan
+    verdict = verdict_at_most(mean, se, target)
+    if n == 1:
+        return f"this run only — {verdict}"
+    listed = ", ".join(f"{t:.0f}" for t in totals)
+    return (
+        f"over the {n} cold runs of this code in experiments/{COLD_LOG.name}: {listed} s, "
+        f"mean {mean:.0f} s ± {se:.1f} — {verdict}"
+    )
+
+
+def _cold_clause(table: pd.DataFrame, log: Path = COLD_LOG) -> str:
+    """``", in all N s from a cold reference cache (target ≤ T s: …)"`` from the run's
+    timings; the target only where the run was cold at a resolution of :data:`COLD_TARGET_S`,
+    judged on every run of this code in ``log`` (:func:`cold_verdict`; this run included
+    once :func:`log_cold_run` has logged it)."""
+    from sssbench._digest import code_digest
+
+    total = _run_total(table)
     if total != total:  # no timings (a table not from run_preset)
         return ""
     cold = table.attrs.get("cold")
     text = f", in all {total:.0f} s from a {'cold' if cold else 'warm'} reference cache"
-    sizes = {tuple(int(v) for v in r.split("x")) for r in table["resolution"].dropna()}
-    target = COLD_TARGET_S.get(next(iter(sizes))) if len(sizes) == 1 and cold else None
+    size = _run_size(table)
+    target = COLD_TARGET_S.get(size) if size is not None and cold else None
     if target is not None:
-        verdict = "met" if total <= target else "not met"
-        text += f" (issue 30's target at this resolution: ≤ {target:.0f} s — {verdict})"
+        totals = cold_totals(log, f"{size[0]}x{size[1]}", code_digest()) or [total]
+        text += (
+            f" (issue 30's target at this resolution: ≤ {target:.0f} s; "
+            f"{cold_verdict(totals, target)})"
+        )
     return text
 
 
@@ -210,6 +305,7 @@ def preset_section(
     extra += quick_overrides if ctx.quick else ()
     with tempfile.TemporaryDirectory(prefix="sssbench-benchmark-") as tmp:
         table = run_preset(preset, Path(tmp) / "runs.sqlite", Path(tmp), *extra)
+    log_cold_run(table)  # a cold run at a target resolution: judged with the earlier ones
     ok = table[table["status"] == "ok"]
     recs = report.recommendations(table)
     fig_path = ctx.figures / f"{ctx.name}.png"

@@ -1,0 +1,61 @@
+"""The cold-run log of the benchmark sections (issue 30): what is logged, and the target's
+verdict over every logged run of the same code (mean ± standard error, by hand)."""
+
+import json
+import math
+
+import pandas as pd
+
+from experiments import benchmark
+from sssbench._digest import code_digest
+
+
+def table(resolution="512x512", cold=True, warm=200.0, runs=100.0):
+    t = pd.DataFrame({"resolution": [resolution, resolution]})
+    t.attrs.update(warm_s=warm, runs_s=runs, cold=cold, load_start=0.5, load_end=1.5)
+    return t
+
+
+def test_only_a_cold_run_at_a_target_resolution_is_logged(tmp_path):
+    log = tmp_path / "cold.jsonl"
+    assert benchmark.log_cold_run(table(cold=False), log) is None
+    assert benchmark.log_cold_run(table(resolution="256x256"), log) is None
+    assert not log.exists()
+    rec = benchmark.log_cold_run(table(warm=180.04, runs=101.0), log)
+    lines = log.read_text().splitlines()
+    assert len(lines) == 1 and json.loads(lines[0]) == rec
+    assert rec["resolution"] == "512x512" and rec["code"] == code_digest()
+    assert rec["total_s"] == 281.0 and rec["warm_s"] == 180.0 and rec["runs_s"] == 101.0
+
+
+def test_the_verdict_is_on_every_run_of_this_code(tmp_path):
+    log = tmp_path / "cold.jsonl"
+    rows = [
+        {"resolution": "512x512", "code": code_digest(), "total_s": 280.0},
+        {"resolution": "512x512", "code": "other", "total_s": 900.0},  # another code: ignored
+        {"resolution": "1080x1920", "code": code_digest(), "total_s": 700.0},  # another size
+        {"resolution": "512x512", "code": code_digest(), "total_s": 290.0},
+    ]
+    log.write_text("\n".join(json.dumps(r) for r in rows) + "\nnot json\n")
+    assert benchmark.cold_totals(log, "512x512", code_digest()) == [280.0, 290.0]
+    # mean 285, sample sd 7.07, se 5.0: 300 lies 3 standard errors above: met
+    text = benchmark._cold_clause(table(warm=190.0, runs=100.0), log)
+    assert "in all 290 s from a cold reference cache" in text
+    assert "280, 290 s, mean 285 s ± 5.0 — met" in text
+    # a third run of 330 s: mean 300 ± 14.4 (sd 26.46 / √3): the target within one SE
+    with open(log, "a") as out:
+        out.write(json.dumps({"resolution": "512x512", "code": code_digest(), "total_s": 330.0}))
+    totals = benchmark.cold_totals(log, "512x512", code_digest())
+    assert totals == [280.0, 290.0, 330.0]
+    se = math.sqrt(((280 - 300) ** 2 + (290 - 300) ** 2 + (330 - 300) ** 2) / 2 / 3)
+    assert f"mean 300 s ± {se:.1f} — not resolved" in benchmark.cold_verdict(totals, 300.0)
+    assert benchmark.cold_verdict([310.0, 320.0], 300.0).endswith("— not met")
+
+
+def test_a_single_run_is_judged_as_this_run_only(tmp_path):
+    log = tmp_path / "absent.jsonl"
+    assert benchmark._cold_clause(table(warm=200.0, runs=90.0), log).endswith(
+        "(issue 30's target at this resolution: ≤ 300 s; this run only — met)"
+    )
+    assert "this run only — not met" in benchmark._cold_clause(table(runs=150.0), log)
+    assert "target" not in benchmark._cold_clause(table(cold=False), log)
