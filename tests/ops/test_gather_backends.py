@@ -275,8 +275,10 @@ def test_native_pool_serves_concurrent_python_threads():
         torch.set_num_threads(threads)
 
 
-def test_native_pool_restarts_in_a_forked_child():
-    """A child forked after the pool started has no workers: its first pass starts new ones
+@pytest.mark.parametrize("pool", native.POOLS)
+def test_native_pool_restarts_in_a_forked_child(pool):
+    """A child forked after the parent's passes ran on ``pool`` (the own pool's workers, or
+    torch's OpenMP team) has no workers: its first pass runs on new threads of its own pool
     (and must not wait on the parent's). The child calls the native pass directly: torch's
     own OpenMP pool does not survive a fork, so it runs no torch computation."""
     import os
@@ -287,6 +289,8 @@ def test_native_pool_restarts_in_a_forked_child():
     from sssbench._memo import memo_scope
     from sssbench.ops._gather_native import native_pass
 
+    previous = native.pool()
+    native.set_pool(pool)
     threads = torch.get_num_threads()
     torch.set_num_threads(2)
     try:
@@ -321,6 +325,87 @@ def test_native_pool_restarts_in_a_forked_child():
         assert not torch.equal(parent, g.diffuse)  # which blurred something
     finally:
         torch.set_num_threads(threads)
+        native.set_pool(previous)
+
+
+def _openmp_backend():
+    return "parallel backend: OpenMP" in torch.__config__.parallel_info()
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_passes_on_torchs_openmp_team_give_the_own_pools_bits(dtype):
+    """Where torch runs on OpenMP (Linux wheels), the native passes run on torch's own team by
+    default (issue 30: its workers spin after every torch operation on the cores a second pool
+    needs); an x and a y pass, a fan-in sweep and the disk give the own pool's bits, at 1, 2
+    and 3 threads (3 on 2 cores: a team larger than the machine)."""
+    from sssbench.ops import DiskSSS, separable_sweep
+    from sssbench.profiles import SumOfGaussians
+
+    assert native.pool() == ("openmp" if _openmp_backend() else "own")
+    g = scene(seed=4, h=BIG_H, w=203, cover=0.9, dtype=dtype)
+    k = kernel(9)
+    images = torch.rand(2, *g.diffuse.shape, dtype=dtype, generator=torch.Generator())
+    coef = torch.tensor([[0.5, 0.2, 0.3], [0.5, 0.8, 0.7]], dtype=dtype)
+    disk = DiskSSS(SumOfGaussians.from_table("skin_deon6"), 8)
+    opts = dict(follow_surface="lerp", surface_scale=3.0)
+
+    def outputs():
+        with backend("native"):
+            return [
+                separable_pass(g.diffuse, k, "x", g, **opts),
+                separable_pass(g.diffuse, k, "y", g, **opts),
+                separable_sweep(images, [k, k], "y", g, coefficients=coef, **opts),
+                disk(g),
+            ]
+
+    threads = torch.get_num_threads()
+    try:
+        for n in (1, 2, 3):
+            torch.set_num_threads(n)
+            assert native.set_pool("own") == "own"
+            own = outputs()
+            assert native.set_pool("openmp") == ("openmp" if _openmp_backend() else "own")
+            team = outputs()
+            for a, b in zip(own, team, strict=True):
+                assert torch.equal(a, b), n
+    finally:
+        torch.set_num_threads(threads)
+        native.set_pool("openmp")
+
+
+@pytest.mark.skipif(not _openmp_backend(), reason="torch does not run on OpenMP here")
+def test_an_openmp_team_smaller_than_asked_still_runs_every_job():
+    """OMP_THREAD_LIMIT=1 gives a team of one where a call asks for two: that one thread
+    runs both jobs (pool.h: jobs t, t + n, ...; the disk's jobs are fixed halves of its
+    pixels, a pass's share its lines), and the results are the own pool's two threads'. In
+    a fresh interpreter (the limit is read when the runtime starts)."""
+    code = """
+import ctypes, sys, torch
+sys.path.insert(0, {tests!r})
+from test_gather_backends import scene, kernel
+from sssbench.ops import DiskSSS, native, separable_pass
+from sssbench.ops.gather import backend
+from sssbench.profiles import SumOfGaussians
+torch.set_num_threads(2)
+assert native.pool() == "openmp"
+g = scene(seed=6, h=180, w=203, cover=0.9)
+disk = DiskSSS(SumOfGaussians.from_table("skin_deon6"), 8)
+with backend("native"):
+    team = [separable_pass(g.diffuse, kernel(9), "y", g), disk(g)]
+    native.set_pool("own")
+    own = [separable_pass(g.diffuse, kernel(9), "y", g), disk(g)]
+print("equal" if all(torch.equal(a, b) for a, b in zip(team, own)) else "differ")
+"""
+    import os
+    from pathlib import Path
+
+    env = dict(os.environ, OMP_THREAD_LIMIT="1")
+    out = subprocess.run(
+        [sys.executable, "-c", code.format(tests=str(Path(__file__).parent))],
+        capture_output=True, text=True, env=env, timeout=300, check=False,
+    )  # fmt: skip
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip().splitlines()[-1] == "equal"
 
 
 def test_spans_are_the_runs_of_the_stencil():

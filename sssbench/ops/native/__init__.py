@@ -24,6 +24,12 @@ and, in ``gather_simd.h``, vectorised loops for AVX2 and AVX-512F that hold many
 pixels of a row per vector. They are compiled into the same library through ``target``
 attributes (no ``-march``: the library runs on any x86-64) and a pass uses the widest level the
 CPU supports, or the one :func:`set_simd` / :class:`simd` / ``$SSSBENCH_SIMD`` asks for.
+
+A pass's threads (``torch.get_num_threads()`` of them) are, by default, torch's own OpenMP team
+(:func:`set_pool`, ``native/pool.h``): after a torch operation that team's workers spin for
+milliseconds on the cores a second pool of threads would need. ``$SSSBENCH_POOL=own`` (or
+``set_pool("own")``) runs them on the library's own pthread pool instead; the results are the
+same bits either way (tested).
 """
 
 from __future__ import annotations
@@ -48,6 +54,9 @@ __all__ = [
     "set_simd",
     "simd_level",
     "simd_levels",
+    "POOLS",
+    "set_pool",
+    "pool",
 ]
 
 _HERE = Path(__file__).resolve().parent
@@ -150,6 +159,7 @@ def _declare(lib: ctypes.CDLL) -> None:
     for fn in (lib.sss_simd_best, lib.sss_get_simd):
         fn.restype, fn.argtypes = i32, []
     lib.sss_set_simd.restype, lib.sss_set_simd.argtypes = i32, [i32]
+    lib.sss_set_omp.restype, lib.sss_set_omp.argtypes = i32, [p] * 4
     for fn in (lib.sss_disk_f32, lib.sss_disk_f64, lib.sss_disk_hdrp_f32, lib.sss_disk_hdrp_f64):
         fn.restype, fn.argtypes = None, [p]  # a disk_args * (sssbench.ops._disk_native)
 
@@ -227,6 +237,7 @@ def library() -> ctypes.CDLL | None:
             want = os.environ.get("SSSBENCH_SIMD", "").strip().lower()
             if want:
                 set_simd(want)
+            set_pool(os.environ.get("SSSBENCH_POOL", "").strip().lower() or "openmp")
         except Exception as exc:  # any failure: the torch loop
             detail = getattr(exc, "stderr", None) or f"{type(exc).__name__}: {exc}"
             warnings.warn(
@@ -291,3 +302,62 @@ class simd:  # noqa: N801 - used as a context manager, like torch.no_grad
     def __exit__(self, *exc: object) -> None:
         if self.previous is not None:
             set_simd(self.previous)
+
+
+#: where a pass runs its threads: ``"openmp"``, torch's own OpenMP team (the default, where
+#: torch's parallel backend is OpenMP and its runtime is found), or ``"own"``, the library's
+#: pthread pool
+POOLS = ("openmp", "own")
+
+
+def _openmp_entry_points() -> tuple[int, int, int, int] | None:
+    """The addresses of ``GOMP_parallel``, ``omp_get_thread_num``, ``omp_get_num_threads`` and
+    ``omp_in_parallel`` of the OpenMP runtime torch runs its operations on: the one mapped into
+    this process from torch's ``lib`` folder (Linux: ``/proc/self/maps``), or the only one
+    mapped; ``None`` when torch's parallel backend is not OpenMP or the runtime is not found
+    unambiguously. ``dlopen`` of a loaded library's path returns that same library (not a
+    second copy with threads of its own)."""
+    try:
+        import torch
+
+        if "parallel backend: OpenMP" not in torch.__config__.parallel_info():
+            return None
+        paths = set()
+        for line in Path("/proc/self/maps").read_text().splitlines():
+            fields = line.split(maxsplit=5)
+            if len(fields) == 6 and ("libgomp" in fields[5] or "libiomp5" in fields[5]):
+                paths.add(fields[5])
+        torch_lib = Path(torch.__file__).resolve().parent / "lib"
+        found = [p for p in paths if Path(p).parent == torch_lib] or sorted(paths)
+        if len(found) != 1:
+            return None
+        runtime = ctypes.CDLL(found[0])
+        names = ("GOMP_parallel", "omp_get_thread_num", "omp_get_num_threads", "omp_in_parallel")
+        return tuple(ctypes.cast(getattr(runtime, n), ctypes.c_void_p).value for n in names)
+    except Exception:  # no /proc, no such symbol...: the own pool
+        return None
+
+
+def set_pool(kind: str) -> str | None:
+    """Run the native passes' threads on ``kind`` (one of :data:`POOLS`); returns the pool in
+    use: ``"own"`` where torch's OpenMP runtime is not available (``None`` without the
+    library). Process-wide; a process forked from this one uses its own pool. Why torch's team
+    by default: after a torch operation its OpenMP workers spin for milliseconds waiting for
+    more work (libgomp's ``GOMP_SPINCOUNT``), on the very cores the pass's own second thread
+    needs; the pass run by that team takes them instead (measured in ``docs/numerics.md``).
+    The same bits either way: which thread computes a line never changes it."""
+    if kind not in POOLS:
+        raise ValueError(f"unknown pool {kind!r}: one of {POOLS}")
+    lib = library()
+    if lib is None:
+        return None
+    points = _openmp_entry_points() if kind == "openmp" else None
+    on = lib.sss_set_omp(*(points or (None,) * 4))
+    _STATE["pool"] = "openmp" if on else "own"
+    return _STATE["pool"]  # type: ignore[return-value]
+
+
+def pool() -> str | None:
+    """The pool the native passes run on now (:func:`set_pool`; ``None`` without the
+    library)."""
+    return None if library() is None else _STATE.get("pool", "own")  # type: ignore[return-value]

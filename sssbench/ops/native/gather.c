@@ -44,6 +44,26 @@
 
 #include "pool.h"
 
+sss_omp_parallel_fn sss_omp_parallel = NULL;
+int (*sss_omp_thread_num)(void) = NULL;
+int (*sss_omp_num_threads)(void) = NULL;
+int (*sss_omp_in_parallel)(void) = NULL;
+pid_t sss_omp_pid = 0;
+
+/* Run the passes on the OpenMP team of the runtime whose GOMP_parallel, omp_get_thread_num,
+ * omp_get_num_threads and omp_in_parallel these are (torch's: pool.h); any NULL: the own pool.
+ * Only in this process (a forked child uses the own pool). Returns whether it is used. */
+int sss_set_omp(void *parallel, void *thread_num, void *num_threads, void *in_parallel) {
+    const int on = parallel && thread_num && num_threads && in_parallel;
+    sss_omp_parallel = NULL; /* never half set: the pointers first, the switch last */
+    sss_omp_thread_num = on ? (int (*)(void))thread_num : NULL;
+    sss_omp_num_threads = on ? (int (*)(void))num_threads : NULL;
+    sss_omp_in_parallel = on ? (int (*)(void))in_parallel : NULL;
+    sss_omp_pid = getpid();
+    sss_omp_parallel = on ? (sss_omp_parallel_fn)parallel : NULL;
+    return on;
+}
+
 /* The vectorised tap loop (gather_simd.h): x86-64 with GCC or clang builds it for AVX2 and
  * AVX-512F through target attributes (no -march: the library runs on any x86-64) and a pass
  * uses the widest set the CPU and OS support, or the level sss_set_simd asked for. */

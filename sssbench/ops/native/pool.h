@@ -1,15 +1,48 @@
 /* A persistent pool of worker threads and a kept workspace for the tap loop (type-independent;
- * included once).
+ * included once per translation unit: gather.c, disk.c).
  *
  * A pass splits its lines over torch.get_num_threads() threads (the caller passes the count).
- * The workers are started once and sleep on a condition variable between passes: handing a
- * pass to a sleeping worker cost 10 us (min; mean 35 us) against 21 us (mean 80 us) for
- * starting and joining a fresh thread per pass (2 threads, this 2-core shared machine, 2000
- * runs each), on passes of 30-100 us for a small object. Workers never spin: a sleeping
- * thread takes no core from torch's OpenMP threads (spinning 200 us after each pass, as an
- * earlier version did, saved 1-2 us per pass and held a core meanwhile). One pass at a time
- * uses the pool; a concurrent caller (another Python thread) and a process forked while a pass
- * was running start their own threads instead. */
+ * By default a pass runs on torch's own OpenMP team (sss_set_omp: torch hands over its
+ * runtime's GOMP entry points): after a torch operation that team's workers spin for
+ * milliseconds waiting for more work (libgomp's default GOMP_SPINCOUNT), on the cores a
+ * second pool would need. Measured (issue 30, 1080p close-up, 7-tap pre-integrated two-pass,
+ * 2 threads, interleaved with kornia's 7x7 blur as experiments/perf does): the own pool's
+ * two-pass took 1.13x kornia's time there and 0.84x alone; OMP_WAIT_POLICY=PASSIVE (no
+ * spinning) gave 0.79x interleaved, the shared team likewise (docs/numerics.md). Without it
+ * (another backend, a forked child, a call from inside an OpenMP region, sss_set_omp(NULL))
+ * the pass uses its own workers, started once and sleeping on a condition variable between
+ * passes: handing a pass to a sleeping worker cost 10 us (min; mean 35 us) against 21 us
+ * (mean 80 us) for starting and joining a fresh thread per pass (2 threads, this 2-core
+ * shared machine, 2000 runs each), on passes of 30-100 us for a small object. Workers never
+ * spin: a sleeping thread takes no core from torch's OpenMP threads (spinning 200 us after
+ * each pass, as an earlier version did, saved 1-2 us per pass and held a core meanwhile).
+ * One pass at a time uses the pool; a concurrent caller (another Python thread) and a
+ * process forked while a pass was running start their own threads instead. Which thread runs
+ * a job never changes a result (every job's lines are computed alone). */
+
+/* torch's OpenMP runtime (the GOMP ABI of libgomp, which Intel's runtime also exports), set
+ * by sss_set_omp (gather.c) in the process that called it; NULL: the own pool */
+typedef void (*sss_omp_parallel_fn)(void (*)(void *), void *, unsigned, unsigned);
+extern sss_omp_parallel_fn sss_omp_parallel;
+extern int (*sss_omp_thread_num)(void);
+extern int (*sss_omp_num_threads)(void);
+extern int (*sss_omp_in_parallel)(void);
+extern pid_t sss_omp_pid;
+
+typedef struct {
+    void *(*run)(void *);
+    char *args;
+    size_t size;
+    int jobs;
+} omp_jobs;
+
+/* one member of the OpenMP team: jobs t, t + n, ... (a team smaller than asked still runs
+ * every job) */
+static void omp_member(void *arg) {
+    const omp_jobs *o = (const omp_jobs *)arg;
+    const int n = sss_omp_num_threads(), t = sss_omp_thread_num();
+    for (int i = t; i < o->jobs; i += n) o->run(o->args + (size_t)i * o->size);
+}
 
 enum { POOL_MAX = 64 };
 
@@ -47,10 +80,16 @@ static void *pool_worker(void *arg) {
     return NULL;
 }
 
-/* run(args + t * size) for t in [0, threads): t = 0 on the caller's thread, the others on
- * pool workers (or on threads of their own, or the caller, when the pool is unavailable). */
+/* run(args + t * size) for t in [0, threads): on torch's OpenMP team (sss_set_omp), else t = 0
+ * on the caller's thread, the others on pool workers (or on threads of their own, or the
+ * caller, when the pool is unavailable). */
 static void pool_run(void *(*run)(void *), char *args, size_t size, int threads) {
     if (threads > POOL_MAX) threads = POOL_MAX;
+    if (threads > 1 && sss_omp_parallel && sss_omp_pid == getpid() && !sss_omp_in_parallel()) {
+        omp_jobs o = {run, args, size, threads};
+        sss_omp_parallel(omp_member, &o, (unsigned)threads, 0);
+        return;
+    }
     if (threads > 1 && pthread_mutex_trylock(&pool_busy) == 0) {
         if (pool.pid != getpid()) { /* first use, or a fork child: the workers are gone and
                                        the lock and conditions may hold their state */
