@@ -85,10 +85,10 @@ COLD_TARGET_S = {(512, 512): 300.0, (1080, 1920): 1800.0}
 
 #: one JSON line per cold run of a preset at a resolution of :data:`COLD_TARGET_S` (appended
 #: by :func:`preset_section`, committed with the report): the 2-core machines' speed drifts
-#: between runs by more than the target's margin (eight cold runs of the 512² preset on
-#: 2026-12-02/03 took 282–349 s, while code changes moved its CPU time by under 10 %), so the
-#: target is judged on every logged run of the same code (:func:`sssbench._digest.
-#: code_digest`), not on the last one alone
+#: between runs by more than the target's margin (on 2026-12-03 the same code's 512² preset
+#: took 259–323 s from cold within half an hour, 459–572 s of user CPU for the same work;
+#: the log holds them), so the target is judged on every logged run of the same code
+#: (:func:`sssbench._digest.code_digest`), not on the last one alone
 COLD_LOG = Path(__file__).resolve().parent / "cold_runs.jsonl"
 
 
@@ -149,7 +149,8 @@ def cold_totals(log: Path, resolution: str, code: str) -> list[float]:
 
 
 def cold_verdict(totals: list[float], target: float) -> str:
-    """``"over the 3 cold runs of this code: 282, 290, 301 s, mean 291 s ± 5.5 — met"``: the
+    """``"over the 3 cold runs of this code in experiments/cold_runs.jsonl: 282, 290, 301 s,
+    mean 291 s ± 5.5 — met"``: the
     mean of the logged runs and its standard error (sample standard deviation / √n), judged by
     :func:`experiments.perf.verdict_at_most` (not resolved when the target lies within one
     standard error); one run: that run's figure, ``"this run only"``."""
