@@ -172,13 +172,12 @@ def cold_verdict(totals: list[float], target: float) -> str:
     )
 
 
-def _cold_clause(table: pd.DataFrame, log: Path = COLD_LOG) -> str:
+def _cold_clause(table: pd.DataFrame) -> str:
     """``", in all N s from a cold reference cache (target ≤ T s: …)"`` from the run's
     timings; the target only where the run was cold at a resolution of :data:`COLD_TARGET_S`,
-    judged on every run of this code in ``log`` (:func:`cold_verdict`; this run included
-    once :func:`log_cold_run` has logged it)."""
-    from sssbench._digest import code_digest
-
+    judged (:func:`cold_verdict`) on ``table.attrs["cold_totals"]``, the totals of every
+    logged run of this code (:func:`preset_section` puts them there after
+    :func:`log_cold_run`), else on this run alone."""
     total = _run_total(table)
     if total != total:  # no timings (a table not from run_preset)
         return ""
@@ -187,7 +186,7 @@ def _cold_clause(table: pd.DataFrame, log: Path = COLD_LOG) -> str:
     size = _run_size(table)
     target = COLD_TARGET_S.get(size) if size is not None and cold else None
     if target is not None:
-        totals = cold_totals(log, f"{size[0]}x{size[1]}", code_digest()) or [total]
+        totals = table.attrs.get("cold_totals") or [total]
         text += (
             f" (issue 30's target at this resolution: ≤ {target:.0f} s; "
             f"{cold_verdict(totals, target)})"
@@ -306,7 +305,9 @@ def preset_section(
     extra += quick_overrides if ctx.quick else ()
     with tempfile.TemporaryDirectory(prefix="sssbench-benchmark-") as tmp:
         table = run_preset(preset, Path(tmp) / "runs.sqlite", Path(tmp), *extra)
-    log_cold_run(table)  # a cold run at a target resolution: judged with the earlier ones
+    record = log_cold_run(table)  # a cold run at a target resolution: judged with the others
+    if record is not None:
+        table.attrs["cold_totals"] = cold_totals(COLD_LOG, record["resolution"], record["code"])
     ok = table[table["status"] == "ok"]
     recs = report.recommendations(table)
     fig_path = ctx.figures / f"{ctx.name}.png"

@@ -39,7 +39,9 @@ def test_the_verdict_is_on_every_run_of_this_code(tmp_path):
     log.write_text("\n".join(json.dumps(r) for r in rows) + "\nnot json\n")
     assert benchmark.cold_totals(log, "512x512", code_digest()) == [280.0, 290.0]
     # mean 285, sample sd 7.07, se 5.0: 300 lies 3 standard errors above: met
-    text = benchmark._cold_clause(table(warm=190.0, runs=100.0), log)
+    t = table(warm=190.0, runs=100.0)
+    t.attrs["cold_totals"] = benchmark.cold_totals(log, "512x512", code_digest())
+    text = benchmark._cold_clause(t)
     assert "in all 290 s from a cold reference cache" in text
     assert "280, 290 s, mean 285 s ± 5.0 — met" in text
     # a third run of 330 s: mean 300 ± 14.4 (sd 26.46 / √3): the target within one SE
@@ -52,10 +54,10 @@ def test_the_verdict_is_on_every_run_of_this_code(tmp_path):
     assert benchmark.cold_verdict([310.0, 320.0], 300.0).endswith("— not met")
 
 
-def test_a_single_run_is_judged_as_this_run_only(tmp_path):
-    log = tmp_path / "absent.jsonl"
-    assert benchmark._cold_clause(table(warm=200.0, runs=90.0), log).endswith(
+def test_a_run_without_logged_totals_is_judged_alone(tmp_path):
+    assert benchmark.cold_totals(tmp_path / "absent.jsonl", "512x512", code_digest()) == []
+    assert benchmark._cold_clause(table(warm=200.0, runs=90.0)).endswith(
         "(issue 30's target at this resolution: ≤ 300 s; this run only — met)"
     )
-    assert "this run only — not met" in benchmark._cold_clause(table(runs=150.0), log)
-    assert "target" not in benchmark._cold_clause(table(cold=False), log)
+    assert "this run only — not met" in benchmark._cold_clause(table(runs=150.0))
+    assert "target" not in benchmark._cold_clause(table(cold=False))
