@@ -354,10 +354,16 @@ def set_pool(kind: str) -> str | None:
     points = _openmp_entry_points() if kind == "openmp" else None
     on = lib.sss_set_omp(*(points or (None,) * 4))
     _STATE["pool"] = "openmp" if on else "own"
+    _STATE["pool_pid"] = os.getpid()  # the C side's check: torch's team serves this process only
     return _STATE["pool"]  # type: ignore[return-value]
 
 
 def pool() -> str | None:
     """The pool the native passes run on now (:func:`set_pool`; ``None`` without the
-    library)."""
-    return None if library() is None else _STATE.get("pool", "own")  # type: ignore[return-value]
+    library): ``"own"`` in a process forked after the pool was set, whose passes run on their
+    own pool whatever the parent set (``pool_run`` in ``native/pool.h`` checks the pid)."""
+    if library() is None:
+        return None
+    if _STATE.get("pool_pid") != os.getpid():
+        return "own"
+    return _STATE.get("pool", "own")  # type: ignore[return-value]

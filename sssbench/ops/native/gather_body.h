@@ -269,6 +269,30 @@ static inline __attribute__((always_inline)) int CAT(line_begin_, SUFFIX)(
     return 1;
 }
 
+/* A y strip's scales (line_scales_, scales_, before its window is packed) read the per-pixel
+ * inputs of its rows w SCALARs apart: a page per row and input, which the hardware
+ * prefetcher does not follow (perf, issue 30, 1080p close-up, 7-tap two-pass, level avx512,
+ * 2 threads: 14 % of the y pass's samples on the loads of depth and mask there). The inputs of
+ * the span SCALE_AHEAD spans on are asked for while this one is computed: the two-pass took
+ * 0.96x ± 0.01, 0.98x ± 0.01 and 0.98x ± 0.015 of the wall time in three runs of 25
+ * alternated rounds in one process (bitwise the same output; the artist pass 1.00x ± 0.02;
+ * 4 spans ahead 0.98x ± 0.02, 16 spans 1.04x ± 0.02). An x row (the whole width) reads its
+ * inputs as streams: not asked. */
+#define SCALE_AHEAD ((int64_t)8)
+static inline __attribute__((always_inline)) void CAT(prefetch_scales_, SUFFIX)(
+    const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX) *ln, int64_t e) {
+    if (ln->s1 - ln->s0 == j->w) return; /* an x row (or a strip as wide as the image) */
+    if (e + SCALE_AHEAD >= ln->count) return;
+    const int64_t *sp = j->spans + 3 * ln->ids[e + SCALE_AHEAD];
+    const int64_t c0 = sp[1] > ln->s0 ? sp[1] : ln->s0, c1 = sp[2] < ln->s1 ? sp[2] : ln->s1;
+    const int64_t base = sp[0] * j->w, step = 64 / (int64_t)sizeof(SCALAR);
+    const SCALAR *in[4] = {j->depth, j->ddepth, j->width, j->mask};
+    for (int a = 0; a < 4; ++a)
+        if (in[a])
+            for (int64_t c = c0; c < c1 + step; c += step)
+                __builtin_prefetch(in[a] + base + (c < c1 ? c : c1 - 1));
+}
+
 /* the scales of the line's active pixels into j->scale; returns the largest |scale| */
 static inline __attribute__((always_inline)) SCALAR CAT(line_scales_, SUFFIX)(
     const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX) *ln) {
@@ -276,6 +300,7 @@ static inline __attribute__((always_inline)) SCALAR CAT(line_scales_, SUFFIX)(
     int64_t idx = 0;
     for (int64_t e = 0; e < ln->count; ++e) {
         const int64_t *sp = j->spans + 3 * ln->ids[e];
+        CAT(prefetch_scales_, SUFFIX)(j, ln, e);
         const int64_t c0 = sp[1] > ln->s0 ? sp[1] : ln->s0, c1 = sp[2] < ln->s1 ? sp[2] : ln->s1;
         for (int64_t c = c0; c < c1; ++c) {
             const SCALAR sc = CAT(scale_at_, SUFFIX)(j, sp[0] * j->w + c);

@@ -563,6 +563,7 @@ SIMD_FN SCALAR SIMDN(scales_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFI
     for (int64_t e = 0; e < ln->count; ++e) {
         const int64_t *sp = j->spans + 3 * ln->ids[e];
         const int64_t c0 = sp[1] > ln->s0 ? sp[1] : ln->s0, c1 = sp[2] < ln->s1 ? sp[2] : ln->s1;
+        CAT(prefetch_scales_, SUFFIX)(j, ln, e);
         const int64_t base = sp[0] * j->w;
         int64_t c = c0;
         for (; c + DW <= c1; c += DW) {

@@ -8,7 +8,7 @@
  * second pool would need. Measured (issue 30, 1080p close-up, 7-tap pre-integrated two-pass,
  * 2 threads, interleaved with kornia's 7x7 blur as experiments/perf does): the own pool's
  * two-pass took 1.13x kornia's time there and 0.84x alone; OMP_WAIT_POLICY=PASSIVE (no
- * spinning) gave 0.79x interleaved, the shared team likewise (docs/numerics.md). Without it
+ * spinning) gave 0.79x interleaved, the shared team 0.73-0.77x (docs/numerics.md). Without it
  * (another backend, a forked child, a call from inside an OpenMP region, sss_set_omp(NULL))
  * the pass uses its own workers, started once and sleeping on a condition variable between
  * passes: handing a pass to a sleeping worker cost 10 us (min; mean 35 us) against 21 us
