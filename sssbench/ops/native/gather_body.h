@@ -72,14 +72,20 @@ typedef SCALAR CAT(vec16_, SUFFIX) __attribute__((vector_size(16)));
 typedef LANE CAT(lanes16_, SUFFIX) __attribute__((vector_size(16)));
 
 /* y-pass strip widths (columns): one cache line of each plane row when few pixels are active
- * (a narrow strip packs no column it does not need), 512 bytes of each when many are or the
- * whole image is copied (fewer strips cross each page of the planes: fewer TLB misses), 256
- * bytes for a fan-in sweep, whose packed rows hold 3 S + 1 planes (the 6-set fused sum of
- * Gaussians, 1080p close-up, 7 taps, avx512, alternated in one process, 41 rounds: 0.93x the
- * CPU time, 0.92x the wall time of 512 bytes; 128 bytes: 1.05x; issue 30) */
+ * (a narrow strip packs no column it does not need), 256 bytes of each when many are or the
+ * whole image is copied. Wide strips were 512 bytes (fewer strips cross each page of the
+ * planes: fewer TLB misses) but for a fan-in sweep, whose packed rows hold 3 S + 1 planes
+ * (the 6-set fused sum of Gaussians, 1080p close-up, 7 taps, avx512, alternated in one
+ * process, 41 rounds: 0.93x the CPU time, 0.92x the wall time of 512 bytes; 128 bytes: 1.05x).
+ * Once a y strip's scales asked for their rows ahead (prefetch_scales_), 256 bytes won for
+ * the single-input passes too: a packed window row of 1 KB, so twice the rows of a wide
+ * kernel's window stay in L1 (issue 30, level avx512, alternated rounds in one process, wall
+ * time against 512 bytes: 1080p close-up at 2 threads, 7-tap pre-integrated 0.93x, 0.98x and
+ * 0.96x ± 0.02 in three runs, the artist pass 0.93x, 0.98x and 0.95x ± 0.01; at 1 thread
+ * 0.97x and 0.95x; 512² close-up at 1 thread 0.95x and 0.94x; 128 bytes 0.96-0.98x and
+ * 0.94-0.96x; 1024 bytes 1.09x and 1.12x) */
 #define NARROW_STRIP ((int64_t)(64 / sizeof(SCALAR)))
-#define WIDE_STRIP ((int64_t)(512 / sizeof(SCALAR)))
-#define FAN_IN_STRIP ((int64_t)(256 / sizeof(SCALAR)))
+#define WIDE_STRIP ((int64_t)(256 / sizeof(SCALAR)))
 
 /* pixels per kernel-offset unit at flat pixel l: DESIGN §2 pinhole, 003 §7.3.1 stretch and
  * s' = s * alpha; the torch loop's operations in its order (pixel_scales in
@@ -407,7 +413,8 @@ static inline __attribute__((always_inline)) void CAT(line_window_, SUFFIX)(
 
 /* A single-input y strip's rows are asked for (prefetch_row_: the planes, depth and the
  * per-pixel inputs its scales read) PACK_AHEAD rows before line_pack_ copies them: a strip row
- * is 512 bytes of each plane, a whole image row from the next, and its copy waited for memory
+ * was 512 bytes of each plane then (256 since: WIDE_STRIP), a whole image row from the next,
+ * and its copy waited for memory
  * (perf: memmove 18 % of the CPU time of the two-pass; issue 30, 1080p close-up, 7-tap
  * two-pass, level avx512, 25 interleaved rounds in one process: 0.91x the wall time, 0.92x
  * the CPU time with the four planes asked for; distance 4 the same within noise; with
@@ -653,9 +660,7 @@ int64_t CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const i
     enum { MIN_THREAD_WORK = 16384 };
     if (work < MIN_THREAD_WORK * (int64_t)threads)
         threads = work < 2 * MIN_THREAD_WORK ? 1 : (int)(work / MIN_THREAD_WORK);
-    const int64_t strip = 4 * n < h * w && !copy ? NARROW_STRIP
-                          : fan_in                  ? FAN_IN_STRIP
-                                                    : WIDE_STRIP;
+    const int64_t strip = 4 * n < h * w && !copy ? NARROW_STRIP : WIDE_STRIP;
     const int64_t n_lines = axis_y ? (w + strip - 1) / strip : h;
     const int64_t line_len = axis_y ? h * strip : w; /* pixels of one line at most */
     /* per line: (first entry, span count, work), then the entries: span indices,
