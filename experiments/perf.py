@@ -159,6 +159,14 @@ def interleaved_ms(
 BOOTSTRAP = 2000
 
 
+#: rounds of the headline trio (the operator, kornia's blur, the floor; about 50 ms a round at
+#: 1080p): 9 until 2026-12-03, when the same code gave 0.67× and, hours later, 0.90× kornia
+#: (standard errors 0.01 and 0.12), the next code 1.00× and 1.28×, its operator 21 ms in
+#: both and kornia's own time in the trio 17–25 ms from run to run: more rounds cost about a
+#: second
+TRIO_ROUNDS = 25
+
+
 def median_ratio(nums: list[float], dens: list[float], scale: float = 1.0) -> tuple[float, float]:
     """The median of the per-round ratios ``scale · nums[i] / dens[i]`` and its standard error:
     the standard deviation of the median over :data:`BOOTSTRAP` resamples of the rounds (with
@@ -485,7 +493,7 @@ def run(ctx: Context) -> Section:
             "kornia": lambda: kornia.filters.gaussian_blur2d(g.diffuse, (7, 7), (1.5, 1.5)),
             "floor": lambda: g.diffuse.clone(),
         },
-        9,
+        TRIO_ROUNDS,
     )
     pairs = list(zip(trio["op"], trio["kornia"], strict=True))
     paired, paired_se = median_ratio(trio["op"], trio["kornia"])
@@ -645,7 +653,7 @@ def run(ctx: Context) -> Section:
         targets.append(
             f"- two-pass, 7 taps, {big}, {mode}: {t7 / kornia_big:.2f}× kornia"
             + (
-                f" in the table; {paired:.2f}× as the median of 9 interleaved pairs "
+                f" in the table; {paired:.2f}× as the median of {TRIO_ROUNDS} interleaved pairs "
                 f"(operator {statistics.median(t for t, _ in pairs):.1f} ms, kornia "
                 f"{statistics.median(k for _, k in pairs):.1f} ms; target ≤ 4×)."
                 if headline
@@ -752,7 +760,8 @@ def run(ctx: Context) -> Section:
     v = judged(verdict_at_most(paired, paired_se, 1.0))
     t30.append(
         f"- 7-tap depth-aware two-pass ({big} close-up, level `{level}`) ≤ 1.0× kornia's 7×7: "
-        f"{ratio_text(paired, paired_se)} (median of per-round ratios, 9 rounds interleaved "
+        f"{ratio_text(paired, paired_se)} (median of per-round ratios, {TRIO_ROUNDS} rounds "
+        f"interleaved "
         f"with kornia and the floor) — {v}."
     )
     v = judged(verdict_at_most(paired_floor, paired_floor_se, 10.0))
