@@ -162,7 +162,7 @@ BOOTSTRAP = 2000
 #: rounds of the headline trio (the operator, kornia's blur, the floor; about 50 ms a round at
 #: 1080p): 9 until 2026-12-03, when the same code gave 0.67× and, hours later, 0.90× kornia
 #: (standard errors 0.01 and 0.12), the next code 1.00× and 1.28×, its operator 21 ms in
-#: both and kornia's own time in the trio 17–25 ms from run to run: more rounds cost about a
+#: both and kornia's own time in the trio 17–31 ms from run to run: more rounds cost about a
 #: second
 TRIO_ROUNDS = 25
 
@@ -761,8 +761,7 @@ def run(ctx: Context) -> Section:
     t30.append(
         f"- 7-tap depth-aware two-pass ({big} close-up, level `{level}`) ≤ 1.0× kornia's 7×7: "
         f"{ratio_text(paired, paired_se)} (median of per-round ratios, {TRIO_ROUNDS} rounds "
-        f"interleaved "
-        f"with kornia and the floor) — {v}."
+        f"interleaved with kornia and the floor) — {v}."
     )
     v = judged(verdict_at_most(paired_floor, paired_floor_se, 10.0))
     t30.append(
