@@ -192,14 +192,15 @@ static inline int64_t CAT(window_, SUFFIX)(const CAT(job_, SUFFIX) *j, SCALAR ma
 
 /* Ask for the cache lines a pass will read on row `row` between columns c0 and c1 (its
  * active pixels, a few pixels of the window around them): the planes, depth and the per-pixel
- * inputs. For a y strip: PACK_AHEAD rows before they are packed (line_pack_). For an x pass:
- * called one active row ahead for rows of at most SHORT_ROW pixels, so that a far-away
+ * inputs (first = 0), or depth and the per-pixel inputs only (first = 3: what the scales read,
+ * prefetch_scales_). For a y strip: PACK_AHEAD rows before they are packed (line_pack_). For
+ * an x pass: called one active row ahead for rows of at most SHORT_ROW pixels, so that a far-away
  * object's short rows, which the hardware prefetcher does not see as streams, are fetched while
  * the row before is computed (measured on a 1 %-of-1080p object: 5 % less CPU time in its x
  * pass; a close-up's long rows are streams the hardware already fetches: not asked). */
 #define SHORT_ROW ((int64_t)256)
 static inline void CAT(prefetch_row_, SUFFIX)(const CAT(job_, SUFFIX) *j, int64_t row,
-                                              int64_t c0, int64_t c1) {
+                                              int64_t c0, int64_t c1, int first) {
     const int64_t w = j->w, hw = j->h * w, step = 64 / (int64_t)sizeof(SCALAR);
     c0 = c0 > 8 ? c0 - 8 : 0;
     c1 = c1 + 8 < w ? c1 + 8 : w;
@@ -207,7 +208,7 @@ static inline void CAT(prefetch_row_, SUFFIX)(const CAT(job_, SUFFIX) *j, int64_
                              j->depth + row * w, j->mask ? j->mask + row * w : NULL,
                              j->width ? j->width + row * w : NULL,
                              j->ddepth ? j->ddepth + row * w : NULL};
-    for (int a = 0; a < 7; ++a)
+    for (int a = first; a < 7; ++a)
         if (rows[a])
             for (int64_t c = c0; c < c1 + step; c += step)
                 __builtin_prefetch(rows[a] + (c < c1 ? c : c1 - 1));
@@ -265,7 +266,7 @@ static inline __attribute__((always_inline)) int CAT(line_begin_, SUFFIX)(
             const int64_t *nids = j->ids + j->lines[3 * nq];
             const int64_t nc = j->lines[3 * nq + 1];
             const int64_t a = j->spans[3 * nids[0] + 1], b = j->spans[3 * nids[nc - 1] + 2];
-            if (b - a <= SHORT_ROW) CAT(prefetch_row_, SUFFIX)(j, nq, a, b);
+            if (b - a <= SHORT_ROW) CAT(prefetch_row_, SUFFIX)(j, nq, a, b, 0);
         }
     }
     ln->ids = ids;
@@ -291,12 +292,7 @@ static inline __attribute__((always_inline)) void CAT(prefetch_scales_, SUFFIX)(
     if (e + SCALE_AHEAD >= ln->count) return;
     const int64_t *sp = j->spans + 3 * ln->ids[e + SCALE_AHEAD];
     const int64_t c0 = sp[1] > ln->s0 ? sp[1] : ln->s0, c1 = sp[2] < ln->s1 ? sp[2] : ln->s1;
-    const int64_t base = sp[0] * j->w, step = 64 / (int64_t)sizeof(SCALAR);
-    const SCALAR *in[4] = {j->depth, j->ddepth, j->width, j->mask};
-    for (int a = 0; a < 4; ++a)
-        if (in[a])
-            for (int64_t c = c0; c < c1 + step; c += step)
-                __builtin_prefetch(in[a] + base + (c < c1 ? c : c1 - 1));
+    CAT(prefetch_row_, SUFFIX)(j, sp[0], c0, c1, 3);
 }
 
 /* the scales of the line's active pixels into j->scale; returns the largest |scale| */
@@ -436,7 +432,8 @@ static inline __attribute__((always_inline)) void CAT(line_pack_, SUFFIX)(
     for (int64_t r = ln->packed; r <= end; ++r) { /* each row's planes side by side */
         CAT(pack_row_, SUFFIX)(j, j->buf + (r - ln->lo) * ln->pitch, r, ln->s0, cw, cw);
         const int64_t ahead = r + PACK_AHEAD;
-        if (ahead <= ln->hi && !j->fan_in) CAT(prefetch_row_, SUFFIX)(j, ahead, ln->s0, ln->s1);
+        if (ahead <= ln->hi && !j->fan_in)
+            CAT(prefetch_row_, SUFFIX)(j, ahead, ln->s0, ln->s1, 0);
     }
     if (end >= ln->packed) ln->packed = end + 1;
 }
