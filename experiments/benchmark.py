@@ -27,7 +27,7 @@ from experiments.common import Context, Section, main, md_table, shrink_png
 from sssbench import report
 from sssbench.app import compose_spec, preset_grid
 from sssbench.report import plots
-from sssbench.report.tables import budget_verdicts
+from sssbench.report.tables import WITHIN, budget_verdicts
 from sssbench.run.parallel import run_parallel
 from sssbench.run.warm import warm
 from sssbench.score.budget_verdict import PART_NAMES, PARTS
@@ -103,9 +103,13 @@ def _run_total(table: pd.DataFrame) -> float:
     return table.attrs.get("warm_s", float("nan")) + table.attrs.get("runs_s", float("nan"))
 
 
-def log_cold_run(table: pd.DataFrame, log: Path = COLD_LOG) -> dict | None:
+def log_cold_run(
+    table: pd.DataFrame, log: Path = COLD_LOG, recs: pd.DataFrame | None = None
+) -> dict | None:
     """Append this run's record to ``log`` when it ran from cold at a resolution of
-    :data:`COLD_TARGET_S`; returns the record (``None``: nothing logged)."""
+    :data:`COLD_TARGET_S`; returns the record (``None``: nothing logged). With ``recs`` (the
+    run's :func:`sssbench.report.recommendations`) the record also holds each group's
+    recommended configuration, ``{"scene scale": label}`` (:func:`recommendation_changes`)."""
     import datetime
     import json
 
@@ -125,6 +129,10 @@ def log_cold_run(table: pd.DataFrame, log: Path = COLD_LOG) -> dict | None:
         "load_start": round(attrs.get("load_start", float("nan")), 2),
         "load_end": round(attrs.get("load_end", float("nan")), 2),
     }
+    if recs is not None and len(recs):
+        record["recommended"] = {
+            f"{r['scene']} {r['scale']}": str(r["recommended"]) for _, r in recs.iterrows()
+        }
     with open(log, "a", encoding="utf-8") as out:
         out.write(json.dumps(record) + "\n")
     return record
@@ -146,6 +154,61 @@ def cold_totals(log: Path, resolution: str, code: str) -> list[float]:
         except (ValueError, KeyError, TypeError):
             continue
     return totals
+
+
+def recommendation_changes(
+    log: Path, resolution: str, code: str
+) -> tuple[int, int, dict[str, list[str]]]:
+    """How the recommendations of ``log``'s cold runs of the code ``code`` at ``resolution``
+    (the runs that recorded them, :func:`log_cold_run`) agree: ``(runs, groups, changed)``
+    with ``changed`` the groups (``"scene scale"``, every run's group alike) whose
+    recommendation was not the same in every run, each with its distinct labels in the
+    order first seen."""
+    import json
+
+    if not log.exists():
+        return 0, 0, {}
+    picks: list[dict[str, str]] = []
+    for line in log.read_text(encoding="utf-8").splitlines():
+        try:
+            rec = json.loads(line)
+            if rec["resolution"] == resolution and rec["code"] == code:
+                if isinstance(rec.get("recommended"), dict):
+                    picks.append({str(k): str(v) for k, v in rec["recommended"].items()})
+        except (ValueError, KeyError, TypeError):
+            continue
+    groups = sorted(set().union(*picks)) if picks else []
+    changed = {}
+    for group in groups:
+        labels = list(dict.fromkeys(p[group] for p in picks if group in p))
+        if len(labels) > 1:
+            changed[group] = labels
+    return len(picks), len(groups), changed
+
+
+def recommendation_stability(runs: int, groups: int, changed: dict[str, list[str]]) -> str:
+    """The sentence under the recommendations on how they held between the logged cold runs
+    of this code (:func:`recommendation_changes`), computed from them."""
+    where = f"experiments/{COLD_LOG.name}"
+    if runs < 2:
+        return (
+            f"How these recommendations hold between runs is not measured yet: {runs} logged "
+            f"cold run of this code in {where} records its recommendations."
+        )
+    if not changed:
+        return (
+            f"All {groups} groups' recommendations were the same in the {runs} logged cold "
+            f"runs of this code that record them ({where})."
+        )
+    listed = "; ".join(f"{g}: {' / '.join(labels)}" for g, labels in changed.items())
+    return (
+        f"Between the {runs} logged cold runs of this code that record their recommendations "
+        f"({where}), {len(changed)} of {groups} groups' recommendation changed ({listed}). "
+        f"The pick is the cheapest configuration within {WITHIN:.0%} of the best skill, by its "
+        "time in that run, and a configuration's time varies from run to run: where two "
+        "candidates' times differ by less than that, which one is cheaper is not resolved by "
+        "one run."
+    )
 
 
 def cold_verdict(totals: list[float], target: float) -> str:
@@ -305,11 +368,15 @@ def preset_section(
     extra += quick_overrides if ctx.quick else ()
     with tempfile.TemporaryDirectory(prefix="sssbench-benchmark-") as tmp:
         table = run_preset(preset, Path(tmp) / "runs.sqlite", Path(tmp), *extra)
-    record = log_cold_run(table)  # a cold run at a target resolution: judged with the others
+    recs = report.recommendations(table)
+    # a cold run at a target resolution: judged with the others, its recommendations compared
+    record = log_cold_run(table, recs=recs)
+    stability = ""
     if record is not None:
         table.attrs["cold_totals"] = cold_totals(COLD_LOG, record["resolution"], record["code"])
+        changes = recommendation_changes(COLD_LOG, record["resolution"], record["code"])
+        stability = "\n\n" + recommendation_stability(*changes)
     ok = table[table["status"] == "ok"]
-    recs = report.recommendations(table)
     fig_path = ctx.figures / f"{ctx.name}.png"
     ctx.figures.mkdir(parents=True, exist_ok=True)
     figures = []
@@ -345,6 +412,7 @@ def preset_section(
         + md_table(
             rec_rows, ["scene", "scale", "resolution", "recommended", "best skill", "verdict"]
         )
+        + stability
         + "\n\nSkill against doing nothing over the ranked points (1 = exact, 0 = no better "
         "than the unblurred input, < 0 worse):\n\n"
         + md_table(

@@ -61,3 +61,50 @@ def test_a_run_without_logged_totals_is_judged_alone(tmp_path):
     )
     assert "this run only — not met" in benchmark._cold_clause(table(runs=150.0))
     assert "target" not in benchmark._cold_clause(table(cold=False))
+
+
+def recs(**picks):
+    """A recommendations frame: one row per ``scene="label"`` at scale ``0.1 mm/px``."""
+    return pd.DataFrame(
+        {
+            "scene": list(picks),
+            "scale": ["0.1 mm/px"] * len(picks),
+            "recommended": list(picks.values()),
+        }
+    )
+
+
+def test_a_cold_run_logs_its_recommendations(tmp_path):
+    log = tmp_path / "cold.jsonl"
+    rec = benchmark.log_cold_run(table(), log, recs(face="a 7", pores="b 13"))
+    assert rec["recommended"] == {"face 0.1 mm/px": "a 7", "pores 0.1 mm/px": "b 13"}
+    assert json.loads(log.read_text().splitlines()[0])["recommended"] == rec["recommended"]
+    assert "recommended" not in benchmark.log_cold_run(table(), log)  # none given: none logged
+
+
+def test_the_recommendations_that_changed_between_runs_of_this_code(tmp_path):
+    log = tmp_path / "cold.jsonl"
+    code = code_digest()
+    assert benchmark.recommendation_changes(log, "512x512", code) == (0, 0, {})
+    for picks in ({"face": "a 7", "pores": "b 13"}, {"face": "a 13", "pores": "b 13"}):
+        benchmark.log_cold_run(table(), log, recs(**picks))
+    with open(log, "a") as out:
+        out.write("not json\n")
+        # another code, another size, a run without recommendations: none of them counts
+        for other in ({"code": "other"}, {"resolution": "1080x1920"}, {}):
+            rec = {"resolution": "512x512", "code": code, "total_s": 300.0}
+            rec |= other
+            if other:
+                rec["recommended"] = {"face 0.1 mm/px": "z 33", "pores 0.1 mm/px": "z 33"}
+            out.write(json.dumps(rec) + "\n")
+    benchmark.log_cold_run(table(), log, recs(face="a 7", pores="b 13"))
+    runs, groups, changed = benchmark.recommendation_changes(log, "512x512", code)
+    assert (runs, groups) == (3, 2)
+    assert changed == {"face 0.1 mm/px": ["a 7", "a 13"]}  # distinct, in the order first seen
+    text = benchmark.recommendation_stability(runs, groups, changed)
+    assert "Between the 3 logged cold runs" in text
+    assert "1 of 2 groups' recommendation changed (face 0.1 mm/px: a 7 / a 13)" in text
+    assert "not resolved by one run" in text
+    same = benchmark.recommendation_stability(2, 2, {})
+    assert same.startswith("All 2 groups' recommendations were the same in the 2 logged")
+    assert "not measured yet: 1 logged" in benchmark.recommendation_stability(1, 2, {})
