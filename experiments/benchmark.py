@@ -191,9 +191,10 @@ def recommendation_stability(runs: int, groups: int, changed: dict[str, list[str
     of this code (:func:`recommendation_changes`), computed from them."""
     where = f"experiments/{COLD_LOG.name}"
     if runs < 2:
+        logged = "one logged cold run" if runs == 1 else "no logged cold run"
         return (
-            f"How these recommendations hold between runs is not measured yet: {runs} logged "
-            f"cold run of this code in {where} records its recommendations."
+            "How these recommendations hold between runs is not measured yet: "
+            f"{logged} of this code in {where} records its recommendations."
         )
     if not changed:
         return (

@@ -107,4 +107,5 @@ def test_the_recommendations_that_changed_between_runs_of_this_code(tmp_path):
     assert "not resolved by one run" in text
     same = benchmark.recommendation_stability(2, 2, {})
     assert same.startswith("All 2 groups' recommendations were the same in the 2 logged")
-    assert "not measured yet: 1 logged" in benchmark.recommendation_stability(1, 2, {})
+    assert "not measured yet: one logged" in benchmark.recommendation_stability(1, 2, {})
+    assert "not measured yet: no logged" in benchmark.recommendation_stability(0, 0, {})
