@@ -138,19 +138,31 @@ def log_cold_run(
     return record
 
 
-def cold_totals(log: Path, resolution: str, code: str) -> list[float]:
-    """The totals (s) of ``log``'s cold runs at ``resolution`` (``"512x512"``) of the code
-    whose digest is ``code``, in the order logged (unreadable lines are skipped)."""
+def _cold_records(log: Path, resolution: str, code: str) -> list[dict]:
+    """``log``'s records of cold runs at ``resolution`` (``"512x512"``) of the code whose
+    digest is ``code``, in the order logged (unreadable lines and records are skipped)."""
     import json
 
     if not log.exists():
         return []
-    totals = []
+    records = []
     for line in log.read_text(encoding="utf-8").splitlines():
         try:
             rec = json.loads(line)
             if rec["resolution"] == resolution and rec["code"] == code:
-                totals.append(float(rec["total_s"]))
+                records.append(rec)
+        except (ValueError, KeyError, TypeError):
+            continue
+    return records
+
+
+def cold_totals(log: Path, resolution: str, code: str) -> list[float]:
+    """The totals (s) of ``log``'s cold runs at ``resolution`` of the code ``code``, in the
+    order logged (:func:`_cold_records`; a record without a number is skipped)."""
+    totals = []
+    for rec in _cold_records(log, resolution, code):
+        try:
+            totals.append(float(rec["total_s"]))
         except (ValueError, KeyError, TypeError):
             continue
     return totals
@@ -160,23 +172,15 @@ def recommendation_changes(
     log: Path, resolution: str, code: str
 ) -> tuple[int, int, dict[str, list[str]]]:
     """How the recommendations of ``log``'s cold runs of the code ``code`` at ``resolution``
-    (the runs that recorded them, :func:`log_cold_run`) agree: ``(runs, groups, changed)``
-    with ``changed`` the groups (``"scene scale"``, every run's group alike) whose
-    recommendation was not the same in every run, each with its distinct labels in the
-    order first seen."""
-    import json
-
-    if not log.exists():
-        return 0, 0, {}
-    picks: list[dict[str, str]] = []
-    for line in log.read_text(encoding="utf-8").splitlines():
-        try:
-            rec = json.loads(line)
-            if rec["resolution"] == resolution and rec["code"] == code:
-                if isinstance(rec.get("recommended"), dict):
-                    picks.append({str(k): str(v) for k, v in rec["recommended"].items()})
-        except (ValueError, KeyError, TypeError):
-            continue
+    (:func:`_cold_records`; the runs that recorded them, :func:`log_cold_run`) agree:
+    ``(runs, groups, changed)`` with ``changed`` the groups (``"scene scale"``, every run's
+    group alike) whose recommendation was not the same in every run, each with its distinct
+    labels in the order first seen."""
+    picks = [
+        {str(k): str(v) for k, v in rec["recommended"].items()}
+        for rec in _cold_records(log, resolution, code)
+        if isinstance(rec.get("recommended"), dict)
+    ]
     groups = sorted(set().union(*picks)) if picks else []
     changed = {}
     for group in groups:
