@@ -12,6 +12,7 @@ from sssbench.score.verdict import (
     VISIBLE_FLIP,
     VISIBLE_LOCAL_FLIP,
     is_visible,
+    not_resolved_cheaper,
     pareto_set,
     recommend,
     recommendation_sentence,
@@ -116,6 +117,40 @@ def test_recommend_cheapest_within_ten_percent():
     assert recommend(_rows(), tolerance=0.2).set_index("scene").loc["step_edge", "config"] == "b"
     with pytest.raises(ValueError, match="columns"):
         recommend(_rows().drop(columns="time_ms"))
+
+
+def test_a_time_within_the_run_to_run_spread_is_not_resolved_as_slower():
+    """``t <= pick · (1 + spread)``, by hand: 10 ms against a 10 ms pick is tied at any
+    spread; 11 ms at 10 % (bound 11.000000000000002) and 20 %, not at 5 %; NaN never."""
+    times = [10.0, 11.0, 13.0, math.nan]
+    assert not_resolved_cheaper(times, 10.0, 0.0).tolist() == [True, False, False, False]
+    assert not_resolved_cheaper(times, 10.0, 0.05).tolist() == [True, False, False, False]
+    assert not_resolved_cheaper(times, 10.0, 0.1).tolist() == [True, True, False, False]
+    assert not_resolved_cheaper(times, 10.0, 0.2).tolist() == [True, True, False, False]
+    assert not_resolved_cheaper(times, 10.0, 0.3).tolist() == [True, True, True, False]
+    with pytest.raises(ValueError, match="time_spread"):
+        not_resolved_cheaper(times, 10.0, -0.1)
+    with pytest.raises(ValueError, match="time_spread"):
+        not_resolved_cheaper(times, 10.0, math.inf)
+
+
+def test_recommend_names_the_candidates_it_is_not_resolved_as_cheaper_than():
+    """step_edge qualifies a (2 ms) and c (9 ms): c is within the spread of a when
+    2 · (1 + s) >= 9, i.e. s >= 3.5; the recommendation is a either way."""
+    for spread, tied in ((0.0, ()), (3.4, ()), (3.5, ("c",)), (5.0, ("c",))):
+        rec = recommend(_rows(), time_spread=spread).set_index("scene", drop=False)
+        assert rec.loc["step_edge", "config"] == "a"
+        assert rec.loc["step_edge", "tied"] == tied
+        assert rec.loc["head_far", "tied"] == ()
+    # doing nothing (0 ms) is the pick where nothing beats it; no other candidate costs 0
+    rec = recommend(_rows(), time_spread=5.0).set_index("scene", drop=False)
+    assert rec.loc["head_cheek", "tied"] == ()
+    assert recommendation_sentence(rec.loc["step_edge"]) == (
+        "step_edge, 128: use a (skill 0.82, 2 ms); not resolved as cheaper than c; the best, "
+        "c, reaches 0.90."
+    )
+    with pytest.raises(ValueError, match="time_spread"):
+        recommend(_rows(), time_spread=-1.0)
 
 
 def test_sentences_follow_the_numbers():

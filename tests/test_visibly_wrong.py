@@ -262,3 +262,48 @@ def test_the_benchmark_section_states_its_cold_time(resolution, warm_s, runs_s, 
     text = measured_text(table, report.recommendations(table))
     assert expected in text
     assert ("target" in text) == (cold and resolution in ("512x512", "1080x1920"))
+
+
+@pytest.mark.parametrize("seed", range(20))
+@pytest.mark.parametrize("spread", [0.0, 0.3, 1.5])
+@pytest.mark.parametrize("close", [False, True])
+def test_the_tied_configurations_are_those_within_the_time_spread(seed, spread, close):
+    """``tied`` (and the verdict's "is not resolved" clause) names exactly the configurations
+    a brute-force pass over the rows finds: ok, not the baseline, skill within 10 % of the
+    group's best, not the recommendation, and time at most the recommendation's × (1 +
+    spread); the recommendation is the same at every spread. ``close``: every configuration's
+    skill in [0.80, 0.88], all within 10 % of the best (0.88 · 0.9 < 0.80), so ties are
+    common."""
+    table = _table(seed)
+    if close:
+        screen = table["method"] != "identity"
+        rng = np.random.default_rng(1000 + seed)
+        table.loc[screen, "skill"] = rng.uniform(0.80, 0.88, int(screen.sum()))
+    plain = report.recommendations(table).set_index("scene")
+    recs = report.recommendations(table, time_spread=spread).set_index("scene")
+    assert recs["recommended"].equals(plain["recommended"])
+    for scene, r in recs.iterrows():
+        group = table[table["scene"] == scene]
+        if r["best"] == tables.MISSING:
+            assert r["tied"] == tables.MISSING
+            continue
+        rows = group[(group["status"] == "ok") & (group["method"] != "identity")]
+        best = max(float(s) for s in rows["skill"])
+        good = rows[rows["skill"] >= best - 0.1 * abs(best)]
+        pick = good[good["method"] == r["recommended"]]
+        assert len(pick) == 1 and float(pick["time_ms"].iloc[0]) == good["time_ms"].min()
+        limit = float(pick["time_ms"].iloc[0]) * (1 + spread)
+        expected = [
+            m
+            for t, m in sorted(zip(good["time_ms"], good["method"], strict=True))
+            if m != r["recommended"] and t <= limit
+        ]
+        assert r["tied"] == (", ".join(expected) or tables.MISSING)
+        assert ("is not resolved" in r["verdict"]) == bool(expected)
+        for m in expected:
+            assert m in r["verdict"].split("is not resolved")[0]
+
+
+def test_the_time_spread_is_checked():
+    with pytest.raises(ValueError, match="time_spread"):
+        report.recommendations(_table(0), time_spread=-0.5)

@@ -353,14 +353,27 @@ def _hidden_verdict(group: pd.DataFrame) -> str:
     return sentence + "."
 
 
-def recommendations(table: pd.DataFrame) -> pd.DataFrame:
+def recommendations(table: pd.DataFrame, time_spread: float = 0.0) -> pd.DataFrame:
     """Per ranking group: the best configuration, the cheapest within :data:`WITHIN` of its
-    skill, the Pareto set and a verdict sentence computed from the numbers (in a group where
-    SSS is not visible, the visibility numbers and the configurations whose own error is
-    visible; in a ranked group, also those that are visibly wrong)."""
+    skill (``recommended``), the other configurations within :data:`WITHIN` it is not
+    resolved as cheaper than (``tied``), the Pareto set and a verdict sentence computed from
+    the numbers (in a group where SSS is not visible, the visibility numbers and the
+    configurations whose own error is visible; in a ranked group, also those that are
+    visibly wrong).
+
+    ``time_spread`` is the run-to-run spread of the ratio of two configurations' times that
+    the caller measured (relative, >= 0; :func:`sssbench.score.verdict.not_resolved_cheaper`):
+    a qualifying configuration whose ``time_ms`` is within it of the recommended one's is
+    ``tied`` with it, and the verdict says the run does not resolve which is cheaper. The
+    default 0 ties only equal times; ``recommended`` is the cheaper one by this run's times
+    either way."""
+    from sssbench._checks import check_scalar
+    from sssbench.score.verdict import not_resolved_cheaper
+
+    time_spread = check_scalar("time_spread", time_spread, 0.0)
     rows = []
     if table.empty:
-        return pd.DataFrame(columns=[*group_keys(table), "best", "recommended", "verdict"])
+        return pd.DataFrame(columns=[*group_keys(table), "best", "recommended", "tied", "verdict"])
     if "visibly_wrong" not in table.columns:
         table = annotate(table)
     for key, group in table.groupby(group_keys(table), dropna=False, sort=True):
@@ -376,6 +389,7 @@ def recommendations(table: pd.DataFrame) -> pd.DataFrame:
                     **info,
                     "best": MISSING,
                     "recommended": MISSING,
+                    "tied": MISSING,
                     "pareto": MISSING,
                     "visibly_wrong": wrong,
                     "verdict": _hidden_verdict(group),
@@ -388,6 +402,11 @@ def recommendations(table: pd.DataFrame) -> pd.DataFrame:
         threshold = float(best["skill"]) - WITHIN * abs(float(best["skill"]))
         good = screen[screen["skill"].astype(float) >= threshold]
         cheap = good.loc[good["time_ms"].astype(float).idxmin()]
+        others = good.drop(index=cheap.name).sort_values("time_ms")
+        near = not_resolved_cheaper(
+            others["time_ms"].astype(float).tolist(), float(cheap["time_ms"]), time_spread
+        )
+        tied = others[near]
         front = ranked[group.loc[ranked.index, "pareto"].astype(bool)]
         worse = screen[screen["skill"].astype(float) <= 0]
         base_err = float(base[PLOT_METRIC].iloc[0]) if len(base) else float("nan")
@@ -403,6 +422,18 @@ def recommendations(table: pd.DataFrame) -> pd.DataFrame:
                 f"({float(cheap['skill']):+.2f} vs {float(best['skill']):+.2f} for "
                 f"{label(best)}, {float(cheap['time_ms']):.3g} ms vs "
                 f"{float(best['time_ms']):.3g} ms)"
+            )
+        if len(tied):
+            within = (
+                f"within {time_spread:.0%} of its time, the measured run-to-run spread of a "
+                "time ratio"
+                if time_spread > 0
+                else "the same time"
+            )
+            sentence += (
+                f"; which is cheaper, it or {', '.join(label(r) for _, r in tied.iterrows())} "
+                f"({within}: {', '.join(f'{float(t):.3g} ms' for t in tied['time_ms'])}), "
+                "is not resolved"
             )
         if bool(group.loc[cheap.name, "visibly_wrong"]):
             sentence += f", though its own error is still visible (FLIP {_num(cheap['flip'])})"
@@ -424,6 +455,7 @@ def recommendations(table: pd.DataFrame) -> pd.DataFrame:
                 **info,
                 "best": label(best),
                 "recommended": label(cheap),
+                "tied": ", ".join(label(r) for _, r in tied.iterrows()) or MISSING,
                 "pareto": " → ".join(label(r) for _, r in front.sort_values("time_ms").iterrows()),
                 "visibly_wrong": wrong,
                 "verdict": sentence + ".",

@@ -23,6 +23,10 @@ Everything here is a pure function of plain numbers (or a pandas table of them),
 - **Pareto set**: the configurations no other one beats in both time and error.
 - **recommendation**: per scene and scale, the cheapest configuration whose skill is within
   ``tolerance`` (10 %) of the best skill, doing nothing (skill 0 at cost 0) included.
+- **not resolved as cheaper** (:func:`not_resolved_cheaper`): a run's times are one draw of
+  the machine; a qualifying configuration whose time is within ``time_spread`` (the
+  run-to-run spread of the ratio of two configurations' times, one standard deviation) of
+  the pick's is named beside it: which of them is cheaper, that run does not resolve.
 """
 
 from __future__ import annotations
@@ -50,6 +54,7 @@ __all__ = [
     "error_visibility",
     "pareto_set",
     "recommend",
+    "not_resolved_cheaper",
     "verdict_sentence",
     "recommendation_sentence",
 ]
@@ -285,6 +290,37 @@ def pareto_set(times: Sequence[float], errors: Sequence[float]) -> list[int]:
     return sorted(keep, key=lambda i: (t[i], e[i]))
 
 
+def not_resolved_cheaper(
+    times: Sequence[float], pick_time: float, time_spread: float = 0.0
+) -> np.ndarray:
+    """Which of ``times`` are not resolved as slower than ``pick_time`` (the cheapest one's):
+    ``time <= pick_time · (1 + time_spread)``.
+
+    A time ratio measured in one run has a run-to-run spread (the machine's state moves a
+    configuration's time by tens of percent between runs of the same code); a ratio within
+    one such standard deviation of 1 is not a finding. The caller passes the spread it
+    measured (e.g. the sample standard deviation, between runs, of ``log(t_a / t_b)`` for
+    pairs of configurations, as ``exp(sd) − 1``); 0 names only equal times.
+
+    Args:
+        times: the other candidates' times (ms, >= 0; NaN is never tied).
+        pick_time: the cheapest candidate's time (ms, >= 0).
+        time_spread: relative spread of a time ratio, >= 0 (0.25 = 25 %).
+
+    Returns:
+        bool array, one per time.
+
+    Example:
+        >>> not_resolved_cheaper([10.0, 11.0, 13.0], 10.0, 0.2).tolist()
+        [True, True, False]
+    """
+    t = np.asarray(times, dtype=np.float64).reshape(-1)
+    pick_time = check_scalar("pick_time", pick_time, 0.0)
+    time_spread = check_scalar("time_spread", time_spread, 0.0)
+    with np.errstate(invalid="ignore"):
+        return t <= pick_time * (1.0 + time_spread)  # NaN compares False
+
+
 def recommend(
     rows,
     *,
@@ -293,9 +329,10 @@ def recommend(
     time: str = "time_ms",
     skill_col: str = "skill",
     tolerance: float = RECOMMEND_TOLERANCE,
+    time_spread: float = 0.0,
 ):
     """Per group (scene and scale), the cheapest configuration within ``tolerance`` of the
-    best skill.
+    best skill, and the qualifying ones it is not resolved as cheaper than.
 
     Doing nothing is always a candidate, with skill 0 at cost 0 (:data:`BASELINE`), whether
     or not the table holds an identity row: the best skill is ``b = max(0, max skill)`` and a
@@ -313,11 +350,16 @@ def recommend(
         time: column of the cost (>= 0).
         skill_col: column of the skill.
         tolerance: in [0, 1].
+        time_spread: the run-to-run spread of a time ratio (>= 0, relative; the default 0
+            names only equal times): :func:`not_resolved_cheaper`.
 
     Returns:
         DataFrame, one row per group: the ``by`` columns, ``config``, ``time``, ``skill_col``
         of the recommendation, ``best_config`` / ``best_skill`` (the highest skill, the
-        baseline if none is > 0), ``candidates`` (how many qualified) and ``reason``.
+        baseline if none is > 0), ``candidates`` (how many qualified), ``tied`` (a tuple of
+        the other qualifying configurations whose time is within ``time_spread`` of the
+        recommendation's, cheapest first: which of them is cheaper is not resolved) and
+        ``reason``.
     """
     import pandas as pd
 
@@ -344,6 +386,7 @@ def recommend(
                     "best_config": BASELINE,
                     "best_skill": math.nan,
                     "candidates": 0,
+                    "tied": (),
                     "reason": "no visible SSS",
                 }
             )
@@ -358,6 +401,8 @@ def recommend(
             if float(r[skill_col]) >= bar
         ]
         pick = min(cands, key=lambda c: (c[time], -c[skill_col]))
+        others = sorted((c for c in cands if c is not pick), key=lambda c: c[time])
+        near = not_resolved_cheaper([c[time] for c in others], pick[time], time_spread)
         out.append(
             {
                 **rec,
@@ -365,6 +410,7 @@ def recommend(
                 "best_config": top[config] if best > 0 else BASELINE,
                 "best_skill": best,
                 "candidates": len(cands),
+                "tied": tuple(c[config] for c, n in zip(others, near, strict=True) if n),
                 "reason": "nothing beats doing nothing"
                 if best == 0
                 else f"cheapest within {tolerance:.0%} of the best skill",
@@ -431,6 +477,9 @@ def recommendation_sentence(
             f"(best skill {_signed(float(row['best_skill']))})."
         )
     s = f"{where}: use {row[config]} (skill {_signed(float(row[skill_col]))}, {row[time]:.3g} ms)"
+    tied = tuple(row.get("tied") or ())
+    if tied:
+        s += f"; not resolved as cheaper than {', '.join(str(t) for t in tied)}"
     if row["best_config"] == row[config]:
         return s + ", also the best."
     return s + f"; the best, {row['best_config']}, reaches {_signed(float(row['best_skill']))}."
