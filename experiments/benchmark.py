@@ -15,6 +15,7 @@ sentence of the section is computed from the numbers of this run.
 
 from __future__ import annotations
 
+import math
 import os
 import sys
 import tempfile
@@ -103,21 +104,45 @@ def _run_total(table: pd.DataFrame) -> float:
     return table.attrs.get("warm_s", float("nan")) + table.attrs.get("runs_s", float("nan"))
 
 
+def config_times(table: pd.DataFrame) -> dict[str, dict[str, float]]:
+    """Each group's screen-space configurations' times in this run, ``{"scene scale":
+    {label: time_ms}}`` (ok runs with a finite time; the baseline and the reference left
+    out): what :func:`time_ratio_spread` compares between runs. A table without rows of
+    configurations (no ``status``, ``method``, ``time_ms`` columns) has none."""
+    from sssbench.report.tables import label
+
+    if not {"status", "method", "time_ms", "scene", "scale"} <= set(table.columns):
+        return {}
+    ok = table[(table["status"] == "ok") & ~table["method"].isin(_NOT_TIMED)]
+    times: dict[str, dict[str, float]] = {}
+    for _, r in ok.iterrows():
+        t = float(pd.to_numeric(r["time_ms"], errors="coerce"))
+        if t > 0 and math.isfinite(t):
+            times.setdefault(f"{r['scene']} {r['scale']}", {})[label(r)] = round(t, 4)
+    return times
+
+
+#: the methods whose time is not a configuration's cost to compare
+_NOT_TIMED = (report.BASELINE, report.REFERENCE)
+
+
 def log_cold_run(
     table: pd.DataFrame, log: Path = COLD_LOG, recs: pd.DataFrame | None = None
 ) -> dict | None:
     """Append this run's record to ``log`` when it ran from cold at a resolution of
-    :data:`COLD_TARGET_S`; returns the record (``None``: nothing logged). With ``recs`` (the
-    run's :func:`sssbench.report.recommendations`) the record also holds each group's
-    recommended configuration, ``{"scene scale": label}`` (:func:`recommendation_changes`)."""
+    :data:`COLD_TARGET_S`; returns the record (``None``: nothing logged). The record holds
+    each configuration's time (``times``, :func:`config_times`). With ``recs`` (the run's
+    :func:`sssbench.report.recommendations`) it also holds each group's recommended
+    configuration, ``{"scene scale": label}`` (:func:`recommendation_changes`), and the ones
+    it was not resolved as cheaper than (``tied``, ``{"scene scale": [label, ...]}``)."""
     import datetime
     import json
 
     from sssbench._digest import code_digest
 
-    size, total = _run_size(table), _run_total(table)
-    if not table.attrs.get("cold") or size not in COLD_TARGET_S or total != total:
+    if not _loggable(table):
         return None
+    size, total = _run_size(table), _run_total(table)
     attrs = table.attrs
     record = {
         "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
@@ -133,14 +158,32 @@ def log_cold_run(
         record["recommended"] = {
             f"{r['scene']} {r['scale']}": str(r["recommended"]) for _, r in recs.iterrows()
         }
+        if "tied" in recs.columns:
+            record["tied"] = {
+                f"{r['scene']} {r['scale']}": _tied_labels(r["tied"]) for _, r in recs.iterrows()
+            }
+    record["times"] = config_times(table)
     with open(log, "a", encoding="utf-8") as out:
         out.write(json.dumps(record) + "\n")
     return record
 
 
-def _cold_records(log: Path, resolution: str, code: str) -> list[dict]:
+def _loggable(table: pd.DataFrame) -> bool:
+    """Whether :func:`log_cold_run` logs ``table``'s run: cold, timed, at a resolution of
+    :data:`COLD_TARGET_S`."""
+    total = _run_total(table)
+    return bool(table.attrs.get("cold")) and _run_size(table) in COLD_TARGET_S and total == total
+
+
+def _tied_labels(cell: str) -> list[str]:
+    """The labels of a recommendation's ``tied`` cell (``"a 7, b 13"``; ``–``: none)."""
+    return [] if cell == report.MISSING else [t.strip() for t in str(cell).split(",")]
+
+
+def _cold_records(log: Path, resolution: str, code: str | None) -> list[dict]:
     """``log``'s records of cold runs at ``resolution`` (``"512x512"``) of the code whose
-    digest is ``code``, in the order logged (unreadable lines and records are skipped)."""
+    digest is ``code`` (``None``: of any code), in the order logged (unreadable lines and
+    records are skipped)."""
     import json
 
     if not log.exists():
@@ -149,7 +192,7 @@ def _cold_records(log: Path, resolution: str, code: str) -> list[dict]:
     for line in log.read_text(encoding="utf-8").splitlines():
         try:
             rec = json.loads(line)
-            if rec["resolution"] == resolution and rec["code"] == code:
+            if rec["resolution"] == resolution and code in (None, rec["code"]):
                 records.append(rec)
         except (ValueError, KeyError, TypeError):
             continue
@@ -190,9 +233,98 @@ def recommendation_changes(
     return len(picks), len(groups), changed
 
 
-def recommendation_stability(runs: int, groups: int, changed: dict[str, list[str]]) -> str:
+def time_ratio_spread(records: list[dict]) -> tuple[float, int, int]:
+    """The run-to-run spread of the ratio of two configurations' times, measured on
+    ``records`` (cold-run records with ``times``, :func:`log_cold_run`):
+    ``(spread, runs, degrees of freedom)``.
+
+    Per code (its digest: another code may change the ratios themselves), per group and per
+    pair of configurations timed in at least two of that code's runs, the sample variance of
+    ``log(t_a / t_b)`` between the runs; pooled over the pairs, weighted by their degrees of
+    freedom (runs − 1), ``s`` is its square root and the spread ``exp(s) − 1``: one standard
+    deviation of a time ratio measured in one run, the bar below which
+    :func:`sssbench.report.recommendations` does not resolve which configuration is cheaper.
+    Pairs of one group share configurations, so they are not independent draws; the pooled
+    variance is their mean, not a sharper estimate. ``runs`` counts the records that
+    contributed; ``(nan, 0, 0)`` when no code has two runs with times."""
+    by_code: dict[str, list[dict[str, dict[str, float]]]] = {}
+    for rec in records:
+        if isinstance(rec.get("times"), dict):
+            by_code.setdefault(str(rec.get("code")), []).append(rec["times"])
+    sq, dof, runs = 0.0, 0, 0
+    for runs_times in by_code.values():
+        if len(runs_times) < 2:
+            continue
+        used = False
+        groups = set().union(*runs_times)
+        for group in sorted(groups):
+            per_run = [t.get(group, {}) for t in runs_times]
+            labels = sorted(set().union(*per_run))
+            for i, a in enumerate(labels):
+                for b in labels[i + 1 :]:
+                    x = [math.log(t[a] / t[b]) for t in per_run if a in t and b in t]
+                    if len(x) < 2:
+                        continue
+                    mean = sum(x) / len(x)
+                    sq += sum((v - mean) ** 2 for v in x)
+                    dof += len(x) - 1
+                    used = True
+        runs += len(runs_times) if used else 0
+    if dof == 0:
+        return float("nan"), 0, 0
+    return math.exp(math.sqrt(sq / dof)) - 1.0, runs, dof
+
+
+def ties_sentence(recs: pd.DataFrame, spread: float, runs: int) -> str:
+    """The sentence under the recommendations on their ties (:func:`time_ratio_spread`),
+    computed from ``recs`` (with ``tied``) and the spread they were made with."""
+    ranked = recs[recs["recommended"] != report.MISSING] if len(recs) else recs
+    where = f"experiments/{COLD_LOG.name}"
+    if spread != spread:  # NaN: not measured
+        return (
+            "The run-to-run spread of a time ratio is not measured yet at this resolution (no "
+            f"code has two logged cold runs with their times in {where}): the recommendations "
+            "name only equal times as not resolved."
+        )
+    tied = ranked[ranked["tied"] != report.MISSING] if len(ranked) else ranked
+    return (
+        f"A time ratio measured in one run varies by ±{spread:.0%} (one standard deviation "
+        f"of log(t_a / t_b) between the {runs} logged cold runs of the same code, pooled over "
+        f"pairs of configurations, {where}); in {len(tied)} of {len(ranked)} ranked groups "
+        "another configuration within 10 % of the best skill is within that of the "
+        "recommended one's time, so which of them is cheaper is not resolved (the verdicts "
+        "name them)."
+    )
+
+
+def changes_named_as_ties(log: Path, resolution: str, code: str, changed: dict) -> list[str]:
+    """Of the ``changed`` groups (:func:`recommendation_changes`), those whose every pick
+    was, in each logged run of this code that named its ties (``tied``,
+    :func:`log_cold_run`), either that run's recommendation or named as not resolved against
+    it: a change the recommendations themselves said one run cannot decide. A group no run
+    named ties for is not counted."""
+    named = []
+    runs = [
+        r
+        for r in _cold_records(log, resolution, code)
+        if isinstance(r.get("recommended"), dict) and isinstance(r.get("tied"), dict)
+    ]
+    for group, labels in changed.items():
+        seen = [r for r in runs if group in r["recommended"]]
+        if seen and all(
+            set(labels) <= {r["recommended"][group], *r["tied"].get(group, [])} for r in seen
+        ):
+            named.append(group)
+    return named
+
+
+def recommendation_stability(
+    runs: int, groups: int, changed: dict[str, list[str]], named: list[str] | None = None
+) -> str:
     """The sentence under the recommendations on how they held between the logged cold runs
-    of this code (:func:`recommendation_changes`), computed from them."""
+    of this code (:func:`recommendation_changes`), computed from them; with ``named`` (the
+    changed groups :func:`changes_named_as_ties` finds), how many of the changes the runs'
+    own ties covered."""
     where = f"experiments/{COLD_LOG.name}"
     if runs < 2:
         logged = "one logged cold run" if runs == 1 else "no logged cold run"
@@ -213,6 +345,12 @@ def recommendation_stability(runs: int, groups: int, changed: dict[str, list[str
         "time in that run, and a configuration's time varies from run to run: where two "
         "candidates' times differ by less than that, which one is cheaper is not resolved by "
         "one run."
+        + (
+            f" In {len(named)} of these {len(changed)} groups every run that names its ties "
+            "named the other pick as not resolved against its own."
+            if named is not None
+            else ""
+        )
     )
 
 
@@ -222,7 +360,6 @@ def cold_verdict(totals: list[float], target: float) -> str:
     mean of the logged runs and its standard error (sample standard deviation / √n), judged by
     :func:`experiments.perf.verdict_at_most` (not resolved when the target lies within one
     standard error); one run: that run's figure, ``"this run only"``."""
-    import math
     import statistics
 
     from experiments.perf import verdict_at_most
@@ -373,14 +510,27 @@ def preset_section(
     extra += quick_overrides if ctx.quick else ()
     with tempfile.TemporaryDirectory(prefix="sssbench-benchmark-") as tmp:
         table = run_preset(preset, Path(tmp) / "runs.sqlite", Path(tmp), *extra)
-    recs = report.recommendations(table)
+    # ties: the run-to-run spread of time ratios, from the logged cold runs at this
+    # resolution and this run (when it is logged too)
+    size = _run_size(table)
+    resolution = f"{size[0]}x{size[1]}" if size is not None else ""
+    records = _cold_records(COLD_LOG, resolution, None)
+    if _loggable(table):
+        from sssbench._digest import code_digest
+
+        records.append({"code": code_digest(), "times": config_times(table)})
+    spread, spread_runs, _ = time_ratio_spread(records)
+    recs = report.recommendations(table, time_spread=0.0 if spread != spread else spread)
+    ties = "\n\n" + ties_sentence(recs, spread, spread_runs)
     # a cold run at a target resolution: judged with the others, its recommendations compared
     record = log_cold_run(table, recs=recs)
     stability = ""
     if record is not None:
-        table.attrs["cold_totals"] = cold_totals(COLD_LOG, record["resolution"], record["code"])
-        changes = recommendation_changes(COLD_LOG, record["resolution"], record["code"])
-        stability = "\n\n" + recommendation_stability(*changes)
+        where = (COLD_LOG, record["resolution"], record["code"])
+        table.attrs["cold_totals"] = cold_totals(*where)
+        runs, groups, changed = recommendation_changes(*where)
+        named = changes_named_as_ties(*where, changed) if changed else None
+        stability = "\n\n" + recommendation_stability(runs, groups, changed, named)
     ok = table[table["status"] == "ok"]
     fig_path = ctx.figures / f"{ctx.name}.png"
     ctx.figures.mkdir(parents=True, exist_ok=True)
@@ -417,6 +567,7 @@ def preset_section(
         + md_table(
             rec_rows, ["scene", "scale", "resolution", "recommended", "best skill", "verdict"]
         )
+        + ties
         + stability
         + "\n\nSkill against doing nothing over the ranked points (1 = exact, 0 = no better "
         "than the unblurred input, < 0 worse):\n\n"

@@ -5,6 +5,7 @@ import json
 import math
 
 import pandas as pd
+import pytest
 
 from experiments import benchmark
 from sssbench._digest import code_digest
@@ -109,3 +110,86 @@ def test_the_recommendations_that_changed_between_runs_of_this_code(tmp_path):
     assert same.startswith("All 2 groups' recommendations were the same in the 2 logged")
     assert "not measured yet: one logged" in benchmark.recommendation_stability(1, 2, {})
     assert "not measured yet: no logged" in benchmark.recommendation_stability(0, 0, {})
+
+
+def test_each_configurations_time_is_logged_by_group(tmp_path):
+    """``times``: per group, every ok screen-space configuration with a positive finite
+    time; the baseline, the reference, failed runs and missing times are left out."""
+    rows = pd.DataFrame(
+        {
+            "scene": ["face"] * 6 + ["pores"],
+            "scale": ["0.1 mm/px"] * 6 + ["1 mm/px"],
+            "method": ["identity", "reference", "a", "a", "b", "c", "a"],
+            "sampling": [None, None, "uniform", "uniform", None, None, None],
+            "samples": pd.array([pd.NA, pd.NA, 7, 13, pd.NA, 5, 7], dtype="Int64"),
+            "status": ["ok", "ok", "ok", "ok", "failed", "ok", "ok"],
+            "time_ms": [0.0, 900.0, 12.5, 20.0, 3.0, float("nan"), 4.25],
+            "resolution": ["512x512"] * 7,
+        }
+    )
+    rows.attrs.update(warm_s=200.0, runs_s=100.0, cold=True, load_start=0.5, load_end=0.5)
+    expected = {"face 0.1 mm/px": {"a uniform 7": 12.5, "a uniform 13": 20.0}}
+    expected["pores 1 mm/px"] = {"a 7": 4.25}
+    assert benchmark.config_times(rows) == expected
+    assert benchmark.log_cold_run(rows, tmp_path / "cold.jsonl")["times"] == expected
+
+
+def test_the_time_ratio_spread_pools_pairs_within_each_code():
+    """By hand: code A, three runs of the pair (a, b) with log(t_a / t_b) = 0, 0.2, −0.2
+    (variance 0.04, 2 degrees of freedom); code B, two runs with 0.1, −0.1 (variance 0.02,
+    1 degree); pooled (0.08 + 0.02) / 3, spread exp(√(1/30)) − 1. A configuration timed in
+    one run only, a pair split across codes and a code with one run add nothing."""
+    e = math.exp
+
+    def rec(code, **groups):
+        return {"code": code, "times": groups}
+
+    records = [
+        rec("A", g={"a": 10.0, "b": 10.0, "once": 3.0}),
+        rec("A", g={"a": 10.0 * e(0.2), "b": 10.0}),
+        rec("A", g={"a": 7.0 * e(-0.2), "b": 7.0}),
+        rec("B", h={"x": 5.0 * e(0.1), "y": 5.0}),
+        rec("B", h={"x": 2.0 * e(-0.1), "y": 2.0}),
+        rec("C", g={"a": 1.0, "b": 9.0}),  # one run of its code
+        {"code": "A", "total_s": 300.0},  # no times
+    ]
+    spread, runs, dof = benchmark.time_ratio_spread(records)
+    assert (runs, dof) == (5, 3)
+    assert spread == pytest.approx(e(math.sqrt(0.1 / 3)) - 1, rel=1e-12)
+    assert math.isnan(benchmark.time_ratio_spread(records[5:])[0])
+    assert benchmark.time_ratio_spread([])[1:] == (0, 0)
+
+
+def test_the_ties_sentence_counts_the_groups_it_names():
+    frame = recs(face="a 7", pores="b 13", far="–")
+    frame["tied"] = ["a 13, c 5", "–", "–"]
+    text = benchmark.ties_sentence(frame, 0.25, 4)
+    assert "varies by ±25% (one standard deviation" in text
+    assert "between the 4 logged cold runs" in text
+    assert "in 1 of 2 ranked groups another configuration" in text
+    assert "not measured yet" in benchmark.ties_sentence(frame, float("nan"), 0)
+
+
+def test_a_change_the_runs_named_as_a_tie_is_counted(tmp_path):
+    """face flips between a 7 and a 13 and both runs named the other as a tie; pores flips
+    between b 13 and b 7 but the first run named no tie: 1 of the 2 changes was named."""
+    log = tmp_path / "cold.jsonl"
+    code = code_digest()
+    for face, face_tied, pores, pores_tied in (
+        ("a 7", "a 13", "b 13", "–"),
+        ("a 13", "a 7, c 5", "b 7", "b 13"),
+    ):
+        frame = recs(face=face, pores=pores)
+        frame["tied"] = [face_tied, pores_tied]
+        benchmark.log_cold_run(table(), log, frame)
+    logged = [json.loads(line) for line in log.read_text().splitlines()]
+    assert logged[1]["tied"] == {"face 0.1 mm/px": ["a 7", "c 5"], "pores 0.1 mm/px": ["b 13"]}
+    runs, groups, changed = benchmark.recommendation_changes(log, "512x512", code)
+    assert set(changed) == {"face 0.1 mm/px", "pores 0.1 mm/px"}
+    named = benchmark.changes_named_as_ties(log, "512x512", code, changed)
+    assert named == ["face 0.1 mm/px"]
+    text = benchmark.recommendation_stability(runs, groups, changed, named)
+    assert text.endswith(
+        "In 1 of these 2 groups every run that names its ties named the other pick as not "
+        "resolved against its own."
+    )
