@@ -289,8 +289,9 @@ def ties_sentence(recs: pd.DataFrame, spread: float, runs: int) -> str:
     tied = ranked[ranked["tied"] != report.MISSING] if len(ranked) else ranked
     return (
         f"A time ratio measured in one run varies by ±{spread:.0%} (one standard deviation "
-        f"of log(t_a / t_b) between the {runs} logged cold runs of the same code, pooled over "
-        f"pairs of configurations, {where}); in {len(tied)} of {len(ranked)} ranked groups "
+        "of log(t_a / t_b) between logged cold runs of the same code, pooled over pairs of "
+        f"configurations and over {runs} runs at this resolution, {where}); in {len(tied)} of "
+        f"{len(ranked)} ranked groups "
         "another configuration within 10 % of the best skill is within that of the "
         "recommended one's time, so which of them is cheaper is not resolved (the verdicts "
         "name them)."

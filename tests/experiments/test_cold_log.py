@@ -165,7 +165,8 @@ def test_the_ties_sentence_counts_the_groups_it_names():
     frame["tied"] = ["a 13, c 5", "–", "–"]
     text = benchmark.ties_sentence(frame, 0.25, 4)
     assert "varies by ±25% (one standard deviation" in text
-    assert "between the 4 logged cold runs" in text
+    assert "between logged cold runs of the same code" in text
+    assert "over 4 runs at this resolution" in text
     assert "in 1 of 2 ranked groups another configuration" in text
     assert "not measured yet" in benchmark.ties_sentence(frame, float("nan"), 0)
 
