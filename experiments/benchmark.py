@@ -127,14 +127,19 @@ _NOT_TIMED = (report.BASELINE, report.REFERENCE)
 
 
 def log_cold_run(
-    table: pd.DataFrame, log: Path = COLD_LOG, recs: pd.DataFrame | None = None
+    table: pd.DataFrame,
+    log: Path = COLD_LOG,
+    recs: pd.DataFrame | None = None,
+    time_spread: float = math.nan,
 ) -> dict | None:
     """Append this run's record to ``log`` when it ran from cold at a resolution of
     :data:`COLD_TARGET_S`; returns the record (``None``: nothing logged). The record holds
     each configuration's time (``times``, :func:`config_times`). With ``recs`` (the run's
     :func:`sssbench.report.recommendations`) it also holds each group's recommended
-    configuration, ``{"scene scale": label}`` (:func:`recommendation_changes`), and the ones
-    it was not resolved as cheaper than (``tied``, ``{"scene scale": [label, ...]}``)."""
+    configuration, ``{"scene scale": label}`` (:func:`recommendation_changes`), the ones it
+    was not resolved as cheaper than (``tied``, ``{"scene scale": [label, ...]}``) and the
+    spread of a time ratio they were made with (``time_spread``, :func:`time_ratio_spread`;
+    ``null``: not measured, only equal times tied)."""
     import datetime
     import json
 
@@ -162,6 +167,7 @@ def log_cold_run(
             record["tied"] = {
                 f"{r['scene']} {r['scale']}": _tied_labels(r["tied"]) for _, r in recs.iterrows()
             }
+            record["time_spread"] = round(time_spread, 4) if math.isfinite(time_spread) else None
     record["times"] = config_times(table)
     with open(log, "a", encoding="utf-8") as out:
         out.write(json.dumps(record) + "\n")
@@ -300,15 +306,17 @@ def ties_sentence(recs: pd.DataFrame, spread: float, runs: int) -> str:
 
 def changes_named_as_ties(log: Path, resolution: str, code: str, changed: dict) -> list[str]:
     """Of the ``changed`` groups (:func:`recommendation_changes`), those whose every pick
-    was, in each logged run of this code that named its ties (``tied``,
-    :func:`log_cold_run`), either that run's recommendation or named as not resolved against
-    it: a change the recommendations themselves said one run cannot decide. A group no run
-    named ties for is not counted."""
+    was, in each logged run of this code that named its ties with a measured spread
+    (``tied`` and a number in ``time_spread``, :func:`log_cold_run`), either that run's
+    recommendation or named as not resolved against it: a change the recommendations
+    themselves said one run cannot decide. A group no such run saw is not counted."""
     named = []
     runs = [
         r
         for r in _cold_records(log, resolution, code)
-        if isinstance(r.get("recommended"), dict) and isinstance(r.get("tied"), dict)
+        if isinstance(r.get("recommended"), dict)
+        and isinstance(r.get("tied"), dict)
+        and isinstance(r.get("time_spread"), (int, float))
     ]
     for group, labels in changed.items():
         seen = [r for r in runs if group in r["recommended"]]
@@ -347,8 +355,9 @@ def recommendation_stability(
         "candidates' times differ by less than that, which one is cheaper is not resolved by "
         "one run."
         + (
-            f" In {len(named)} of these {len(changed)} groups every run that names its ties "
-            "named the other pick as not resolved against its own."
+            f" In {len(named)} of the {len(changed)} changed group"
+            f"{'s' if len(changed) != 1 else ''}, every run that named its ties with a "
+            "measured spread named the other pick as not resolved against its own."
             if named is not None
             else ""
         )
@@ -524,7 +533,7 @@ def preset_section(
     recs = report.recommendations(table, time_spread=0.0 if spread != spread else spread)
     ties = "\n\n" + ties_sentence(recs, spread, spread_runs)
     # a cold run at a target resolution: judged with the others, its recommendations compared
-    record = log_cold_run(table, recs=recs)
+    record = log_cold_run(table, recs=recs, time_spread=spread)
     stability = ""
     if record is not None:
         where = (COLD_LOG, record["resolution"], record["code"])

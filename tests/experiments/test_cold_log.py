@@ -172,25 +172,34 @@ def test_the_ties_sentence_counts_the_groups_it_names():
 
 
 def test_a_change_the_runs_named_as_a_tie_is_counted(tmp_path):
-    """face flips between a 7 and a 13 and both runs named the other as a tie; pores flips
-    between b 13 and b 7 but the first run named no tie: 1 of the 2 changes was named."""
+    """face flips between a 7 and a 13 and both runs with a measured spread named the other
+    as a tie; pores flips between b 13 and b 7 but the first of them named no tie: 1 of the
+    2 changes was named. A first run whose spread was not measured (it ties equal times
+    only, and named none) does not count against face."""
     log = tmp_path / "cold.jsonl"
     code = code_digest()
-    for face, face_tied, pores, pores_tied in (
-        ("a 7", "a 13", "b 13", "–"),
-        ("a 13", "a 7, c 5", "b 7", "b 13"),
+    for face, face_tied, pores, pores_tied, spread in (
+        ("a 13", "–", "b 13", "–", math.nan),
+        ("a 7", "a 13", "b 13", "–", 0.2),
+        ("a 13", "a 7, c 5", "b 7", "b 13", 0.25),
     ):
         frame = recs(face=face, pores=pores)
         frame["tied"] = [face_tied, pores_tied]
-        benchmark.log_cold_run(table(), log, frame)
+        benchmark.log_cold_run(table(), log, frame, time_spread=spread)
     logged = [json.loads(line) for line in log.read_text().splitlines()]
-    assert logged[1]["tied"] == {"face 0.1 mm/px": ["a 7", "c 5"], "pores 0.1 mm/px": ["b 13"]}
+    assert logged[2]["tied"] == {"face 0.1 mm/px": ["a 7", "c 5"], "pores 0.1 mm/px": ["b 13"]}
+    assert [r["time_spread"] for r in logged] == [None, 0.2, 0.25]
     runs, groups, changed = benchmark.recommendation_changes(log, "512x512", code)
     assert set(changed) == {"face 0.1 mm/px", "pores 0.1 mm/px"}
     named = benchmark.changes_named_as_ties(log, "512x512", code, changed)
     assert named == ["face 0.1 mm/px"]
     text = benchmark.recommendation_stability(runs, groups, changed, named)
     assert text.endswith(
-        "In 1 of these 2 groups every run that names its ties named the other pick as not "
-        "resolved against its own."
+        "In 1 of the 2 changed groups, every run that named its ties with a measured spread "
+        "named the other pick as not resolved against its own."
+    )
+    one = benchmark.recommendation_stability(runs, groups, {"face 0.1 mm/px": ["a"]}, [])
+    assert one.endswith(
+        "In 0 of the 1 changed group, every run that named its ties with a "
+        "measured spread named the other pick as not resolved against its own."
     )
