@@ -370,13 +370,10 @@ def cold_verdict(totals: list[float], target: float) -> str:
     mean of the logged runs and its standard error (sample standard deviation / √n), judged by
     :func:`experiments.perf.verdict_at_most` (not resolved when the target lies within one
     standard error); one run: that run's figure, ``"this run only"``."""
-    import statistics
-
-    from experiments.perf import verdict_at_most
+    from experiments.perf import mean_se, verdict_at_most
 
     n = len(totals)
-    mean = statistics.fmean(totals)
-    se = statistics.stdev(totals) / math.sqrt(n) if n >= 2 else math.nan
+    mean, se = mean_se(totals)
     verdict = verdict_at_most(mean, se, target)
     if n == 1:
         return f"this run only — {verdict}"

@@ -4,6 +4,7 @@ section's quick run is ``tests/experiments/test_experiments.py`` (every register
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -76,3 +77,43 @@ def test_disk_line_states_the_error_and_its_verdict():
     assert ratio_text(1.55, 0.1) in line and f"{DISK_SAMPLES} samples" in line
     line, verdict = disk_line(dict(d, ratio=21.0), "512²")
     assert verdict == "not met" and line.endswith("— **not met**.")
+
+
+def test_the_logged_runs_of_this_code_at_this_setting_are_pooled(tmp_path):
+    """By hand: kornia ratios 1.2 and 0.9 of this code at this setting (a third of another
+    code and a fourth at another setting ignored): mean 1.05, sample sd 0.2121, se 0.15,
+    1.0 within one se: not resolved; 1.2, 1.15, 1.1: mean 1.15, sd 0.05, se 0.0289: not met. One
+    run: no clause, the run's own verdict stands."""
+    from experiments.perf import log_perf_run, logged_figures, mean_se, pooled_text
+    from sssbench._digest import code_digest
+
+    log = tmp_path / "perf.jsonl"
+    here = "1080p, 2 threads, level avx512"
+    log_perf_run({"kornia": 1.2, "disk": 15.0}, here, log)
+    log_perf_run({"kornia": 0.5}, "1080p, 1 threads, level avx512", log)
+    log_perf_run({"kornia": 0.9, "disk": 14.0}, here, log)
+    with open(log, "a") as out:
+        out.write(json.dumps({"code": "other", "setting": here, "figures": {"kornia": 9.0}}))
+        out.write("\n")
+        out.write("not json\n")
+    got = logged_figures(log, code_digest(), here)
+    assert got == {"kornia": [1.2, 0.9], "disk": [15.0, 14.0]}
+    mean, se = mean_se(got["kornia"])
+    assert mean == pytest.approx(1.05) and se == pytest.approx(0.15)
+    text, verdict = pooled_text(got["kornia"], 1.0)
+    assert verdict == "not resolved"
+    assert "over the 2 logged runs of this code at this setting" in text
+    assert text.endswith("1.20, 0.90×, mean 1.05× ± 0.15")
+    text, verdict = pooled_text([1.2, 1.15, 1.1], 1.0)
+    assert verdict == "not met" and text.endswith("1.20, 1.15, 1.10×, mean 1.15× ± 0.03")
+    assert pooled_text([1.2], 1.0) == ("", None)
+    assert math.isnan(mean_se([3.0])[1])
+
+
+def test_the_disk_line_takes_the_pooled_verdict():
+    d = {"ratio": 1.4, "ratio_se": 0.01, "ratio_cpu": 1.4, "ratio_scalar": None}
+    d |= {"disk_ms": 10.0, "two_pass_ms": 5.0, "loop": "C loop"}
+    line, ok = disk_line(d, "512²")
+    assert ok == "met" and line.endswith("— **met**.")
+    line, ok = disk_line(d, "512²", pooled=("; over the 2 logged runs", "not met"))
+    assert ok == "not met" and line.endswith("); over the 2 logged runs — **not met**.")
