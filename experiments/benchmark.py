@@ -99,6 +99,11 @@ def _run_size(table: pd.DataFrame) -> tuple[int, int] | None:
     return next(iter(sizes)) if len(sizes) == 1 else None  # type: ignore[return-value]
 
 
+def _size_name(size: tuple[int, int] | None) -> str:
+    """``"512x512"``: how the log names a resolution (``""`` for none)."""
+    return f"{size[0]}x{size[1]}" if size is not None else ""
+
+
 def _run_total(table: pd.DataFrame) -> float:
     """Warm-up plus runs (s) from ``table.attrs``; NaN when the table has no timings."""
     return table.attrs.get("warm_s", float("nan")) + table.attrs.get("runs_s", float("nan"))
@@ -151,7 +156,7 @@ def log_cold_run(
     attrs = table.attrs
     record = {
         "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
-        "resolution": f"{size[0]}x{size[1]}",
+        "resolution": _size_name(size),
         "code": code_digest(),
         "total_s": round(total, 1),
         "warm_s": round(attrs["warm_s"], 1),
@@ -519,9 +524,7 @@ def preset_section(
         table = run_preset(preset, Path(tmp) / "runs.sqlite", Path(tmp), *extra)
     # ties: the run-to-run spread of time ratios, from the logged cold runs at this
     # resolution and this run (when it is logged too)
-    size = _run_size(table)
-    resolution = f"{size[0]}x{size[1]}" if size is not None else ""
-    records = _cold_records(COLD_LOG, resolution, None)
+    records = _cold_records(COLD_LOG, _size_name(_run_size(table)), None)
     if _loggable(table):
         from sssbench._digest import code_digest
 

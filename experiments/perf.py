@@ -843,11 +843,15 @@ def run(ctx: Context) -> Section:
     prior = {} if quick else logged_figures(PERF_LOG, code_digest(), setting)
     figures: dict[str, float] = {}
 
-    def pooled(name: str, value: float, se: float, target: float) -> tuple[str, str]:
-        """This run's figure of target ``name`` with the logged runs': the clause and the
-        verdict (over every run when there are two or more, else this run's), counted."""
+    def over_runs(name: str, value: float, target: float) -> tuple[str, str | None]:
+        """This run's figure of target ``name`` (kept for the log) with the logged runs':
+        :func:`pooled_text`."""
         figures[name] = value
-        over, verdict = pooled_text([*prior.get(name, []), value], target)
+        return pooled_text([*prior.get(name, []), value], target)
+
+    def pooled(name: str, value: float, se: float, target: float) -> tuple[str, str]:
+        """:func:`over_runs`' clause and verdict (this run's when fewer than two), counted."""
+        over, verdict = over_runs(name, value, target)
         return over, judged(verdict or verdict_at_most(value, se, target))
 
     t30 = [
@@ -928,10 +932,7 @@ def run(ctx: Context) -> Section:
         f"artist kernel with the lerp follow-surface (no exp): {artist_lerp_ratio:.2f}× (the "
         f"gaussian's exp per tap and channel, run with flush-to-zero, costs the difference)."
     )
-    figures["disk"] = disk_res["ratio"]
-    line, v = disk_line(
-        disk_res, small, pooled=pooled_text([*prior.get("disk", []), disk_res["ratio"]], 1.5)
-    )
+    line, v = disk_line(disk_res, small, pooled=over_runs("disk", disk_res["ratio"], 1.5))
     t30.append(line)
     judged(v)
     if not quick:
