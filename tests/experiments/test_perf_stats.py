@@ -16,6 +16,7 @@ from experiments.perf import (
     median_ratio,
     ratio_text,
     verdict_at_most,
+    verdict_within,
 )
 
 
@@ -59,6 +60,47 @@ def test_one_round_has_no_standard_error():
 )
 def test_verdict_at_most(value, se, want):
     assert verdict_at_most(value, se, 1.0) == want
+
+
+@pytest.mark.parametrize(
+    ("value", "se", "want"),
+    [
+        (6.0, 0.5, "met"),  # the band 5–7 holds 5.5–6.5
+        (7.6, 0.5, "not met"),
+        (4.4, 0.5, "not met"),
+        (6.6, 0.5, "not resolved"),  # 7 within one se of 6.6
+        (5.4, 0.5, "not resolved"),  # 5 within one se of 5.4
+        (7.0, 0.0, "not resolved"),  # on a bound exactly: no side is shown
+        (6.9, math.nan, "met"),  # no error estimate: the plain comparison
+        (7.1, math.nan, "not met"),
+    ],
+)
+def test_verdict_within_a_band(value, se, want):
+    assert verdict_within(value, se, 5.0, 7.0) == want
+
+
+def test_verdict_within_one_sided_bands():
+    # "at least 3": the infinite bound is never within a standard error
+    assert verdict_within(3.5, 0.2, 3.0, math.inf) == "met"
+    assert verdict_within(3.1, 0.2, 3.0, math.inf) == "not resolved"
+    assert verdict_within(2.5, 0.2, 3.0, math.inf) == "not met"
+    # at most: the same as verdict_at_most
+    for value, se in ((0.8, 0.1), (1.2, 0.1), (1.05, 0.1), (0.95, math.nan)):
+        assert verdict_within(value, se, -math.inf, 1.0) == verdict_at_most(value, se, 1.0)
+
+
+def test_a_band_is_pooled_over_the_logged_runs():
+    """By hand: 12-pass ratios 6.8, 7.4 and 7.3: mean 7.1667, sample sd 0.3215, se 0.1856;
+    7 lies within it: not resolved. 7.4, 7.5, 7.6: mean 7.5, se 0.0577: not met. Per-tap gains
+    3.4, 3.6 (at least 3): mean 3.5 ± 0.1: met."""
+    from experiments.perf import pooled_text
+
+    text, verdict = pooled_text([6.8, 7.4, 7.3], 7.0, 5.0)
+    assert verdict == "not resolved" and text.endswith("6.80, 7.40, 7.30×, mean 7.17× ± 0.19")
+    assert pooled_text([7.4, 7.5, 7.6], 7.0, 5.0)[1] == "not met"
+    assert pooled_text([5.9, 6.1], 7.0, 5.0)[1] == "met"
+    text, verdict = pooled_text([3.4, 3.6], math.inf, 3.0)
+    assert verdict == "met" and text.endswith("mean 3.50× ± 0.10")
 
 
 def test_disk_line_states_the_error_and_its_verdict():
