@@ -766,18 +766,19 @@ def run(ctx: Context) -> Section:
         figures[name] = value
         return pooled_text([*prior.get(name, []), value], target, low)
 
-    def pooled(name: str, value: float, se: float, target: float) -> tuple[str, str]:
-        """:func:`over_runs`' clause and verdict (this run's when fewer than two), counted."""
-        over, verdict = over_runs(name, value, target)
-        return over, judged(verdict or verdict_at_most(value, se, target))
+    def pooled(
+        name: str, value: float, se: float, target: float, low: float = -math.inf
+    ) -> tuple[str, str]:
+        """:func:`over_runs`' clause and verdict on ``[low, target]`` (this run's, with its
+        standard error ``se``, when fewer than two runs are logged), counted."""
+        over, verdict = over_runs(name, value, target, low)
+        return over, judged(verdict or verdict_within(value, se, low, target))
 
     def band(name: str, value: float, low: float, high: float) -> str:
-        """The clause and verdict of a check without a per-run standard error (a ratio of
-        medians, or of one-after-another timings): ``low ≤ value ≤ high`` in this run, or
-        judged on the logged runs' mean ± standard error when there are two or more
-        (:func:`over_runs`), counted."""
-        over, verdict = over_runs(name, value, high, low)
-        return f"{over} — {judged(verdict or verdict_within(value, math.nan, low, high))}"
+        """:func:`pooled` for a check without a per-run standard error (a ratio of medians,
+        or of one-after-another timings), as the clause and verdict of its line."""
+        over, verdict = pooled(name, value, math.nan, high, low)
+        return f"{over} — {verdict}"
 
     targets.append(
         "(A timing check below without a standard error of its own, a ratio of medians or of "
