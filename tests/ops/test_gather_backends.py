@@ -855,3 +855,52 @@ def test_x_pass_into_a_new_image_equals_the_same_pass_in_place(simd, dtype, opti
             off = (g.mask <= 0).expand_as(new)
             assert torch.equal(new[off], g.diffuse[off])
             assert not torch.equal(new, g.diffuse)  # the case blurs something
+
+
+def _bits(t: torch.Tensor) -> torch.Tensor:
+    """``t``'s bit patterns (NaN payloads and the sign of zero included)."""
+    return t.contiguous().view(torch.int32 if t.dtype == torch.float32 else torch.int64)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_simd_levels_keep_the_scalar_loops_bits_at_edge_values(dtype):
+    """Issue 30's shorter vector code against the scalar loop, bitwise, where a select and one
+    min instruction, or a clamp and no clamp, could differ in a bit: the lerp factor's clamp
+    as one min (its max left out when no inverse scale has its sign bit set), the border
+    clamp as one min, the second sample's index as an integer min, the weights broadcast as
+    they are. Values: -0 and NaN in the colours and depths (the C entry takes them; the
+    public pass refuses NaN depths), samples far beyond both borders and exactly on the last
+    row / column, weights of -0, and inverse scales of -1 and -0 (the max kept) and of 0 and
+    1e30 (left out) — the negative ones only through the C entry."""
+    from sssbench.ops._gather_native import run_pass
+
+    b, h, w = 1, 37, 71
+    gen = torch.Generator().manual_seed(5)
+    image = torch.rand(b, 3, h, w, generator=gen, dtype=torch.float64).to(dtype)
+    image[0, :, 3, 5:40:3] = -0.0
+    image[0, 1, 9, 11] = float("nan")
+    depth = (50 + 10 * torch.rand(b, 1, h, w, generator=gen, dtype=torch.float64)).to(dtype)
+    depth[0, 0, 12, 20:60:4] = float("nan")
+    depth[0, 0, 20, 30:34] = float("inf")
+    mask = (torch.rand(b, 1, h, w, generator=gen, dtype=torch.float64) < 0.8).to(dtype)
+    # offsets (mm per width unit) reaching past both borders, and one landing exactly on the
+    # last row / column from the first (f_px / depth * width * offset = n - 1 at depth 50)
+    offsets = torch.tensor([-500.0, -3.0, -0.5, 0.0, 0.5, 3.0, 700.0], dtype=torch.float64)
+    weights = torch.rand(7, 3, generator=gen, dtype=torch.float64)
+    weights[1, 0] = weights[5, 2] = -0.0
+    f_px = 50.0
+    for inv in ([-1.0, -0.0, 2.0], [0.0, 1.0, 1e30], [0.25, 0.5, 4.0]):
+        inv_scale = torch.tensor(inv, dtype=torch.float64)
+        for axis_y in (False, True):
+            n = h if axis_y else w
+            edge = offsets.clone()
+            edge[6] = float(n - 1)  # from pixel 0 at depth 50: exactly the last position
+            for follow in (0, 1):
+                args = (depth, mask, None, None, edge, weights, inv_scale, f_px, 1.0, 0.0,
+                        0.0, axis_y, follow)  # fmt: skip
+                outs = {}
+                for level in LEVELS:
+                    with native.simd(level):
+                        outs[level] = run_pass(image.clone(), args, inplace=False)[0]
+                for level, out in outs.items():
+                    assert torch.equal(_bits(out), _bits(outs["scalar"])), (level, inv, axis_y)

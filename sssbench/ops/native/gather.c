@@ -137,6 +137,23 @@ int sss_get_simd(void) {
 #define PERMUTE_AVX2(v, idx) _mm256_permutevar8x32_ps((__m256)(v), (__m256i)(idx))
 #define PERMUTE_AVX512(v, idx) _mm512_permutexvar_ps((__m512i)(idx), (__m512)(v))
 #define EXP_TABLE 1 /* the vectorised exp by a table of 2^(j/8) (gather_simd.h) */
+/* lane-wise a < b ? a : b in one instruction (min returns its second operand where either is
+ * NaN or both are zeros: exactly the select), for the follow-surface lerp's clamp */
+#define VMINV_AVX2(a, b) ((__typeof__(a))_mm256_min_ps((__m256)(a), (__m256)(b)))
+#define VMINV_AVX512(a, b) ((__typeof__(a))_mm512_min_ps((__m512)(a), (__m512)(b)))
+/* x in every lane, as it is (a tap's weight: not 0 + x, one scalar addition fewer) */
+#define VSET1_AVX2(x) _mm256_set1_ps(x)
+#define VSET1_AVX512(x) _mm512_set1_ps(x)
+/* lane-wise min of int32 vectors (the tap's second sample row / column: i0 + 1 capped) */
+#define VIMIN_AVX2(a, b) ((__typeof__(a))_mm256_min_epi32((__m256i)(a), (__m256i)(b)))
+#define VIMIN_AVX512(a, b) ((__typeof__(a))_mm512_min_epi32((__m512i)(a), (__m512i)(b)))
+/* whether any int32 lane of a exceeds b's (unsigned) / differs from b's, straight into a
+ * mask register (the vector extensions' compare makes a vector of lanes first, then tests
+ * it: two instructions more per tap) */
+#define KANY_GTU_AVX512(a, b) (_mm512_cmpgt_epu32_mask((__m512i)(a), (__m512i)(b)) != 0)
+#define KANY_NE2_AVX512(a, b, c, d)                                   \
+    ((_mm512_cmpneq_epi32_mask((__m512i)(a), (__m512i)(b)) |          \
+      _mm512_cmpneq_epi32_mask((__m512i)(c), (__m512i)(d))) != 0)
 #include "gather_body.h"
 #undef SCALAR
 #undef LANE
@@ -161,6 +178,14 @@ int sss_get_simd(void) {
 #undef PERMUTE_AVX2
 #undef PERMUTE_AVX512
 #undef EXP_TABLE
+#undef VMINV_AVX2
+#undef VMINV_AVX512
+#undef VSET1_AVX2
+#undef VSET1_AVX512
+#undef VIMIN_AVX2
+#undef VIMIN_AVX512
+#undef KANY_GTU_AVX512
+#undef KANY_NE2_AVX512
 
 #define SCALAR double
 #define LANE int64_t
@@ -183,4 +208,10 @@ int sss_get_simd(void) {
 #define SHUFFLE2_AVX512(lo, hi, idx) \
     _mm512_permutex2var_pd((__m512d)(lo), (__m512i)(idx), (__m512d)(hi))
 #define EXP_TABLE 0 /* double: the degree-13 polynomial */
+#define VMINV_AVX2(a, b) ((__typeof__(a))_mm256_min_pd((__m256d)(a), (__m256d)(b)))
+#define VMINV_AVX512(a, b) ((__typeof__(a))_mm512_min_pd((__m512d)(a), (__m512d)(b)))
+#define VSET1_AVX2(x) _mm256_set1_pd(x)
+#define VSET1_AVX512(x) _mm512_set1_pd(x)
+#define VIMIN_AVX2(a, b) ((__typeof__(a))_mm_min_epi32((__m128i)(a), (__m128i)(b)))
+#define VIMIN_AVX512(a, b) ((__typeof__(a))_mm256_min_epi32((__m256i)(a), (__m256i)(b)))
 #include "gather_body.h"

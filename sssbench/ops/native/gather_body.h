@@ -544,6 +544,9 @@ static inline __attribute__((always_inline)) void CAT(lines_, SUFFIX)(
 #define IANY IANY_AVX2
 #define SHUFFLE2 SHUFFLE2_AVX2
 #define VFMA FMA_AVX2
+#define VMINV VMINV_AVX2
+#define VSET1 VSET1_AVX2
+#define VIMIN VIMIN_AVX2
 #ifdef MINPS_AVX2
 #define VMINPS MINPS_AVX2
 #define VPERMUTE PERMUTE_AVX2
@@ -551,6 +554,9 @@ static inline __attribute__((always_inline)) void CAT(lines_, SUFFIX)(
 #include "gather_simd.h"
 #undef VMINPS
 #undef VPERMUTE
+#undef VMINV
+#undef VSET1
+#undef VIMIN
 #undef ISA
 #undef ISA_TARGET
 #undef VW
@@ -565,13 +571,25 @@ static inline __attribute__((always_inline)) void CAT(lines_, SUFFIX)(
 #define IANY IANY_AVX512
 #define SHUFFLE2 SHUFFLE2_AVX512
 #define VFMA FMA_AVX512
+#define VMINV VMINV_AVX512
+#define VSET1 VSET1_AVX512
+#define VIMIN VIMIN_AVX512
 #ifdef MINPS_AVX512
 #define VMINPS MINPS_AVX512
 #define VPERMUTE PERMUTE_AVX512
 #endif
+#ifdef KANY_GTU_AVX512
+#define KANY_GTU KANY_GTU_AVX512
+#define KANY_NE2 KANY_NE2_AVX512
+#endif
 #include "gather_simd.h"
 #undef VMINPS
 #undef VPERMUTE
+#undef VMINV
+#undef VSET1
+#undef VIMIN
+#undef KANY_GTU
+#undef KANY_NE2
 #undef ISA
 #undef ISA_TARGET
 #undef VW

@@ -14,7 +14,9 @@
  * whole vector are loaded, each tap's two samples are fetched per plane by loads and permutes
  * or selects (or a gather), and every pixel goes through the same float operations in the same
  * order as in the scalar loop (lane-wise IEEE arithmetic, no FMA: the library is built with
- * -ffp-contract=off; min / max / clamp as the same selects): the results are bitwise those of
+ * -ffp-contract=off; min / max / clamp as the same selects, or as one min instruction where
+ * that is the same select, VMINV / VIMIN, and the lerp factor's max left out where it cannot
+ * change a bit; the weights broadcast as they are): the results are bitwise those of
  * the scalar loop, so of the torch loop, but for the gaussian follow-surface's factor: its
  * exponent formed as |dz|^2 k (segment_) and its exp computed by a vectorised table and
  * polynomial (expz_ below, the only code with fused multiply-adds) instead of the C library's
@@ -28,6 +30,17 @@ typedef SCALAR SIMDN(vs_) __attribute__((vector_size(VW * sizeof(SCALAR))));
 typedef LANE SIMDN(vm_) __attribute__((vector_size(VW * sizeof(SCALAR))));
 typedef int32_t SIMDN(vi_) __attribute__((vector_size(VW * 4)));
 typedef uint32_t SIMDN(vu_) __attribute__((vector_size(VW * 4)));
+
+/* whether any int32 lane of a exceeds b's, unsigned (ANY_GTU), or a differs from b or c
+ * from d (ANY_NE2): on AVX-512 for float straight into a mask register (KANY_*: gather.c),
+ * else by the vector extensions' compares and IANY */
+#ifdef KANY_GTU
+#define ANY_GTU(a, b) KANY_GTU(a, b)
+#define ANY_NE2(a, b, c, d) KANY_NE2(a, b, c, d)
+#else
+#define ANY_GTU(a, b) IANY((SIMDN(vu_))(a) > (SIMDN(vu_))(b))
+#define ANY_NE2(a, b, c, d) IANY(((a) != (b)) | ((c) != (d)))
+#endif
 
 /* The gaussian follow-surface factor of 000 eq. 7, exp(-d^2 / 2), d = |dz| / surface_scale,
  * as exp(-z ln 2 / 8) with z = d^2 (4 / ln 2) >= 0, the exponent in units of ln 2 / 8 (formed
@@ -152,6 +165,14 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
     const ivec win0 = izero + (int32_t)ln->lo, pitch = izero + (int32_t)ln->pitch;
     const vec inv0 = zero + j->inv_scale[0], inv1 = zero + j->inv_scale[1],
               inv2 = zero + j->inv_scale[2];
+    /* the follow-surface lerp's factor clamp(|dz| inv, 0, 1) as the scalar loop's min then max
+     * (VMIN / VMAX), the min in one instruction (VMINV: the same select). Its max can change
+     * a bit only where |dz| inv is negative or -0: never when no inv has its sign bit set
+     * (taps_in_ makes a NaN inv the largest SCALAR; |dz| has its sign bit clear; a product
+     * that is NaN the min makes 1): then it is left out (issue 30: 6 of the x pass's about
+     * 80 instructions per tap on AVX-512, and the y pass's alike) */
+    const int neg_inv = signbit(j->inv_scale[0]) || signbit(j->inv_scale[1]) ||
+                        signbit(j->inv_scale[2]);
     /* the gaussian's exponent in units of ln 2 / 8 (expz_): z = d^2 / 2 / (ln 2 / 8) =
      * (|dz| m)^2 = |dz|^2 k per channel, m = (1 / surface_scale) sqrt(4 / ln 2) (clamped to
      * the largest finite SCALAR, as 1 / surface_scale is: 0 m = 0), k = m^2, each rounded once
@@ -231,10 +252,13 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
             const int64_t tt = t % TAP_CHUNK;
             if (fan_in) tat[tt] = -1, tsok[tt] = 0;
             vec p = pos + j->offsets[t] * sc;
-            p = VSELECT(p >= zero, VSELECT(p <= last, p, last), zero); /* border; NaN -> 0 */
+            /* border; NaN -> 0. VMINV(last, p) = last < p ? last : p is the scalar loop's
+             * p <= last ? p : last wherever p is not NaN (at p = last the same value, -0 kept
+             * at last = 0), and a NaN p takes the outer select's 0 either way */
+            p = VSELECT(p >= zero, VMINV(last, p), zero);
             const ivec i0 = __builtin_convertvector(p, ivec); /* = floor(p) since p >= 0 */
             const vec f = p - __builtin_convertvector(i0, vec);
-            const ivec i1 = VSELECT(i0 + 1 <= ilast, i0 + 1, ilast);
+            const ivec i1 = VIMIN(i0 + 1, ilast); /* i0 + 1 <= ilast ? i0 + 1 : ilast */
             const ivec ia = (i0 - win0) * pitch + col, ib = (i1 - win0) * pitch + col;
             vec v0, v1, v2, v3;
             if (!AXIS_Y) {
@@ -242,7 +266,7 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
                  * two loads and a two-vector permute per plane instead of a gather */
                 const int32_t base = ia[0] > 2 ? ia[0] - 2 : 0;
                 const ivec ra = ia - base, rb = ib - base;
-                if (!IANY((uivec)(ra | rb) > (uivec)(izero + (2 * VW - 1)))) {
+                if (!ANY_GTU(ra | rb, izero + (2 * VW - 1))) {
                     const mask sa = __builtin_convertvector(ra, mask);
                     const mask sb = __builtin_convertvector(rb, mask);
 #define PERMUTED(P, out)                                                          \
@@ -266,7 +290,7 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
                  * contiguous rows of VW columns and selects per plane instead of a gather */
                 const int32_t r0 = i0[0] - 1;
                 const ivec ra = i0 - r0, rb = i1 - r0;
-                if (!IANY((ra != 1) | (rb != 2))) { /* one row pair for all: no selects */
+                if (!ANY_NE2(ra, izero + 1, rb, izero + 2)) { /* one row pair: no selects */
                     const int64_t at1 = (i0[0] - ln->lo) * ln->pitch + (c - ln->s0);
                     const int64_t at2 = at1 + ln->pitch;
 #define PAIR(P, out)                                                              \
@@ -284,7 +308,7 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
 #undef PAIR
                     goto fetched;
                 }
-                if (!IANY((uivec)(ra | rb) > (uivec)(izero + 3))) {
+                if (!ANY_GTU(ra | rb, izero + 3)) {
                     int64_t at[4];
                     for (int k = 0; k < 4; ++k) {
                         int64_t r = r0 + k;
@@ -338,18 +362,22 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
             }
         fetched:;
             const SCALAR *wt = j->weights4 + 4 * t;
-            vec w0 = zero + wt[0], w1 = zero + wt[1], w2 = zero + wt[2];
+            /* the weights as they are (the scalar loop's), not 0 + w: the same sums, since
+             * w = -0 and w = +0 give products of 0 that leave acc, which starts at +0 and is
+             * never -0, unchanged */
+            vec w0 = (vec)VSET1(wt[0]), w1 = (vec)VSET1(wt[1]), w2 = (vec)VSET1(wt[2]);
             vec e0 = one, e1 = one, e2 = one;
             int scaled = 0;
             if (FOLLOW) {
                 const vec dz = (vec)((mask)(v3 - cz) & ~sign); /* |dz| */
                 if (FOLLOW == 1) { /* min then max as VMIN / VMAX: a < b ? a : b */
                     const vec d0 = dz * inv0, d1 = dz * inv1, d2 = dz * inv2;
-                    const vec s0 = VSELECT(d0 < one, d0, one), s1 = VSELECT(d1 < one, d1, one),
-                              s2 = VSELECT(d2 < one, d2, one);
-                    const vec t0 = VSELECT(s0 > zero, s0, zero),
-                              t1 = VSELECT(s1 > zero, s1, zero),
-                              t2 = VSELECT(s2 > zero, s2, zero);
+                    vec t0 = VMINV(d0, one), t1 = VMINV(d1, one), t2 = VMINV(d2, one);
+                    if (neg_inv) { /* else t > 0 or t = +0 already: the max changes no bit */
+                        t0 = VSELECT(t0 > zero, t0, zero);
+                        t1 = VSELECT(t1 > zero, t1, zero);
+                        t2 = VSELECT(t2 > zero, t2, zero);
+                    }
                     v0 = v0 + t0 * (c0 - v0);
                     v1 = v1 + t1 * (c1 - v1);
                     v2 = v2 + t2 * (c2 - v2);
@@ -466,7 +494,7 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
                         x2 = tv[u][2];
                     }
                     const SCALAR *ws = j->weights4 + 4 * (s * j->k + t0_ + u);
-                    vec u0 = zero + ws[0], u1 = zero + ws[1], u2 = zero + ws[2];
+                    vec u0 = (vec)VSET1(ws[0]), u1 = (vec)VSET1(ws[1]), u2 = (vec)VSET1(ws[2]);
                     if (tsc[u]) {
                         u0 = u0 * te[u][0];
                         u1 = u1 * te[u][1];
@@ -630,3 +658,5 @@ LINES_ALL(SIMDN(lines_), SIMDN(run_), __attribute__((target(ISA_TARGET))))
 #undef CENTRE
 #undef SIMDN
 #undef SIMD_FN
+#undef ANY_GTU
+#undef ANY_NE2
