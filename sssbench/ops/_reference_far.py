@@ -42,18 +42,28 @@ All lengths are divided by a unit ``L`` (a pixel footprint) first, so the weight
 from __future__ import annotations
 
 import math
+import threading
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import partial
-from typing import TypeVar
+from typing import Any, TypeVar
 
 import numpy as np
 import torch
+from threadpoolctl import threadpool_limits
 
 from sssbench.profiles.base import _gauss_legendre
 
-__all__ = ["Pyramid", "cell_moments", "exp_in_place", "far_field", "map_threads", "surface_pyramid"]
+__all__ = [
+    "Pyramid",
+    "blas_product",
+    "cell_moments",
+    "exp_in_place",
+    "far_field",
+    "map_threads",
+    "surface_pyramid",
+]
 
 _T = TypeVar("_T")
 _R = TypeVar("_R")
@@ -282,6 +292,59 @@ def exp_in_place(t: torch.Tensor) -> torch.Tensor:
     return torch.exp_(t)
 
 
+#: how many :func:`map_threads` calls hold NumPy's BLAS to one thread at present, and the
+#: limit they share (process-wide: the first one takes it, the last one restores the BLAS as
+#: it was): :func:`blas_product` takes NumPy's product only while one does
+_BLAS_HOLD: dict[str, Any] = {"count": 0, "limit": None}
+_BLAS_HOLD_LOCK = threading.Lock()
+
+
+def _hold_blas() -> None:
+    """One more holder of NumPy's BLAS at one thread (see :data:`_BLAS_HOLD`)."""
+    with _BLAS_HOLD_LOCK:
+        if _BLAS_HOLD["count"] == 0:
+            _BLAS_HOLD["limit"] = threadpool_limits(limits=1, user_api="blas")
+        _BLAS_HOLD["count"] += 1
+
+
+def _release_blas() -> None:
+    """One holder fewer; the last one restores the BLAS's thread count."""
+    with _BLAS_HOLD_LOCK:
+        _BLAS_HOLD["count"] -= 1
+        if _BLAS_HOLD["count"] == 0:
+            _BLAS_HOLD["limit"].restore_original_limits()
+            _BLAS_HOLD["limit"] = None
+
+
+def blas_product(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """``a @ b`` for 2D tensors: while :func:`map_threads` holds NumPy's BLAS to one thread,
+    float64 CPU tensors outside autograd through NumPy's BLAS (OpenBLAS in NumPy's wheels) on
+    the same memory; anything else, or anywhere else, through ``torch``.
+
+    Why (issue 30, "whole sweeps"): the far field's two products, ``(T, 5) · (5, S)`` (the
+    exponents) and ``(T, S) · (S, 40)`` (the Taylor terms), were 14 % of a cold 512² paper
+    benchmark's warm-up (py-spy, all processes); on this 2-core AMD EPYC (AVX-512) torch's
+    MKL runs them at 24–28 GFLOP/s and OpenBLAS's SkylakeX kernels at 38–54 (one thread,
+    the far field's shapes (256 × 584 … 1492) · (… × 40): 1.35–2.05× the speed; the
+    exponents' product 1.2–1.4×). Another BLAS sums a dot product in another order: equal to
+    rounding (tested against exactly summed dot products). Only at one thread: OpenBLAS's
+    result at two threads differs in the last bits (tested), and the reference's must not
+    depend on how many threads it had — the far field's products all run inside
+    :func:`map_threads`' items."""
+    if (
+        _BLAS_HOLD["count"] > 0
+        and a.device.type == "cpu"
+        and b.device.type == "cpu"
+        and a.dtype == torch.float64
+        and b.dtype == torch.float64
+        and not (a.requires_grad or b.requires_grad)
+        and a.ndim == 2
+        and b.ndim == 2
+    ):
+        return torch.from_numpy(np.matmul(a.numpy(), b.numpy()))
+    return a @ b
+
+
 def _gaussian_matrix(
     targets: torch.Tensor, sources: torch.Tensor, v: float
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -300,7 +363,7 @@ def _gaussian_matrix(
     rhs = torch.cat(
         [p / v, (-(p * p).sum(1) / (2 * v))[:, None], torch.full_like(p[:, :1], -0.5 / v)], 1
     )
-    return x, p, exp_in_place(lhs @ rhs.t())
+    return x, p, exp_in_place(blas_product(lhs, rhs.t()))
 
 
 def far_field(
@@ -321,7 +384,7 @@ def far_field(
         return targets.new_zeros(targets.shape[0], mom.shape[1])
     x, p, g = _gaussian_matrix(targets, sources, v)
     cols = _coefficients(p, mom, v)  # (S, C·10)
-    res = (g @ cols).view(x.shape[0], mom.shape[1], _NMOM)
+    res = blas_product(g, cols).view(x.shape[0], mom.shape[1], _NMOM)
     return (res * _monomials(x)[:, None]).sum(-1) / (2 * math.pi * v)
 
 
@@ -374,13 +437,17 @@ def map_threads(fn: Callable[[_T], _R], items: Iterable[_T], workers: int) -> It
     on the number of threads. ``fn`` must write only its own outputs (no shared
     accumulator). Autograd's modes are thread-local: the workers run ``fn`` under the
     caller's inference mode and grad mode (tensors made under ``torch.inference_mode()`` can
-    only be written to under it)."""
+    only be written to under it). NumPy's BLAS (:func:`blas_product`) is held to one thread
+    alike (``threadpoolctl``), restored after."""
     inference, grad = torch.is_inference_mode_enabled(), torch.is_grad_enabled()
 
     def in_callers_mode(item: _T) -> _R:
         with torch.inference_mode(inference), torch.set_grad_enabled(grad):
             return fn(item)
 
+    # NumPy's BLAS (blas_product) at one thread too: the parallelism is the items'. Taken
+    # first: threadpoolctl restores every thread pool it saw (torch's OpenMP's too) as it was
+    _hold_blas()
     prev = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
@@ -393,6 +460,7 @@ def map_threads(fn: Callable[[_T], _R], items: Iterable[_T], workers: int) -> It
             finally:  # on an error or an interrupt, the items not started are dropped
                 pool.shutdown(wait=True, cancel_futures=True)
     finally:
+        _release_blas()
         torch.set_num_threads(prev)
 
 
@@ -468,7 +536,7 @@ def point_field(
     targets: torch.Tensor, sources: torch.Tensor, mass: torch.Tensor, v: float
 ) -> torch.Tensor:
     """``Σ_S mass_S G(v, |p_S − x|)`` ``(T, C)`` for point masses ``(S, C)``."""
-    return (_gaussian_matrix(targets, sources, v)[2] @ mass) / (2 * math.pi * v)
+    return blas_product(_gaussian_matrix(targets, sources, v)[2], mass) / (2 * math.pi * v)
 
 
 def cell_nodes(

@@ -143,3 +143,96 @@ def test_exp_in_place_within_one_ulp_of_the_c_library(dtype):
     z = torch.stack([x, x], 1)[:, 0]
     assert not z.is_contiguous()
     assert torch.equal(exp_in_place(z), torch.exp(x))
+
+
+def _exact_product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a @ b`` with every dot product summed exactly and rounded once (``math.fsum``)."""
+    return np.array(
+        [[math.fsum(a[i] * b[:, j]) for j in range(b.shape[1])] for i in range(a.shape[0])]
+    )
+
+
+def _in_map(fn):
+    """``fn()`` run as an item of ``map_threads`` (where the far field's products run)."""
+    from sssbench.ops._reference_far import map_threads
+
+    return next(iter(map_threads(lambda _: fn(), [0], 1)))
+
+
+@pytest.mark.parametrize(("t", "s", "c"), [(1, 1, 1), (17, 5, 33), (48, 506, 40), (7, 1492, 3)])
+def test_blas_product_against_exact_dot_products(t, s, c):
+    """The far field's products (NumPy's BLAS, inside map_threads) against dot products
+    summed exactly: within a few units of rounding of Σ |a_k b_k| (any summation order is);
+    a transposed view, under inference mode, an operand requiring a gradient (torch's
+    product, differentiable) and float32 (torch's)."""
+    from sssbench.ops._reference_far import blas_product
+
+    gen = torch.Generator().manual_seed(t * 1000 + s)
+    a = torch.randn(t, s, generator=gen, dtype=torch.float64)
+    b = torch.randn(c, s, generator=gen, dtype=torch.float64).t()  # a strided view
+    want = _exact_product(a.numpy(), b.numpy())
+    size = (a.abs() @ b.abs()).numpy()
+    bound = 4 * s * np.finfo(np.float64).eps * size
+    got = _in_map(lambda: blas_product(a, b))
+    assert got.dtype == torch.float64 and got.shape == (t, c)
+    assert np.all(np.abs(got.numpy() - want) <= bound)
+    with torch.inference_mode():
+        assert torch.equal(_in_map(lambda: blas_product(a, b)), got)
+    a_grad = a.clone().requires_grad_(True)
+    _in_map(lambda: blas_product(a_grad, b)).sum().backward()
+    assert torch.allclose(a_grad.grad, b.sum(1).expand(t, s))
+    got32 = _in_map(lambda: blas_product(a.float(), b.float()))
+    assert got32.dtype == torch.float32
+    assert np.all(np.abs(got32.double().numpy() - want) <= 4 * s * 2.0**-24 * size + bound)
+
+
+def test_blas_product_runs_at_one_blas_thread():
+    """OpenBLAS's product at two threads differs from its one-thread product in the last
+    bits (measured at the far field's shape), so the far field takes NumPy's product only
+    inside map_threads, which holds NumPy's BLAS to one thread while its items run (restored
+    after): there its product is the one-thread product bitwise, whatever the limit outside;
+    outside, it is torch's."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    from sssbench.ops._reference_far import blas_product, map_threads
+
+    def blas_threads() -> list[int]:
+        return [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
+
+    gen = torch.Generator().manual_seed(5)
+    a = torch.randn(256, 916, generator=gen, dtype=torch.float64)
+    b = torch.randn(916, 40, generator=gen, dtype=torch.float64)
+    with threadpool_limits(limits=1, user_api="blas"):
+        one = torch.from_numpy(a.numpy() @ b.numpy())
+    with threadpool_limits(limits=2, user_api="blas"):
+        before = blas_threads()
+        got = list(map_threads(lambda _: (blas_product(a, b), blas_threads()), range(4), 2))
+        assert blas_threads() == before  # restored
+        assert torch.equal(blas_product(a, b), a @ b)  # outside: torch's
+    for product, threads in got:
+        assert torch.equal(product, one)
+        assert set(threads) <= {1}
+
+
+def test_overlapping_maps_keep_the_blas_at_one_thread_until_the_last_ends():
+    """Two maps that overlap without nesting (two callers' threads): the first to end must
+    not give the other's products back their threads; the last restores the BLAS as it was."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    from sssbench.ops import _reference_far as far
+
+    def blas_threads() -> set[int]:
+        return {i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"}
+
+    with threadpool_limits(limits=2, user_api="blas"):
+        before = blas_threads()
+        first, second = (
+            far.map_threads(lambda i: i, range(2), 1),
+            far.map_threads(lambda i: i, range(2), 1),
+        )
+        next(first)  # the first map holds the BLAS
+        next(second)  # the second too
+        first.close()  # the first ends: the second still runs at one thread
+        assert blas_threads() <= {1} and far._BLAS_HOLD["count"] == 1
+        second.close()
+        assert blas_threads() == before and far._BLAS_HOLD["count"] == 0
