@@ -15,7 +15,7 @@ from typing import Any
 
 import torch
 
-__all__ = ["code_digest", "profile_digest"]
+__all__ = ["code_digest", "numeric_libraries", "profile_digest"]
 
 
 def _package_root(name: str) -> Path:
@@ -27,19 +27,33 @@ def _package_root(name: str) -> Path:
     return Path(spec.origin).parent
 
 
+def numeric_libraries() -> str:
+    """The numeric libraries whose rounding cached images carry, as one line: the versions
+    of torch and NumPy, and the BLAS NumPy loaded (its library, version and the kernels it
+    picked for this CPU; ``threadpoolctl``), read at each call."""
+    import numpy
+    from threadpoolctl import threadpool_info
+
+    blas = sorted(
+        f"{i.get('internal_api')} {i.get('version')} {i.get('architecture')}"
+        for i in threadpool_info()
+        if i.get("user_api") == "blas"
+    )
+    return f"torch {torch.__version__} numpy {numpy.__version__} blas {blas}"
+
+
 @functools.cache
 def code_digest() -> str:
     """A digest of every source file of :mod:`sssbench` and :mod:`data_synth`: the Python
     files and the native tap loop's C sources (``*.c``, ``*.h``: the budget's converged
     limits are cached images the native loop computes), read once per process, and of the
-    versions of torch and NumPy, whose kernels' rounding the cached images carry (the
-    reference's far field takes NumPy's ``exp``, its FFTs and products torch's). Cached images
+    versions of torch and NumPy and of the BLAS NumPy loaded, whose kernels' rounding the
+    cached images carry (the reference's far field takes NumPy's ``exp`` and its BLAS's
+    products, its FFTs torch's). Cached images
     depend on the scene builders, the profiles, the reference, the methods and the pipeline;
     keying on all of the code is conservative (any change recomputes) and can never serve an
     image made by other code or by other numeric libraries."""
-    import numpy
-
-    h = hashlib.sha256(f"torch {torch.__version__} numpy {numpy.__version__}\n".encode())
+    h = hashlib.sha256(f"{numeric_libraries()}\n".encode())
     for package in ("sssbench", "data_synth"):
         root = _package_root(package)
         files = [p for suffix in ("*.py", "*.c", "*.h") for p in root.rglob(suffix)]

@@ -47,3 +47,36 @@ def test_code_digest_changes_with_the_numeric_libraries_versions(monkeypatch):
     monkeypatch.undo()
     assert moved_torch != base and moved_numpy != base and moved_torch != moved_numpy
     assert digest() == base
+
+
+def test_code_digest_changes_with_the_blas_numpy_loaded(monkeypatch):
+    """The reference's far-field products run in NumPy's BLAS: a reference cached under
+    another BLAS, or the same one with other kernels (another CPU), is not served — neither
+    by the run cache (code_digest) nor by the reference images' cache
+    (reference_code_digest)."""
+    import threadpoolctl
+
+    digest = _digest.code_digest.__wrapped__
+    base = digest()
+    real = threadpoolctl.threadpool_info
+
+    def other(field: str, value: str):
+        def info():
+            return [{**i, field: value} if i.get("user_api") == "blas" else i for i in real()] or [
+                {"user_api": "blas", field: value}
+            ]
+
+        return info
+
+    from sssbench.ops.reference import reference_code_digest
+
+    ref_base = reference_code_digest()
+    moved, ref_moved = [], []
+    for field, value in (("internal_api", "mkl"), ("version", "0.0.1"), ("architecture", "Zen")):
+        monkeypatch.setattr(threadpoolctl, "threadpool_info", other(field, value))
+        moved.append(digest())
+        ref_moved.append(reference_code_digest())  # the reference images' own key too
+        monkeypatch.undo()
+    assert len(set(moved)) == 3 and base not in moved
+    assert len(set(ref_moved)) == 3 and ref_base not in ref_moved
+    assert digest() == base and reference_code_digest() == ref_base

@@ -55,8 +55,10 @@ def reference_code_digest() -> str:
     """A digest of the source that computes references (this module and its private
     ``_reference_*`` modules, the native quadrature's C sources ``native/quad*`` and
     ``native/exp2_32.h``, every profile
-    module, the camera): caches of reference images add it to their key, so a changed
-    reference is never served from a stale cache."""
+    module, the camera) and of the numeric libraries whose rounding a reference carries
+    (:func:`sssbench._digest.numeric_libraries`: torch, NumPy and NumPy's BLAS, which the far
+    field's exp and products run in): caches of reference images add it to their key, so a
+    changed reference is never served from a stale cache."""
     import hashlib
     from pathlib import Path
 
@@ -69,7 +71,9 @@ def reference_code_digest() -> str:
     files.append(here.parent / "native" / "exp2_32.h")  # and their exp's table
     files += sorted(Path(sssbench.profiles.__file__).parent.glob("*.py"))
     files.append(Path(sssbench.gbuffer.__file__))
-    text = "".join(f.name + "\n" + f.read_text() for f in files)
+    from sssbench._digest import numeric_libraries
+
+    text = numeric_libraries() + "\n" + "".join(f.name + "\n" + f.read_text() for f in files)
     return hashlib.sha1(text.encode()).hexdigest()[:12]
 
 
