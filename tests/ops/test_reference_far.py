@@ -152,6 +152,13 @@ def _exact_product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     )
 
 
+def _blas_threads() -> set[int]:
+    """The thread counts of the BLAS libraries loaded (NumPy's), per threadpoolctl."""
+    from threadpoolctl import threadpool_info
+
+    return {i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"}
+
+
 def _in_map(fn):
     """``fn()`` run as an item of ``map_threads`` (where the far field's products run)."""
     from sssbench.ops._reference_far import map_threads
@@ -192,12 +199,9 @@ def test_blas_product_runs_at_one_blas_thread():
     inside map_threads, which holds NumPy's BLAS to one thread while its items run (restored
     after): there its product is the one-thread product bitwise, whatever the limit outside;
     outside, it is torch's."""
-    from threadpoolctl import threadpool_info, threadpool_limits
+    from threadpoolctl import threadpool_limits
 
     from sssbench.ops._reference_far import blas_product, map_threads
-
-    def blas_threads() -> list[int]:
-        return [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
 
     gen = torch.Generator().manual_seed(5)
     a = torch.randn(256, 916, generator=gen, dtype=torch.float64)
@@ -205,27 +209,24 @@ def test_blas_product_runs_at_one_blas_thread():
     with threadpool_limits(limits=1, user_api="blas"):
         one = torch.from_numpy(a.numpy() @ b.numpy())
     with threadpool_limits(limits=2, user_api="blas"):
-        before = blas_threads()
-        got = list(map_threads(lambda _: (blas_product(a, b), blas_threads()), range(4), 2))
-        assert blas_threads() == before  # restored
+        before = _blas_threads()
+        got = list(map_threads(lambda _: (blas_product(a, b), _blas_threads()), range(4), 2))
+        assert _blas_threads() == before  # restored
         assert torch.equal(blas_product(a, b), a @ b)  # outside: torch's
     for product, threads in got:
         assert torch.equal(product, one)
-        assert set(threads) <= {1}
+        assert threads <= {1}
 
 
 def test_overlapping_maps_keep_the_blas_at_one_thread_until_the_last_ends():
     """Two maps that overlap without nesting (two callers' threads): the first to end must
     not give the other's products back their threads; the last restores the BLAS as it was."""
-    from threadpoolctl import threadpool_info, threadpool_limits
+    from threadpoolctl import threadpool_limits
 
     from sssbench.ops import _reference_far as far
 
-    def blas_threads() -> set[int]:
-        return {i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"}
-
     with threadpool_limits(limits=2, user_api="blas"):
-        before = blas_threads()
+        before = _blas_threads()
         first, second = (
             far.map_threads(lambda i: i, range(2), 1),
             far.map_threads(lambda i: i, range(2), 1),
@@ -233,6 +234,6 @@ def test_overlapping_maps_keep_the_blas_at_one_thread_until_the_last_ends():
         next(first)  # the first map holds the BLAS
         next(second)  # the second too
         first.close()  # the first ends: the second still runs at one thread
-        assert blas_threads() <= {1} and far._BLAS_HOLD["count"] == 1
+        assert _blas_threads() <= {1} and far._BLAS_HOLD["count"] == 1
         second.close()
-        assert blas_threads() == before and far._BLAS_HOLD["count"] == 0
+        assert _blas_threads() == before and far._BLAS_HOLD["count"] == 0
