@@ -3,7 +3,9 @@
 Checked against a Python walk over the mask (``mask > 0`` pixel by pixel, the definition):
 rows whose length straddles the scan's block of 16 (float32) / 8 (float64) pixels, NaN,
 -0.0 and negative values (none of them > 0), and more runs than the first buffer holds. A
-write that bumps no version counter is seen by the next call (nothing is kept across calls).
+write that bumps no version counter is seen by the next call (nothing is kept across calls,
+unless the mask is sealed: then the runs are kept while the seal holds, and a write to it is
+caught as ``SealBroken``, never served silently).
 """
 
 import pytest
@@ -90,3 +92,52 @@ def test_runs_are_shared_within_one_call_and_rebuilt_after_a_write():
         again = image_spans(mask, (1, 4, 20))
     assert again is not first
     assert again[0].tolist() == [[1, 3, 6], [3, 0, 2]]
+
+
+def test_a_sealed_mask_scans_once_across_calls(monkeypatch):
+    """Under a seal the runs are memoised across operator calls (one scan for the seal's
+    life, counted on the C scan), equal to the walk; once the seal ends, a mask changed
+    since is scanned anew (the runs kept under the seal are not served)."""
+    import sssbench.ops._stencil as stencil
+    from sssbench._memo import sealed
+
+    scans = []
+    real = stencil._scan
+    monkeypatch.setattr(stencil, "_scan", lambda *a: scans.append(a) or real(*a))
+    mask = torch.zeros(2, 1, 5, 21)
+    mask[0, 0, 1, 3:9] = 1.0
+    mask[1, 0, 4, 20] = 0.5
+    with sealed({"mask": mask}):
+        for _ in range(3):
+            with memo_scope():  # a new operator call each time
+                runs = image_spans(mask, (2, 5, 21))
+        assert len(scans) == 2  # one per image, once
+        assert [r.tolist() for r in runs] == [walk(mask[0, 0]), walk(mask[1, 0])]
+    mask[0, 0, 2, :4] = 1.0  # after the seal: an ordinary tensor again
+    with memo_scope():
+        runs = image_spans(mask, (2, 5, 21))
+    assert len(scans) == 4
+    assert runs[0].tolist() == [[1, 3, 9], [2, 0, 4]]
+
+
+@pytest.mark.parametrize("how", ["numpy", "inplace"])
+def test_a_write_to_a_sealed_mask_is_never_served_stale(how):
+    """A write to a sealed mask raises ``SealBroken``: at the next lookup when torch counts
+    it (in place), else at the seal's verification (a NumPy write); runs served in between
+    are the memo's, and the run that read them is invalid by the seal's contract."""
+    from sssbench._memo import SealBroken, sealed
+
+    mask = torch.zeros(1, 1, 4, 20)
+    mask[0, 0, 0, 2:5] = 1.0
+    with pytest.raises(SealBroken):
+        with sealed({"mask": mask}):
+            with memo_scope():
+                assert image_spans(mask, (1, 4, 20))[0].tolist() == [[0, 2, 5]]
+            if how == "numpy":
+                mask.numpy()[0, 0, 3, :2] = 1.0
+            else:
+                mask[0, 0, 3, :2] = 1.0
+            with memo_scope():
+                image_spans(mask, (1, 4, 20))
+    with memo_scope():  # the seal is over: the write is seen
+        assert image_spans(mask, (1, 4, 20))[0].tolist() == [[0, 2, 5], [3, 0, 2]]
