@@ -262,6 +262,28 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
             const ivec ia = (i0 - win0) * pitch + col, ib = (i1 - win0) * pitch + col;
             vec v0, v1, v2, v3;
             if (!AXIS_Y) {
+                /* the lanes' first samples at consecutive positions (the scale varies little
+                 * over VW pixels, as a rule) and none clamped at the line's end (then
+                 * i1 = i0 + 1 in every lane): each plane's samples are two unaligned loads,
+                 * the very values the permutes below would select (issue 30: on AVX2 a
+                 * two-vector permute is two vpermps and a blend, per sample and plane) */
+                if ((int64_t)i0[0] + VW < n_axis &&
+                    !ANY_NE2(i0 - iota, izero + i0[0], izero, izero)) {
+                    const int32_t at = ia[0];
+#define CONSECUTIVE(P, out)                                                       \
+    do {                                                                          \
+        vec a_, b_;                                                               \
+        __builtin_memcpy(&a_, (P) + at, sizeof a_);                               \
+        __builtin_memcpy(&b_, (P) + at + 1, sizeof b_);                           \
+        out = a_ + f * (b_ - a_);                                                 \
+    } while (0)
+                    CONSECUTIVE(p0, v0);
+                    CONSECUTIVE(p1, v1);
+                    CONSECUTIVE(p2, v2);
+                    CONSECUTIVE(p3, v3);
+#undef CONSECUTIVE
+                    goto fetched;
+                }
                 /* the lanes' samples lie within 2 VW positions of the first's, as a rule:
                  * two loads and a two-vector permute per plane instead of a gather */
                 const int32_t base = ia[0] > 2 ? ia[0] - 2 : 0;
