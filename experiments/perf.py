@@ -676,10 +676,10 @@ def run(ctx: Context) -> Section:
     far = make_scene(FAR, res)
     cover = {}
     calls = {}
-    owned = {}  # what the renderer writes once per frame: every field but the lit diffuse
+    owned = []  # the G-buffers the in-place calls write (their lit diffuse only)
     for key, sg in (("close", g), ("far", far)):
         target = sg.replace(diffuse=sg.diffuse.clone())  # overwritten call after call
-        owned[key] = {n: t for n, t in target.tensors().items() if n != "diffuse"}
+        owned.append(target)
         calls[(key, "in place")] = lambda t=target: op(t, inplace=True)
         calls[(key, "copying")] = lambda sg=sg: op(sg)
     rounds = 6 * repeats + 1
@@ -690,12 +690,10 @@ def run(ctx: Context) -> Section:
     # that scales with the image), and each call's CPU time is its own (SETTLE_S)
     from contextlib import ExitStack
 
-    from sssbench._memo import sealed
-
     in_place = {key: calls[(key, "in place")] for key in ("close", "far")}
     with ExitStack() as stack:
-        for fields in owned.values():
-            stack.enter_context(sealed(fields))
+        for target in owned:
+            stack.enter_context(target.sealed(writable=("diffuse",)))
         cpu_sealed = interleaved_ms(in_place, rounds, time.process_time, settle=SETTLE_S)
     for key, sg in (("close", g), ("far", far)):
         cover[key] = (
@@ -890,9 +888,10 @@ def run(ctx: Context) -> Section:
         f"({scene_label(FAR, far)}) has {share:.2%} of the close-up's ({scene_label(CLOSE, g)}) "
         f"masked pixels. In place (`op(g, inplace=True)`, the renderer's case: only the "
         f"stencil's pixels are written), with every field but the lit diffuse sealed by its "
-        f"owner (`sssbench._memo.sealed`: the memo's checks O(1), the stencil's runs kept "
-        f"across calls) and {SETTLE_S * 1e3:.0f} ms before each call (so that no call's CPU "
-        f"time holds the previous call's OpenMP workers spinning idle), its CPU time (all "
+        f"owner (`g.sealed(writable=('diffuse',))`: the memo's checks O(1), the stencil's "
+        f"runs kept across calls) and {SETTLE_S * 1e3:.0f} ms before each call (so that no "
+        f"call's CPU time holds the previous call's OpenMP workers spinning idle), its CPU "
+        f"time (all "
         f"threads, `time.process_time`) is {t_sealed:.2%} of the close-up's = "
         f"{t_sealed / share:.2f}× its share (target ≤ 1.5×; median "
         f"{sealed_ms['far']:.2f} vs {sealed_ms['close']:.1f} ms). Unsealed and called back "

@@ -9,6 +9,7 @@ places that turn depth into world units.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from contextlib import AbstractContextManager
 from dataclasses import dataclass, fields, replace
 
@@ -167,7 +168,9 @@ class GBuffer:
         out = {f.name: getattr(self, f.name) for f in fields(self)}
         return {k: v for k, v in out.items() if isinstance(v, torch.Tensor)}
 
-    def sealed(self, pristine: GBuffer | None = None) -> AbstractContextManager[Sealing]:
+    def sealed(
+        self, pristine: GBuffer | None = None, *, writable: Iterable[str] = ()
+    ) -> AbstractContextManager[Sealing]:
         """A block in which this G-buffer's tensors are sealed (:func:`sssbench._memo.sealed`):
         read-only by contract, so the stencils, LOD masks and field checks memoised on them
         are trusted in O(1) per call instead of a bitwise compare proportional to the image.
@@ -178,13 +181,28 @@ class GBuffer:
         Args:
             pristine: a separate copy of this G-buffer (same bits) that nothing writes:
                 verified against by ``memcmp``; without it, by SHA-256 digests taken now.
+            writable: names of fields left unsealed because the block writes them, e.g.
+                ``("diffuse",)`` for a renderer's ``op(g, inplace=True)``, which overwrites
+                the lit diffuse under the stencil while the stencil and depth stay sealed.
+
+        Raises:
+            ValueError: ``writable`` names something that is not a field of a G-buffer.
 
         Example:
             >>> g = GBuffer(torch.ones(1, 3, 4, 4), torch.full((1, 1, 4, 4), 500.0), 0.5)
             >>> with g.sealed() as seal:
             ...     seal.verify()
         """
-        return sealed(self.tensors(), None if pristine is None else pristine.tensors())
+        names = (writable,) if isinstance(writable, str) else tuple(writable)
+        known = {f.name for f in fields(self)}
+        unknown = [n for n in names if n not in known]
+        if unknown:
+            raise ValueError(
+                f"writable must name G-buffer fields (one of {sorted(known)}), got {unknown}"
+            )
+        kept = {k: v for k, v in self.tensors().items() if k not in names}
+        twins = None if pristine is None else pristine.tensors()
+        return sealed(kept, twins)
 
     def to(self, dtype: torch.dtype) -> GBuffer:
         """A copy with every floating-point tensor field cast to ``dtype`` (``profile_id``

@@ -603,8 +603,8 @@ def test_every_simd_level_gives_the_scalar_loops_bits(dtype, inplace):
     """The vectorised loops (issue 30) against the scalar one and the torch loop, bitwise but
     for the gaussian's exp (the vectorised loops' polynomial exp: the stated tolerance): runs of
     every length (vectors with spare lanes), smooth per-pixel widths (the x pass's consecutive
-    loads, the permute / row-select fetch) with rough patches and a few huge values (lanes far apart: the gather fallback),
-    the stretch, both axes, dense and sparse stencils."""
+    loads, the permute / row-select fetch) with rough patches and a few huge values (lanes far
+    apart: the gather fallback), the stretch, both axes, dense and sparse stencils."""
     h, w = 61, 203
     gen = torch.Generator().manual_seed(7)
     width = 0.5 + 0.3 * torch.linspace(0, 1, w, dtype=torch.float64).expand(1, 1, h, w).clone()

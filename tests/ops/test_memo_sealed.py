@@ -156,3 +156,36 @@ def test_a_block_left_by_an_error_ends_its_seals_without_masking_the_error():
         t.numpy()[0] = 2.0
         raise KeyError("first")
     assert seal_of(t) is None
+
+
+@pytest.mark.parametrize("name", BACKENDS)
+def test_a_renderer_seals_every_field_but_the_one_it_writes(name):
+    """``g.sealed(writable=("diffuse",))``: an in-place operator call writes the lit diffuse
+    and the block ends without ``SealBroken``; the stencil and depth stay sealed (a write to
+    them is still caught), the diffuse is not; the result equals the call on an unsealed copy.
+    A name that is not a field is an error naming the argument."""
+    from sssbench.ops import PreintegratedSSS
+    from sssbench.profiles import SumOfGaussians
+
+    op = PreintegratedSSS(SumOfGaussians.from_table("skin_deon6"), 7)
+    g = scene(seed=3, h=12, w=19)
+    expected = op(fresh(g))
+    with backend(name):
+        with g.sealed(writable=("diffuse",)):
+            assert seal_of(g.mask) is not None and seal_of(g.depth) is not None
+            assert seal_of(g.diffuse) is None
+            for _ in range(2):  # the second call on the first call's result
+                op(g, inplace=True)
+        again = fresh(scene(seed=3, h=12, w=19))
+        op(again, inplace=True)
+        op(again, inplace=True)
+        assert torch.equal(g.diffuse, again.diffuse)
+        assert torch.equal(op(fresh(scene(seed=3, h=12, w=19))), expected)
+        with pytest.raises(SealBroken):
+            with g.sealed(writable=("diffuse",)):
+                g.mask.numpy()[0, 0, 0, 0] = 0.5
+    with pytest.raises(SealBroken):  # sealed whole, the in-place write breaks the seal
+        with g.sealed():
+            op(g, inplace=True)
+    with pytest.raises(ValueError, match="writable"):
+        g.sealed(writable=("difuse",))
