@@ -163,6 +163,10 @@ def log_cold_run(
         "runs_s": round(attrs["runs_s"], 1),
         "load_start": round(attrs.get("load_start", float("nan")), 2),
         "load_end": round(attrs.get("load_end", float("nan")), 2),
+        # which machine (its CPU, cores and the tap loop's SIMD level): a cold time is a
+        # figure of the machine as much as of the code (issue 30: 289-366 s on a 2-core
+        # AVX-512 EPYC, 886 s on a 2-core AVX2-only one)
+        "machine": run_machine(),
     }
     if recs is not None and len(recs):
         record["recommended"] = {
@@ -177,6 +181,15 @@ def log_cold_run(
     with open(log, "a", encoding="utf-8") as out:
         out.write(json.dumps(record) + "\n")
     return record
+
+
+def run_machine() -> dict[str, object]:
+    """The machine a cold run ran on: :func:`experiments.readme_timings.machine` and the
+    native tap loop's SIMD level (``None`` without the library)."""
+    from experiments.readme_timings import machine
+    from sssbench.ops import native
+
+    return {**machine(), "simd": native.simd_level()}
 
 
 def _loggable(table: pd.DataFrame) -> bool:

@@ -3,12 +3,14 @@ verdict over every logged run of the same code (mean ± standard error, by hand)
 
 import json
 import math
+import os
 
 import pandas as pd
 import pytest
 
 from experiments import benchmark
 from sssbench._digest import code_digest
+from sssbench.ops import native
 
 
 def table(resolution="512x512", cold=True, warm=200.0, runs=100.0):
@@ -27,6 +29,10 @@ def test_only_a_cold_run_at_a_target_resolution_is_logged(tmp_path):
     assert len(lines) == 1 and json.loads(lines[0]) == rec
     assert rec["resolution"] == "512x512" and rec["code"] == code_digest()
     assert rec["total_s"] == 281.0 and rec["warm_s"] == 180.0 and rec["runs_s"] == 101.0
+    # the machine it ran on, read off this one
+    assert rec["machine"]["cores"] == os.cpu_count()
+    assert rec["machine"]["simd"] in (None, *native.SIMD_LEVELS)
+    assert isinstance(rec["machine"]["cpu"], str) and rec["machine"]["cpu"]
 
 
 def test_the_verdict_is_on_every_run_of_this_code(tmp_path):
