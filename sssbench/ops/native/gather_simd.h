@@ -227,6 +227,15 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
         else                                                                      \
             (out) = (vec)GATHER_RAW((P), centre);                                 \
     } while (0)
+/* a tap's two samples of plane P from two whole-vector loads at o1 and o2 (consecutive
+ * positions of an x pass's row, a row pair of a y pass's strip), lerped by fr */
+#define LOADED_PAIR(P, o1, o2, fr, out)                                           \
+    do {                                                                          \
+        vec a_, b_;                                                               \
+        __builtin_memcpy(&a_, (P) + (o1), sizeof a_);                             \
+        __builtin_memcpy(&b_, (P) + (o2), sizeof b_);                             \
+        (out) = a_ + (fr) * (b_ - a_);                                            \
+    } while (0)
         vec c0, c1, c2, cz;
         CENTRE(p0, c0);
         CENTRE(p1, c1);
@@ -270,18 +279,10 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
                 if ((int64_t)i0[0] + VW < n_axis &&
                     !ANY_NE2(i0 - iota, izero + i0[0], izero, izero)) {
                     const int32_t at = ia[0];
-#define CONSECUTIVE(P, out)                                                       \
-    do {                                                                          \
-        vec a_, b_;                                                               \
-        __builtin_memcpy(&a_, (P) + at, sizeof a_);                               \
-        __builtin_memcpy(&b_, (P) + at + 1, sizeof b_);                           \
-        out = a_ + f * (b_ - a_);                                                 \
-    } while (0)
-                    CONSECUTIVE(p0, v0);
-                    CONSECUTIVE(p1, v1);
-                    CONSECUTIVE(p2, v2);
-                    CONSECUTIVE(p3, v3);
-#undef CONSECUTIVE
+                    LOADED_PAIR(p0, at, at + 1, f, v0);
+                    LOADED_PAIR(p1, at, at + 1, f, v1);
+                    LOADED_PAIR(p2, at, at + 1, f, v2);
+                    LOADED_PAIR(p3, at, at + 1, f, v3);
                     goto fetched;
                 }
                 /* the lanes' samples lie within 2 VW positions of the first's, as a rule:
@@ -315,19 +316,11 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
                 if (!ANY_NE2(ra, izero + 1, rb, izero + 2)) { /* one row pair: no selects */
                     const int64_t at1 = (i0[0] - ln->lo) * ln->pitch + (c - ln->s0);
                     const int64_t at2 = at1 + ln->pitch;
-#define PAIR(P, out)                                                              \
-    do {                                                                          \
-        vec a_, b_;                                                               \
-        __builtin_memcpy(&a_, (P) + at1, sizeof a_);                              \
-        __builtin_memcpy(&b_, (P) + at2, sizeof b_);                              \
-        out = a_ + f * (b_ - a_);                                                 \
-    } while (0)
-                    PAIR(p0, v0);
-                    PAIR(p1, v1);
-                    PAIR(p2, v2);
-                    PAIR(p3, v3);
+                    LOADED_PAIR(p0, at1, at2, f, v0);
+                    LOADED_PAIR(p1, at1, at2, f, v1);
+                    LOADED_PAIR(p2, at1, at2, f, v2);
+                    LOADED_PAIR(p3, at1, at2, f, v3);
                     if (fan_in) tat[tt] = at1;
-#undef PAIR
                     goto fetched;
                 }
                 if (!ANY_GTU(ra | rb, izero + 3)) {
@@ -468,17 +461,9 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
                         const vec fr = tf[u];
                         if (tat[u] >= 0) {
                             const int64_t o1 = tat[u], o2 = o1 + ln->pitch;
-                            vec a_, b_;
-#define ROWS(Q, out)                                                              \
-    do {                                                                          \
-        __builtin_memcpy(&a_, (Q) + o1, sizeof a_);                               \
-        __builtin_memcpy(&b_, (Q) + o2, sizeof b_);                               \
-        out = a_ + fr * (b_ - a_);                                                \
-    } while (0)
-                            ROWS(q0, x0);
-                            ROWS(q1, x1);
-                            ROWS(q2, x2);
-#undef ROWS
+                            LOADED_PAIR(q0, o1, o2, fr, x0);
+                            LOADED_PAIR(q1, o1, o2, fr, x1);
+                            LOADED_PAIR(q2, o1, o2, fr, x2);
                         } else if (tsok[u]) { /* set 0's four rows and selects */
                             const int64_t *at = tsel[u];
                             const mask a1 = __builtin_convertvector(tra[u] == 1, mask),
@@ -678,6 +663,7 @@ SIMD_FN void SIMDN(lines_)(const CAT(job_, SUFFIX) *j, const int AXIS_Y, const i
 LINES_ALL(SIMDN(lines_), SIMDN(run_), __attribute__((target(ISA_TARGET))))
 
 #undef CENTRE
+#undef LOADED_PAIR
 #undef SIMDN
 #undef SIMD_FN
 #undef ANY_GTU
