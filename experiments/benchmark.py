@@ -21,6 +21,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import pandas as pd
 
@@ -204,30 +205,57 @@ def _tied_labels(cell: str) -> list[str]:
     return [] if cell == report.MISSING else [t.strip() for t in str(cell).split(",")]
 
 
-def _cold_records(log: Path, resolution: str, code: str | None) -> list[dict]:
+#: what makes two logged cold runs' machines the same for pooling (:func:`machine_key`): the
+#: CPU's model name, its core count and the tap loop's SIMD level (the Python and the system
+#: are recorded, not compared)
+MACHINE_KEYS = ("cpu", "cores", "simd")
+
+#: ``machine=`` of the log's readers: records of every machine
+ANY_MACHINE: Any = object()
+
+
+def machine_key(machine: object) -> tuple | None:
+    """The pooling key of a record's ``machine`` (:func:`run_machine`): its
+    :data:`MACHINE_KEYS` values; ``None`` for a record without one (logged before machines
+    were, 2026-12-04: such runs pool only with each other)."""
+    if not isinstance(machine, dict):
+        return None
+    return tuple(str(machine.get(k)) for k in MACHINE_KEYS)
+
+
+def _cold_records(
+    log: Path, resolution: str, code: str | None, machine: object = ANY_MACHINE
+) -> list[dict]:
     """``log``'s records of cold runs at ``resolution`` (``"512x512"``) of the code whose
-    digest is ``code`` (``None``: of any code), in the order logged (unreadable lines and
-    records are skipped)."""
+    digest is ``code`` (``None``: of any code) on ``machine`` (a :func:`run_machine` dict,
+    compared by :func:`machine_key`; ``None``: the runs logged without a machine;
+    :data:`ANY_MACHINE`: every machine), in the order logged (unreadable lines and records
+    are skipped)."""
     import json
 
     if not log.exists():
         return []
+    key = None if machine is ANY_MACHINE else machine_key(machine)
     records = []
     for line in log.read_text(encoding="utf-8").splitlines():
         try:
             rec = json.loads(line)
             if rec["resolution"] == resolution and code in (None, rec["code"]):
-                records.append(rec)
-        except (ValueError, KeyError, TypeError):
+                if machine is ANY_MACHINE or machine_key(rec.get("machine")) == key:
+                    records.append(rec)
+        except (ValueError, KeyError, TypeError, AttributeError):
             continue
     return records
 
 
-def cold_totals(log: Path, resolution: str, code: str) -> list[float]:
-    """The totals (s) of ``log``'s cold runs at ``resolution`` of the code ``code``, in the
-    order logged (:func:`_cold_records`; a record without a number is skipped)."""
+def cold_totals(
+    log: Path, resolution: str, code: str, machine: object = ANY_MACHINE
+) -> list[float]:
+    """The totals (s) of ``log``'s cold runs at ``resolution`` of the code ``code`` on
+    ``machine``, in the order logged (:func:`_cold_records`; a record without a number is
+    skipped)."""
     totals = []
-    for rec in _cold_records(log, resolution, code):
+    for rec in _cold_records(log, resolution, code, machine):
         try:
             totals.append(float(rec["total_s"]))
         except (ValueError, KeyError, TypeError):
@@ -236,16 +264,17 @@ def cold_totals(log: Path, resolution: str, code: str) -> list[float]:
 
 
 def recommendation_changes(
-    log: Path, resolution: str, code: str
+    log: Path, resolution: str, code: str, machine: object = ANY_MACHINE
 ) -> tuple[int, int, dict[str, list[str]]]:
     """How the recommendations of ``log``'s cold runs of the code ``code`` at ``resolution``
-    (:func:`_cold_records`; the runs that recorded them, :func:`log_cold_run`) agree:
+    on ``machine`` (:func:`_cold_records`; the runs that recorded them, :func:`log_cold_run`)
+    agree:
     ``(runs, groups, changed)`` with ``changed`` the groups (``"scene scale"``, every run's
     group alike) whose recommendation was not the same in every run, each with its distinct
     labels in the order first seen."""
     picks = [
         {str(k): str(v) for k, v in rec["recommended"].items()}
-        for rec in _cold_records(log, resolution, code)
+        for rec in _cold_records(log, resolution, code, machine)
         if isinstance(rec.get("recommended"), dict)
     ]
     groups = sorted(set().union(*picks)) if picks else []
@@ -262,8 +291,10 @@ def time_ratio_spread(records: list[dict]) -> tuple[float, int, int]:
     ``records`` (cold-run records with ``times``, :func:`log_cold_run`):
     ``(spread, runs, degrees of freedom)``.
 
-    Per code (its digest: another code may change the ratios themselves), per group and per
-    pair of configurations timed in at least two of that code's runs, the sample variance of
+    Per code and machine (its digest: another code may change the ratios themselves; the
+    record's :func:`machine_key`: another machine may too, an AVX-512 one runs the tap loop
+    16 pixels a vector where an AVX2 one runs 8), per group and per pair of configurations
+    timed in at least two of that code's runs on that machine, the sample variance of
     ``log(t_a / t_b)`` between the runs; pooled over the pairs, weighted by their degrees of
     freedom (runs − 1), ``s`` is its square root and the spread ``exp(s) − 1``: one standard
     deviation of a time ratio measured in one run, the bar below which
@@ -271,10 +302,11 @@ def time_ratio_spread(records: list[dict]) -> tuple[float, int, int]:
     Pairs of one group share configurations, so they are not independent draws; the pooled
     variance is their mean, not a sharper estimate. ``runs`` counts the records that
     contributed; ``(nan, 0, 0)`` when no code has two runs with times."""
-    by_code: dict[str, list[dict[str, dict[str, float]]]] = {}
+    by_code: dict[tuple, list[dict[str, dict[str, float]]]] = {}
     for rec in records:
         if isinstance(rec.get("times"), dict):
-            by_code.setdefault(str(rec.get("code")), []).append(rec["times"])
+            key = (str(rec.get("code")), machine_key(rec.get("machine")))
+            by_code.setdefault(key, []).append(rec["times"])
     sq, dof, runs = 0.0, 0, 0
     for runs_times in by_code.values():
         if len(runs_times) < 2:
@@ -322,16 +354,19 @@ def ties_sentence(recs: pd.DataFrame, spread: float, runs: int) -> str:
     )
 
 
-def changes_named_as_ties(log: Path, resolution: str, code: str, changed: dict) -> list[str]:
+def changes_named_as_ties(
+    log: Path, resolution: str, code: str, changed: dict, machine: object = ANY_MACHINE
+) -> list[str]:
     """Of the ``changed`` groups (:func:`recommendation_changes`), those whose every pick
-    was, in each logged run of this code that named its ties with a measured spread
+    was, in each logged run of this code on ``machine`` that named its ties with a measured
+    spread
     (``tied`` and a number in ``time_spread``, :func:`log_cold_run`), either that run's
     recommendation or named as not resolved against it: a change the recommendations
     themselves said one run cannot decide. A group no such run saw is not counted."""
     named = []
     runs = [
         r
-        for r in _cold_records(log, resolution, code)
+        for r in _cold_records(log, resolution, code, machine)
         if isinstance(r.get("recommended"), dict)
         and isinstance(r.get("tied"), dict)
         and isinstance(r.get("time_spread"), (int, float))
@@ -349,25 +384,26 @@ def recommendation_stability(
     runs: int, groups: int, changed: dict[str, list[str]], named: list[str] | None = None
 ) -> str:
     """The sentence under the recommendations on how they held between the logged cold runs
-    of this code (:func:`recommendation_changes`), computed from them; with ``named`` (the
-    changed groups :func:`changes_named_as_ties` finds), how many of the changes the runs'
-    own ties covered."""
+    of this code on this machine (:func:`recommendation_changes`), computed from them; with
+    ``named`` (the changed groups :func:`changes_named_as_ties` finds), how many of the
+    changes the runs' own ties covered."""
     where = f"experiments/{COLD_LOG.name}"
     if runs < 2:
         logged = "one logged cold run" if runs == 1 else "no logged cold run"
         return (
             "How these recommendations hold between runs is not measured yet: "
-            f"{logged} of this code in {where} records its recommendations."
+            f"{logged} of this code on this machine in {where} records its recommendations."
         )
     if not changed:
         return (
             f"All {groups} groups' recommendations were the same in the {runs} logged cold "
-            f"runs of this code that record them ({where})."
+            f"runs of this code on this machine that record them ({where})."
         )
     listed = "; ".join(f"{g}: {' / '.join(labels)}" for g, labels in changed.items())
     return (
-        f"Between the {runs} logged cold runs of this code that record their recommendations "
-        f"({where}), {len(changed)} of {groups} groups' recommendation changed ({listed}). "
+        f"Between the {runs} logged cold runs of this code on this machine that record their "
+        f"recommendations ({where}), {len(changed)} of {groups} groups' recommendation "
+        f"changed ({listed}). "
         f"The pick is the cheapest configuration within {WITHIN:.0%} of the best skill, by its "
         "time in that run, and a configuration's time varies from run to run: where two "
         "candidates' times differ by less than that, which one is cheaper is not resolved by "
@@ -382,9 +418,18 @@ def recommendation_stability(
     )
 
 
-def cold_verdict(totals: list[float], target: float) -> str:
+def machine_words(machine: object) -> str:
+    """``"AMD EPYC, 2 cores, SIMD level avx2"``: a record's machine (:data:`MACHINE_KEYS`) in
+    words; ``"a machine not recorded"`` for a record without one."""
+    if not isinstance(machine, dict):
+        return "a machine not recorded"
+    return f"{machine.get('cpu')}, {machine.get('cores')} cores, SIMD level {machine.get('simd')}"
+
+
+def cold_verdict(totals: list[float], target: float, machine: object = ANY_MACHINE) -> str:
     """``"over the 3 cold runs of this code in experiments/cold_runs.jsonl: 282, 290, 301 s,
-    mean 291 s ± 5.5 — met"``: the
+    mean 291 s ± 5.5 — met"`` (with ``machine``, a :func:`run_machine` dict or ``None``, the
+    runs are said to be of this code on that machine, :func:`machine_words`): the
     mean of the logged runs and its standard error (sample standard deviation / √n), judged by
     :func:`experiments.perf.verdict_at_most` (not resolved when the target lies within one
     standard error); one run: that run's figure, ``"this run only"``."""
@@ -396,8 +441,9 @@ def cold_verdict(totals: list[float], target: float) -> str:
     if n == 1:
         return f"this run only — {verdict}"
     listed = ", ".join(f"{t:.0f}" for t in totals)
+    on = "" if machine is ANY_MACHINE else f" on this machine ({machine_words(machine)})"
     return (
-        f"over the {n} cold runs of this code in experiments/{COLD_LOG.name}: {listed} s, "
+        f"over the {n} cold runs of this code{on} in experiments/{COLD_LOG.name}: {listed} s, "
         f"mean {mean:.0f} s ± {se:.1f} — {verdict}"
     )
 
@@ -406,8 +452,8 @@ def _cold_clause(table: pd.DataFrame) -> str:
     """``", in all N s from a cold reference cache (target ≤ T s: …)"`` from the run's
     timings; the target only where the run was cold at a resolution of :data:`COLD_TARGET_S`,
     judged (:func:`cold_verdict`) on ``table.attrs["cold_totals"]``, the totals of every
-    logged run of this code (:func:`preset_section` puts them there after
-    :func:`log_cold_run`), else on this run alone."""
+    logged run of this code on this machine (``cold_machine``; :func:`preset_section` puts
+    both there after :func:`log_cold_run`), else on this run alone."""
     total = _run_total(table)
     if total != total:  # no timings (a table not from run_preset)
         return ""
@@ -417,9 +463,10 @@ def _cold_clause(table: pd.DataFrame) -> str:
     target = COLD_TARGET_S.get(size) if size is not None and cold else None
     if target is not None:
         totals = table.attrs.get("cold_totals") or [total]
+        machine = table.attrs.get("cold_machine", ANY_MACHINE)
         text += (
             f" (issue 30's target at this resolution: ≤ {target:.0f} s; "
-            f"{cold_verdict(totals, target)})"
+            f"{cold_verdict(totals, target, machine)})"
         )
     return text
 
@@ -549,10 +596,12 @@ def preset_section(
     record = log_cold_run(table, recs=recs, time_spread=spread)
     stability = ""
     if record is not None:
-        where = (COLD_LOG, record["resolution"], record["code"])
+        # pooled with the logged runs of the same code on the same machine only
+        where = (COLD_LOG, record["resolution"], record["code"], record["machine"])
         table.attrs["cold_totals"] = cold_totals(*where)
+        table.attrs["cold_machine"] = record["machine"]
         runs, groups, changed = recommendation_changes(*where)
-        named = changes_named_as_ties(*where, changed) if changed else None
+        named = changes_named_as_ties(*where[:3], changed, where[3]) if changed else None
         stability = "\n\n" + recommendation_stability(runs, groups, changed, named)
     ok = table[table["status"] == "ok"]
     fig_path = ctx.figures / f"{ctx.name}.png"

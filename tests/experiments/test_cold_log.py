@@ -209,3 +209,55 @@ def test_a_change_the_runs_named_as_a_tie_is_counted(tmp_path):
         "In 0 of the 1 changed group, every run that named its ties with a "
         "measured spread named the other pick as not resolved against its own."
     )
+
+
+def test_runs_pool_only_with_runs_of_the_same_machine(tmp_path):
+    """Two machines' runs of one code are judged apart (CPU, cores and SIMD level compared;
+    the Python and system not); a run logged without a machine pools only with such runs."""
+    log = tmp_path / "cold.jsonl"
+    code = code_digest()
+    fast = {"cpu": "EPYC 9B14", "cores": 2, "python": "3.11.7", "system": "a", "simd": "avx512"}
+    slow = {**fast, "cpu": "AMD EPYC", "simd": "avx2"}
+    rows = [
+        {"resolution": "512x512", "code": code, "total_s": 290.0, "machine": fast},
+        {"resolution": "512x512", "code": code, "total_s": 886.0, "machine": slow},
+        {
+            "resolution": "512x512",
+            "code": code,
+            "total_s": 280.0,
+            "machine": {**fast, "system": "b"},
+        },
+        {"resolution": "512x512", "code": code, "total_s": 330.0},  # no machine
+        {"resolution": "512x512", "code": code, "total_s": 900.0, "machine": {**slow, "cores": 4}},
+    ]
+    log.write_text("\n".join(json.dumps(r) for r in rows) + "\n")
+    assert benchmark.cold_totals(log, "512x512", code, fast) == [290.0, 280.0]
+    assert benchmark.cold_totals(log, "512x512", code, slow) == [886.0]
+    assert benchmark.cold_totals(log, "512x512", code, None) == [330.0]
+    assert benchmark.cold_totals(log, "512x512", code) == [290.0, 886.0, 280.0, 330.0, 900.0]
+    # the verdict on the fast machine's two runs alone: mean 285 ± 5.0, met
+    t = table(warm=190.0, runs=100.0)
+    t.attrs["cold_totals"] = benchmark.cold_totals(log, "512x512", code, fast)
+    t.attrs["cold_machine"] = fast
+    text = benchmark._cold_clause(t)
+    assert (
+        "over the 2 cold runs of this code on this machine (EPYC 9B14, 2 cores, SIMD level " in text
+    )
+    assert "avx512) in experiments/cold_runs.jsonl: 290, 280 s, mean 285 s ± 5.0 — met" in text
+
+
+def test_the_time_ratio_spread_pools_within_each_machine():
+    """Code A on two machines, two runs each, log(t_a / t_b) = 0.1 and -0.1 on the first,
+    1.1 and 0.9 on the second (whose ratio is another): each a sample variance of 0.02 on 1
+    degree of freedom, pooled 0.04 / 2; across the machines it would be far larger."""
+    e = math.exp
+    m1, m2 = {"cpu": "x", "cores": 2, "simd": "avx2"}, {"cpu": "y", "cores": 2, "simd": "avx512"}
+    records = [
+        {"code": "A", "machine": m1, "times": {"g": {"a": 10.0 * e(0.1), "b": 10.0}}},
+        {"code": "A", "machine": m1, "times": {"g": {"a": 10.0 * e(-0.1), "b": 10.0}}},
+        {"code": "A", "machine": m2, "times": {"g": {"a": 10.0 * e(1.1), "b": 10.0}}},
+        {"code": "A", "machine": m2, "times": {"g": {"a": 10.0 * e(0.9), "b": 10.0}}},
+    ]
+    spread, runs, dof = benchmark.time_ratio_spread(records)
+    assert (runs, dof) == (4, 2)
+    assert spread == pytest.approx(e(math.sqrt(0.04 / 2)) - 1, rel=1e-12)
