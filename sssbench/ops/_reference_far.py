@@ -53,6 +53,7 @@ import numpy as np
 import torch
 from threadpoolctl import threadpool_limits
 
+from sssbench._digest import numpy_exp_vectorised
 from sssbench.profiles.base import _gauss_legendre
 
 __all__ = [
@@ -269,22 +270,28 @@ def _monomials(x: torch.Tensor) -> torch.Tensor:
 def exp_in_place(t: torch.Tensor) -> torch.Tensor:
     """``exp`` of every element of ``t``, written over it; returns ``t``.
 
-    A contiguous float64 CPU tensor outside autograd (the reference's) goes through NumPy's
-    vectorised ``exp`` on the same memory (no copy), anything else through ``torch.exp_``
-    (NumPy's float32 ``exp`` is up to 2 ulp off: not used).
-    Why: the far field's ``(targets, sources)`` matrices are its largest elementwise work, and
-    on the 2-core AMD EPYC (AVX-512) NumPy's float64 ``exp`` takes 0.77 ns per element against
-    1.85 ns for ``torch.exp_`` (one thread, 380 000 elements in [−40, 0]). Its error: at most
-    1 ulp from the correctly rounded result on 20 000 points of [−40, 0] (mean 0.045 ulp;
-    torch's: at most 1, mean 0.006), checked by tests/ops/test_reference_far.py against
-    ``math.exp``. Elementwise and single-threaded: the result does not depend on how the
-    work is split into tiles or threads. NumPy releases the GIL in the loop, so the
-    reference's Python threads (:func:`map_threads`) still run side by side."""
+    A contiguous float64 CPU tensor outside autograd (the reference's) goes, on a CPU where
+    NumPy's float64 ``exp`` is vectorised (AVX-512:
+    :func:`~sssbench._digest.numpy_exp_vectorised`), through NumPy's loop on the same memory (no
+    copy); anything else through ``torch.exp_`` (NumPy's float32 ``exp`` is up to 2 ulp off: not
+    used). Which one is a property of the machine (:func:`~sssbench._digest.far_exp`), fixed for
+    the process, never of the timing. Why: the far field's ``(targets, sources)`` matrices are
+    its largest elementwise work. On the 2-core AMD EPYC with AVX-512, NumPy's float64 ``exp``
+    takes 0.77 ns per element against 1.85 ns for ``torch.exp_`` (one thread, 380 000 elements
+    in [−40, 0]); on a 2-core AMD EPYC with AVX2 only (2026-12-04), where NumPy's loop is the C
+    library's scalar ``exp``, 8.3 ns against torch's 3.5 ns: there ``torch.exp_``. Their error:
+    at most 1 ulp from the correctly rounded result on 20 000 points of [−40, 0] (NumPy's mean
+    0.045 ulp; torch's at most 1, mean 0.006), checked for both by
+    tests/ops/test_reference_far.py against ``math.exp``. Elementwise and single-threaded (the
+    reference's workers hold torch to one thread): the result does not depend on how the work is
+    split into tiles or threads. Both release the GIL in the loop, so the reference's Python
+    threads (:func:`map_threads`) still run side by side."""
     if (
         t.device.type == "cpu"
         and t.dtype == torch.float64
         and t.is_contiguous()
         and not t.requires_grad
+        and numpy_exp_vectorised()
     ):
         a = t.numpy()
         np.exp(a, out=a)

@@ -113,13 +113,18 @@ def test_expansion_columns_are_bitwise_those_of_the_reduction_form(seed):
         assert torch.equal(_sum3(t), t.sum(-1))
 
 
+@pytest.mark.parametrize("numpy_loop", [True, False], ids=["numpy", "torch"])
 @pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
-def test_exp_in_place_within_one_ulp_of_the_c_library(dtype):
-    """The far field's exp (NumPy's vectorised loop on the tensor's memory) against libm's
-    ``exp`` (Python's ``math.exp``, rounded once to the dtype): at most 1 ulp where the
-    result is normal, over [−700, 0] for float64 and [−87, 0] for float32 (which takes
-    ``torch.exp_``), with 0, −0 and −inf; the same tensor is returned, overwritten."""
+def test_exp_in_place_within_one_ulp_of_the_c_library(dtype, numpy_loop, monkeypatch):
+    """The far field's exp (NumPy's loop on the tensor's memory where it is vectorised, else
+    ``torch.exp_``: both paths, whichever this CPU takes) against libm's ``exp`` (Python's
+    ``math.exp``, rounded once to the dtype): at most 1 ulp where the result is normal, over
+    [−700, 0] for float64 and [−87, 0] for float32 (which takes ``torch.exp_``), with 0, −0
+    and −inf; the same tensor is returned, overwritten."""
+    from sssbench.ops import _reference_far
     from sssbench.ops._reference_far import exp_in_place
+
+    monkeypatch.setattr(_reference_far, "numpy_exp_vectorised", lambda: numpy_loop)
 
     lo = -700.0 if dtype == torch.float64 else -87.0
     x = torch.cat(
@@ -143,6 +148,25 @@ def test_exp_in_place_within_one_ulp_of_the_c_library(dtype):
     z = torch.stack([x, x], 1)[:, 0]
     assert not z.is_contiguous()
     assert torch.equal(exp_in_place(z), torch.exp(x))
+
+
+def test_the_far_fields_exp_is_named_in_the_cache_key(monkeypatch):
+    """Which library's exp the far field takes is this CPU's (NumPy's vectorised loop needs
+    AVX-512: NumPy's own feature table says whether it has it), and it is part of the numeric
+    libraries' line that cached images are keyed on: the other choice is another key."""
+    import numpy
+
+    from sssbench import _digest
+    from sssbench.ops import _reference_far
+
+    features = numpy._core._multiarray_umath.__cpu_features__
+    assert _digest.numpy_exp_vectorised() == bool(features.get("AVX512_SKX"))
+    assert _reference_far.numpy_exp_vectorised is _digest.numpy_exp_vectorised
+    line = _digest.numeric_libraries()
+    assert line.endswith(f" exp {_digest.far_exp()}")
+    flipped = "torch" if _digest.far_exp() == "numpy" else "numpy"
+    monkeypatch.setattr(_digest, "far_exp", lambda: flipped)
+    assert _digest.numeric_libraries() == line.rsplit(" ", 1)[0] + f" {flipped}"
 
 
 def _exact_product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
