@@ -588,7 +588,9 @@ def preset_section(
     if _loggable(table):
         from sssbench._digest import code_digest
 
-        records.append({"code": code_digest(), "times": config_times(table)})
+        records.append(
+            {"code": code_digest(), "machine": run_machine(), "times": config_times(table)}
+        )
     spread, spread_runs, _ = time_ratio_spread(records)
     recs = report.recommendations(table, time_spread=0.0 if spread != spread else spread)
     ties = "\n\n" + ties_sentence(recs, spread, spread_runs)
