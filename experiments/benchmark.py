@@ -184,13 +184,36 @@ def log_cold_run(
     return record
 
 
+def cpu_generation(cpuinfo: str | None = None) -> str | None:
+    """``"family/model"`` of the first CPU in ``/proc/cpuinfo`` (``cpuinfo``: its text, read
+    when ``None``), e.g. ``"23/1"`` for a first-generation AMD EPYC: a virtual machine may
+    name its CPU only ``"AMD EPYC"``, whatever its generation. ``None`` where not found."""
+    if cpuinfo is None:
+        try:
+            cpuinfo = Path("/proc/cpuinfo").read_text()
+        except OSError:
+            return None
+    found: dict[str, str] = {}
+    for line in cpuinfo.splitlines():
+        key, _, value = line.partition(":")
+        key = key.strip()
+        if key in ("cpu family", "model") and key not in found:
+            found[key] = value.strip()
+        if not line.strip() and found:  # the first CPU's block ends
+            break
+    if "cpu family" not in found or "model" not in found:
+        return None
+    return f"{found['cpu family']}/{found['model']}"
+
+
 def run_machine() -> dict[str, object]:
-    """The machine a cold run ran on: :func:`experiments.readme_timings.machine` and the
-    native tap loop's SIMD level (``None`` without the library)."""
+    """The machine a cold run ran on: :func:`experiments.readme_timings.machine`, the CPU's
+    family and model (:func:`cpu_generation`) and the native tap loop's SIMD level (``None``
+    without the library)."""
     from experiments.readme_timings import machine
     from sssbench.ops import native
 
-    return {**machine(), "simd": native.simd_level()}
+    return {**machine(), "cpu_model": cpu_generation(), "simd": native.simd_level()}
 
 
 def _loggable(table: pd.DataFrame) -> bool:
@@ -206,9 +229,9 @@ def _tied_labels(cell: str) -> list[str]:
 
 
 #: what makes two logged cold runs' machines the same for pooling (:func:`machine_key`): the
-#: CPU's model name, its core count and the tap loop's SIMD level (the Python and the system
-#: are recorded, not compared)
-MACHINE_KEYS = ("cpu", "cores", "simd")
+#: CPU's model name, its family and model numbers, its core count and the tap loop's SIMD
+#: level (the Python and the system are recorded, not compared)
+MACHINE_KEYS = ("cpu", "cpu_model", "cores", "simd")
 
 #: ``machine=`` of the log's readers: records of every machine
 ANY_MACHINE: Any = object()
@@ -419,11 +442,14 @@ def recommendation_stability(
 
 
 def machine_words(machine: object) -> str:
-    """``"AMD EPYC, 2 cores, SIMD level avx2"``: a record's machine (:data:`MACHINE_KEYS`) in
-    words; ``"a machine not recorded"`` for a record without one."""
+    """``"AMD EPYC (family/model 23/1), 2 cores, SIMD level avx2"``: a record's machine
+    (:data:`MACHINE_KEYS`) in words; ``"a machine not recorded"`` for a record without
+    one."""
     if not isinstance(machine, dict):
         return "a machine not recorded"
-    return f"{machine.get('cpu')}, {machine.get('cores')} cores, SIMD level {machine.get('simd')}"
+    gen = machine.get("cpu_model")
+    cpu = f"{machine.get('cpu')}" + (f" (family/model {gen})" if gen else "")
+    return f"{cpu}, {machine.get('cores')} cores, SIMD level {machine.get('simd')}"
 
 
 def cold_verdict(totals: list[float], target: float, machine: object = ANY_MACHINE) -> str:

@@ -33,6 +33,14 @@ def test_only_a_cold_run_at_a_target_resolution_is_logged(tmp_path):
     assert rec["machine"]["cores"] == os.cpu_count()
     assert rec["machine"]["simd"] in (None, *native.SIMD_LEVELS)
     assert isinstance(rec["machine"]["cpu"], str) and rec["machine"]["cpu"]
+    assert rec["machine"]["cpu_model"] == benchmark.cpu_generation()
+
+
+def test_the_cpu_generation_is_the_first_cpus_family_and_model():
+    info = "processor\t: 0\nvendor_id\t: AuthenticAMD\ncpu family\t: 23\nmodel\t\t: 1\n"
+    info += "model name\t: AMD EPYC\n\nprocessor\t: 1\ncpu family\t: 25\nmodel\t\t: 17\n"
+    assert benchmark.cpu_generation(info) == "23/1"
+    assert benchmark.cpu_generation("model name\t: AMD EPYC\n") is None
 
 
 def test_the_verdict_is_on_every_run_of_this_code(tmp_path):
@@ -212,12 +220,13 @@ def test_a_change_the_runs_named_as_a_tie_is_counted(tmp_path):
 
 
 def test_runs_pool_only_with_runs_of_the_same_machine(tmp_path):
-    """Two machines' runs of one code are judged apart (CPU, cores and SIMD level compared;
-    the Python and system not); a run logged without a machine pools only with such runs."""
+    """Two machines' runs of one code are judged apart (CPU name, family and model, cores and
+    SIMD level compared; the Python and system not); a run logged without a machine pools
+    only with such runs."""
     log = tmp_path / "cold.jsonl"
     code = code_digest()
     fast = {"cpu": "EPYC 9B14", "cores": 2, "python": "3.11.7", "system": "a", "simd": "avx512"}
-    slow = {**fast, "cpu": "AMD EPYC", "simd": "avx2"}
+    slow = {**fast, "cpu": "AMD EPYC", "cpu_model": "23/1", "simd": "avx2"}
     rows = [
         {"resolution": "512x512", "code": code, "total_s": 290.0, "machine": fast},
         {"resolution": "512x512", "code": code, "total_s": 886.0, "machine": slow},
@@ -229,12 +238,19 @@ def test_runs_pool_only_with_runs_of_the_same_machine(tmp_path):
         },
         {"resolution": "512x512", "code": code, "total_s": 330.0},  # no machine
         {"resolution": "512x512", "code": code, "total_s": 900.0, "machine": {**slow, "cores": 4}},
+        # the same name, another generation
+        {
+            "resolution": "512x512",
+            "code": code,
+            "total_s": 500.0,
+            "machine": {**slow, "cpu_model": "25/17"},
+        },
     ]
     log.write_text("\n".join(json.dumps(r) for r in rows) + "\n")
     assert benchmark.cold_totals(log, "512x512", code, fast) == [290.0, 280.0]
     assert benchmark.cold_totals(log, "512x512", code, slow) == [886.0]
     assert benchmark.cold_totals(log, "512x512", code, None) == [330.0]
-    assert benchmark.cold_totals(log, "512x512", code) == [290.0, 886.0, 280.0, 330.0, 900.0]
+    assert benchmark.cold_totals(log, "512x512", code) == [290.0, 886.0, 280.0, 330.0, 900.0, 500.0]
     # the verdict on the fast machine's two runs alone: mean 285 ± 5.0, met
     t = table(warm=190.0, runs=100.0)
     t.attrs["cold_totals"] = benchmark.cold_totals(log, "512x512", code, fast)
@@ -244,6 +260,8 @@ def test_runs_pool_only_with_runs_of_the_same_machine(tmp_path):
         "over the 2 cold runs of this code on this machine (EPYC 9B14, 2 cores, SIMD level " in text
     )
     assert "avx512) in experiments/cold_runs.jsonl: 290, 280 s, mean 285 s ± 5.0 — met" in text
+    assert benchmark.machine_words(slow) == "AMD EPYC (family/model 23/1), 2 cores, SIMD level avx2"
+    assert benchmark.machine_words(None) == "a machine not recorded"
 
 
 def test_the_time_ratio_spread_pools_within_each_machine():
