@@ -184,26 +184,17 @@ def log_cold_run(
     return record
 
 
-def cpu_generation(cpuinfo: str | None = None) -> str | None:
-    """``"family/model"`` of the first CPU in ``/proc/cpuinfo`` (``cpuinfo``: its text, read
-    when ``None``), e.g. ``"23/1"`` for a first-generation AMD EPYC: a virtual machine may
-    name its CPU only ``"AMD EPYC"``, whatever its generation. ``None`` where not found."""
-    if cpuinfo is None:
-        try:
-            cpuinfo = Path("/proc/cpuinfo").read_text()
-        except OSError:
-            return None
-    found: dict[str, str] = {}
-    for line in cpuinfo.splitlines():
-        key, _, value = line.partition(":")
-        key = key.strip()
-        if key in ("cpu family", "model") and key not in found:
-            found[key] = value.strip()
-        if not line.strip() and found:  # the first CPU's block ends
-            break
-    if "cpu family" not in found or "model" not in found:
+def cpu_generation(text: str | None = None) -> str | None:
+    """``"family/model"`` of the first CPU in ``/proc/cpuinfo``
+    (:func:`experiments.readme_timings.cpuinfo`; ``text``: its content, read when ``None``),
+    e.g. ``"23/1"`` for a first-generation AMD EPYC: a virtual machine may name its CPU only
+    ``"AMD EPYC"``, whatever its generation. ``None`` where not found."""
+    from experiments.readme_timings import cpuinfo
+
+    fields = cpuinfo(text)
+    if "cpu family" not in fields or "model" not in fields:
         return None
-    return f"{found['cpu family']}/{found['model']}"
+    return f"{fields['cpu family']}/{fields['model']}"
 
 
 def run_machine() -> dict[str, object]:
@@ -266,7 +257,7 @@ def _cold_records(
             if rec["resolution"] == resolution and code in (None, rec["code"]):
                 if machine is ANY_MACHINE or machine_key(rec.get("machine")) == key:
                     records.append(rec)
-        except (ValueError, KeyError, TypeError, AttributeError):
+        except (ValueError, KeyError, TypeError):
             continue
     return records
 
@@ -382,8 +373,7 @@ def changes_named_as_ties(
 ) -> list[str]:
     """Of the ``changed`` groups (:func:`recommendation_changes`), those whose every pick
     was, in each logged run of this code on ``machine`` that named its ties with a measured
-    spread
-    (``tied`` and a number in ``time_spread``, :func:`log_cold_run`), either that run's
+    spread (``tied`` and a number in ``time_spread``, :func:`log_cold_run`), either that run's
     recommendation or named as not resolved against it: a change the recommendations
     themselves said one run cannot decide. A group no such run saw is not counted."""
     named = []
@@ -625,11 +615,11 @@ def preset_section(
     stability = ""
     if record is not None:
         # pooled with the logged runs of the same code on the same machine only
-        where = (COLD_LOG, record["resolution"], record["code"], record["machine"])
-        table.attrs["cold_totals"] = cold_totals(*where)
-        table.attrs["cold_machine"] = record["machine"]
-        runs, groups, changed = recommendation_changes(*where)
-        named = changes_named_as_ties(*where[:3], changed, where[3]) if changed else None
+        where = (COLD_LOG, record["resolution"], record["code"])
+        machine = table.attrs["cold_machine"] = record["machine"]
+        table.attrs["cold_totals"] = cold_totals(*where, machine)
+        runs, groups, changed = recommendation_changes(*where, machine)
+        named = changes_named_as_ties(*where, changed, machine) if changed else None
         stability = "\n\n" + recommendation_stability(runs, groups, changed, named)
     ok = table[table["status"] == "ok"]
     fig_path = ctx.figures / f"{ctx.name}.png"

@@ -66,16 +66,29 @@ COMMANDS = {
 }
 
 
+def cpuinfo(text: str | None = None) -> dict[str, str]:
+    """The first CPU's fields in ``/proc/cpuinfo`` (``text``: its content, read when
+    ``None``), ``{"model name": "AMD EPYC", "cpu family": "23", ...}``; empty where there is
+    no such file."""
+    if text is None:
+        try:
+            text = Path("/proc/cpuinfo").read_text()
+        except OSError:
+            return {}
+    fields: dict[str, str] = {}
+    for line in text.splitlines():
+        if not line.strip():
+            if fields:  # the first CPU's block ends
+                break
+            continue
+        key, _, value = line.partition(":")
+        fields.setdefault(key.strip(), value.strip())
+    return fields
+
+
 def machine() -> dict[str, object]:
     """The machine a measurement ran on."""
-    model = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
+    model = cpuinfo().get("model name") or platform.processor() or platform.machine()
     return {
         "cpu": model,
         "cores": os.cpu_count(),
