@@ -11,9 +11,10 @@ rotation is identical by construction (the hash rotation and radial shift are ha
 torch's (each within 1 ulp) and, for a sum of Gaussians, the order of the sum over the
 Gaussians (torch: a BLAS product); at the AVX2 / AVX-512 levels the default point fetch runs a
 loop vectorised across pixels (``native/disk_simd.h``) whose exp is within
-:data:`DISK_EXP_ULP` of libm's, whose angles come from the addition theorem and whose few
-divisions are products by reciprocals: :data:`DISK_NATIVE_AGREEMENT`, measured by
-``tests/ops/test_disk_native.py`` at every level.
+:data:`DISK_EXP_ULP` of libm's for a float64 image and within :data:`DISK_EXPF_REL` (float32
+precision: the weights are rounded to float32 there) for a float32 one, whose angles come from
+the addition theorem and whose few divisions are products by reciprocals:
+:data:`DISK_NATIVE_AGREEMENT`, measured by ``tests/ops/test_disk_native.py`` at every level.
 
 When the C loop runs (:func:`usable`), else the torch loop, never a different answer:
 
@@ -51,6 +52,7 @@ from sssbench.profiles.sum_of_gaussians import SumOfGaussians
 __all__ = [
     "DISK_NATIVE_AGREEMENT",
     "DISK_EXP_ULP",
+    "DISK_EXPF_REL",
     "usable",
     "usable_profile",
     "gather",
@@ -61,9 +63,12 @@ __all__ = [
 #: how the C loop's results relate to the torch loop's, as a bound on the largest difference
 #: over the output's largest value (tests/ops/test_disk_native.py, every option combination of
 #: the disk tests, every SIMD level of an AVX-512 machine): measured float64 at most 5e-14 (the
-#: vectorised loop's few-ulp weights included), float32 bitwise equal in every combination;
-#: the float32 bound allows a weight rounded to the other float32 neighbour after a few-ulp
-#: difference of a float64 weight. AVX2 and AVX-512 bitwise the same
+#: vectorised loop's few-ulp weights included); float32 bitwise equal in every combination at
+#: the scalar level, and at the vector levels, whose exp has float32 precision since issue 30
+#: (:data:`DISK_EXPF_REL`), within 1.8e-7 (measured on an AVX2-only machine, 2026-12-04; the
+#: 12 of 35 combinations the scalar loop runs there still bitwise); the float32 bound allows a
+#: weight rounded to the other float32 neighbour after a few-ulp difference of a float64
+#: weight. AVX2 and AVX-512 bitwise the same
 DISK_NATIVE_AGREEMENT = {torch.float64: 1e-11, torch.float32: 2e-6}
 
 #: buckets of the tabulated sampler's guide table (a power of two: ``u · G`` is exact)
@@ -265,21 +270,35 @@ def gather_hdrp(
 #: gives +0): the bound ``tests/ops/test_disk_native.py`` checks at every vector level
 DISK_EXP_ULP = 1
 
+#: the vectorised loop's exp for float32 images (``native/disk_simd.h`` ``vexpf_``: the
+#: reduction in float64, the polynomial and the table in float32) against the C library's, as
+#: a bound on the relative error where the result is normal (+0 below ``exp(-708.4)``): 2^-23,
+#: one float32 ulp at the bottom of a binade; measured 8.9e-8 (1.5 × 2^-24) at 2.1·10⁶
+#: arguments in [-745, 0] (tests/ops/test_disk_native.py)
+DISK_EXPF_REL = 2.0**-23
 
-def vexp(x: torch.Tensor, level: str) -> tuple[torch.Tensor, str]:
+
+def vexp(
+    x: torch.Tensor, level: str, image_dtype: torch.dtype = torch.float64
+) -> tuple[torch.Tensor, str]:
     """``exp`` of float64 ``x`` (any shape) by the disk's vectorised exp at ``level``
     (``"avx2"`` or ``"avx512"``, capped at the CPU's; ``"scalar"``: the C library's ``exp``)
-    and the level used: for its test against the C library (:data:`DISK_EXP_ULP`). Raises
-    ``RuntimeError`` without the C library and ``ValueError`` for an unknown level."""
+    for images of ``image_dtype`` (float64: ``vexp_``, :data:`DISK_EXP_ULP`; float32:
+    ``vexpf_``, :data:`DISK_EXPF_REL`) and the level used: for its test against the C library.
+    Raises ``RuntimeError`` without the C library and ``ValueError`` for an unknown level or
+    dtype."""
     lib = native.library()
     if lib is None:
         raise RuntimeError("vexp needs the native library (no C compiler?)")
     if level not in native.SIMD_LEVELS:
         raise ValueError(f"level must be one of {native.SIMD_LEVELS}, got {level!r}")
+    if image_dtype not in (torch.float32, torch.float64):
+        raise ValueError(f"image_dtype must be torch.float32 or torch.float64, got {image_dtype}")
     fn = lib.sss_disk_vexp
     fn.restype = ctypes.c_int
-    fn.argtypes = [_P, _P, ctypes.c_int64, ctypes.c_int]
+    fn.argtypes = [_P, _P, ctypes.c_int64, ctypes.c_int, ctypes.c_int]
     src = x.detach().to(torch.float64).contiguous()
     out = torch.empty_like(src)
-    used = fn(src.data_ptr(), out.data_ptr(), src.numel(), native.SIMD_LEVELS.index(level))
+    f32 = int(image_dtype == torch.float32)
+    used = fn(src.data_ptr(), out.data_ptr(), src.numel(), native.SIMD_LEVELS.index(level), f32)
     return out, native.SIMD_LEVELS[used]

@@ -12,7 +12,7 @@ import torch
 
 from sssbench.gbuffer import GBuffer
 from sssbench.ops import DiskSSS, _disk_native, native
-from sssbench.ops._disk_native import DISK_EXP_ULP, DISK_NATIVE_AGREEMENT
+from sssbench.ops._disk_native import DISK_EXP_ULP, DISK_EXPF_REL, DISK_NATIVE_AGREEMENT
 from sssbench.ops.gather import backend
 from sssbench.profiles import BurleyNormalized, SumOfGaussians
 from sssbench.profiles.dipole import Dipole
@@ -125,28 +125,43 @@ def test_vector_levels_agree_bitwise_and_every_level_with_the_torch_loop(options
 
 
 @pytest.mark.parametrize("level", [lv for lv in native.simd_levels() if lv != "scalar"])
-def test_vectorised_disk_exp_against_libm(level):
-    """The vectorised loop's exp (disk_simd.h vexp_) is within DISK_EXP_ULP of the C
-    library's exp (Python's math.exp) at 10^6 uniform arguments in [-745, 0], 10^5 in
-    [-1e-3, 0] and the ends (0, -0, the normal / subnormal boundary, below the smallest
-    subnormal, -inf); +0 or within 2.3e-308 where exp is subnormal; NaN stays NaN."""
+@pytest.mark.parametrize("image_dtype", [torch.float64, torch.float32])
+def test_vectorised_disk_exp_against_libm(level, image_dtype):
+    """The vectorised loop's exp is within DISK_EXP_ULP of the C library's exp (Python's
+    math.exp) for float64 images (disk_simd.h vexp_), and within DISK_EXPF_REL relative for
+    float32 ones (vexpf_, float32 precision), at 10^6 uniform arguments in [-745, 0], 10^6 in
+    [-30, 0] (where a weight is not negligible), 10^5 in [-1e-3, 0] and the ends (0, -0, the
+    normal / subnormal boundary, below the smallest subnormal, -inf); +0 or within 2.3e-308
+    where exp is subnormal; NaN stays NaN."""
     gen = torch.Generator().manual_seed(0)
     ends = [0.0, -0.0, -1e-300, -708.39, -708.4, -709.78, -745.13, -745.2, -746.0, -1e308]
     x = torch.cat([
         -745 * torch.rand(1_000_000, dtype=torch.float64, generator=gen),
+        -30 * torch.rand(1_000_000, dtype=torch.float64, generator=gen),
         -1e-3 * torch.rand(100_000, dtype=torch.float64, generator=gen),
         torch.tensor([*ends, -math.inf], dtype=torch.float64),
     ])  # fmt: skip
     want = torch.tensor([math.exp(v) for v in x.tolist()], dtype=torch.float64)
-    got, used = _disk_native.vexp(x, level)
+    got, used = _disk_native.vexp(x, level, image_dtype)
     assert used == level
     normal = want >= torch.finfo(torch.float64).tiny
-    ulp = (got[normal].view(torch.int64) - want[normal].view(torch.int64)).abs()
-    assert int(ulp.max()) <= DISK_EXP_ULP
+    if image_dtype == torch.float64:
+        ulp = (got[normal].view(torch.int64) - want[normal].view(torch.int64)).abs()
+        assert int(ulp.max()) <= DISK_EXP_ULP
+    else:
+        rel = ((got[normal] - want[normal]) / want[normal]).abs()
+        assert float(rel.max()) <= DISK_EXPF_REL
+        assert float(rel.max()) > 2.0**-30  # float32 precision, not float64's: the other exp
     assert float((got[~normal] - want[~normal]).abs().max()) < 2.3e-308
     assert (got[~normal] >= 0).all()
-    nan, _ = _disk_native.vexp(torch.tensor([math.nan, -1.0]), level)
-    assert math.isnan(float(nan[0])) and float(nan[1]) == pytest.approx(math.exp(-1.0), rel=1e-15)
+    nan, _ = _disk_native.vexp(torch.tensor([math.nan, -1.0]), level, image_dtype)
+    assert math.isnan(float(nan[0]))
+    assert float(nan[1]) == pytest.approx(math.exp(-1.0), rel=2 * DISK_EXPF_REL)
+
+
+def test_disk_exp_rejects_an_unknown_image_dtype():
+    with pytest.raises(ValueError, match="image_dtype"):
+        _disk_native.vexp(torch.zeros(3), "scalar", torch.float16)
 
 
 def test_hashed_noise_in_c_equals_the_torch_hash():

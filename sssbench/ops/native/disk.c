@@ -233,6 +233,26 @@ typedef struct {
  * exps' gathers (six per sample) wait on memory; the permutes do not. */
 #define VEXP2_32_AVX2(n32) \
     _mm256_i64gather_pd(sss_exp2_32, _mm256_cvtepi32_epi64((__m128i)((n32) & 31)), 8)
+/* 2^(j/8), j = 0..7 (VW int32 lanes), as floats for the float32-precision exp (vexpf_,
+ * disk_simd.h): the float32 roundings of exp2_32.h's 2^(4j/32), by two in-lane permutes and a
+ * blend on bit 2 (AVX2, four lanes) or one permute (AVX-512, eight): the same entries, so the
+ * levels agree bitwise */
+#define SSS_EXP2_8F                                                                          \
+    {(float)sss_exp2_32[0],  (float)sss_exp2_32[4],  (float)sss_exp2_32[8],                  \
+     (float)sss_exp2_32[12], (float)sss_exp2_32[16], (float)sss_exp2_32[20],                 \
+     (float)sss_exp2_32[24], (float)sss_exp2_32[28]}
+#define VEXP2_8F_AVX2(j)                                                          \
+    ({                                                                            \
+        const float t_[8] = SSS_EXP2_8F;                                          \
+        const __m128 lo_ = _mm_permutevar_ps(_mm_loadu_ps(t_), (__m128i)(j));     \
+        const __m128 hi_ = _mm_permutevar_ps(_mm_loadu_ps(t_ + 4), (__m128i)(j)); \
+        _mm_blendv_ps(lo_, hi_, (__m128)_mm_slli_epi32((__m128i)(j), 29));        \
+    })
+#define VEXP2_8F_AVX512(j)                                                \
+    ({                                                                    \
+        const float t_[8] = SSS_EXP2_8F;                                  \
+        _mm256_permutevar8x32_ps(_mm256_loadu_ps(t_), (__m256i)(j));      \
+    })
 #define VEXP2_32_AVX512(n32)                                                                  \
     ({                                                                                        \
         const __m512i j_ = _mm512_cvtepi32_epi64((__m256i)(n32));                             \
@@ -339,14 +359,15 @@ DISK_ENTRY(sss_disk_f64, disk_run_f64)
 HDRP_ENTRY(sss_disk_hdrp_f32, hdrp_run_f32)
 HDRP_ENTRY(sss_disk_hdrp_f64, hdrp_run_f64)
 
-/* y = exp(x) for n doubles by the vectorised loop's exp at `level` (1 AVX2, 2 AVX-512F,
- * capped at the CPU's; 0: libm's exp): for its test against libm. Returns the level used. */
-int sss_disk_vexp(const double *x, double *y, int64_t n, int level) {
+/* y = exp(x) for n doubles by the vectorised loop's exp for images of float32 (f32 != 0,
+ * vexpf_) or float64 (vexp_) at `level` (1 AVX2, 2 AVX-512F, capped at the CPU's; 0: libm's
+ * exp): for its test against libm. Returns the level used. */
+int sss_disk_vexp(const double *x, double *y, int64_t n, int level, int f32) {
     const int best = sss_get_simd() >= 0 ? sss_simd_best() : 0;
     level = level > best ? best : (level < 0 ? 0 : level);
 #if DISK_SIMD
-    if (level >= 2) return vexp_array_f64_avx512(x, y, n), 2;
-    if (level == 1) return vexp_array_f64_avx2(x, y, n), 1;
+    if (level >= 2) return (f32 ? vexp_array_f32_avx512 : vexp_array_f64_avx512)(x, y, n), 2;
+    if (level == 1) return (f32 ? vexp_array_f32_avx2 : vexp_array_f64_avx2)(x, y, n), 1;
 #endif
     for (int64_t i = 0; i < n; ++i) y[i] = exp(x[i]);
     return 0;

@@ -191,6 +191,7 @@ static inline __attribute__((always_inline)) void DCAT(hdrp_pixels, SUFFIX)(cons
 #define VSQRT VSQRT_AVX2
 #define VANY VANY_AVX2
 #define VEXP2_32 VEXP2_32_AVX2
+#define VEXP2_8F VEXP2_8F_AVX2
 #include "disk_simd.h" /* undefines the level's macros at its end */
 #define ISA avx512
 #define ISA_TARGET "avx512f"
@@ -203,6 +204,7 @@ static inline __attribute__((always_inline)) void DCAT(hdrp_pixels, SUFFIX)(cons
 #define VSQRT VSQRT_AVX512
 #define VANY VANY_AVX512
 #define VEXP2_32 VEXP2_32_AVX512
+#define VEXP2_8F VEXP2_8F_AVX512
 #include "disk_simd.h" /* undefines the level's macros at its end */
 #define DISK_VEC(isa, job) DCAT(DCAT(disk_vec_, SUFFIX), isa)((job)->a, (job)->k, (job)->p0, (job)->p1)
 #else

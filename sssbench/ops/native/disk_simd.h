@@ -18,10 +18,11 @@
  *     libm), the angle by the addition theorem cos(theta0 + t) = cos theta0 cos t -
  *     sin theta0 sin t (and likewise sin), the offset, the fetched pixel (hardware gathers of
  *     the packed (r, g, b, z, accept, area) rows), the 3D distance and the profile, whose exp
- *     is vexp_ below; the sums in the image dtype in the scalar loop's order.
+ *     is vexp_ below for a float64 image and vexpf_ (float32 precision) for a float32 one;
+ *     the sums in the image dtype in the scalar loop's order.
  * The differences to the scalar loop (and so to the torch loop) are the addition theorem
  * (an absolute error of the unit offset below 3e-16 against libm's cos / sin of the rounded
- * sum theta0 + t: the same size as that rounding), vexp_'s error, and products by
+ * sum theta0 + t: the same size as that rounding), vexp_'s or vexpf_'s error, and products by
  * reciprocals computed once in place of divisions (1 ulp each): a few ulp of each float64
  * weight, measured against the torch loop by tests/ops/test_disk_native.py
  * (_disk_native.DISK_NATIVE_AGREEMENT). All VW lanes run the same IEEE operations (no FMA:
@@ -75,7 +76,50 @@ DV_FN DV(vd_) DV(vexp_)(DV(vd_) x) {
     return DSEL(nan, x0, y); /* NaN in, NaN out (the scalar loop's exp) */
 }
 
-/* the exp of n doubles through vexp_ (a tail shorter than VW padded with 0): for the test of
+/* exp(x) for x <= 0 in every lane (NaN stays NaN) to float32 precision, for float32 images
+ * (issue 30): their weights are rounded to float32 (wc below), so vexp_'s 1 double ulp buys
+ * nothing there, and on AVX2 its gather and 25 double operations were half the disk's time
+ * (512² close-up, skin_deon6, 32 samples: 967 ms of C CPU time, 473 with an exp that
+ * returns x / 2). A choice: the reduction stays in double (8 x / ln 2 and r = x - n8 ln 2 / 8,
+ * |r| <= ln 2 / 16: the argument is not rounded to float32, which would cost |x| 2^-24 of
+ * relative error, 4e-6 at x = -70), the rest in float32 lanes (half the width of the double
+ * ones: one 128-bit operation each on AVX2): e^r - 1 by its Taylor polynomial of degree 4
+ * (truncation below 1.3e-9 relative), 2^(j/8) (j = n8 mod 8) from the float32 roundings of
+ * exp2_32.h's table by permutes in registers (VEXP2_8F, disk.c: no memory access per lane),
+ * and 2^n (n = n8 >> 3) built in a double's exponent bits as vexp_ does (+0 where it would be
+ * subnormal, x < -708.4). No fused multiply-adds, the same lane-wise operations at every
+ * level: AVX2 and AVX-512 agree bitwise. Its error against libm's exp, relative, is
+ * DISK_EXPF_REL (_disk_native.py), measured by tests/ops/test_disk_native.py. */
+typedef float DV(vf_) __attribute__((vector_size(VW * 4)));
+DV_FN DV(vd_) DV(vexpf_)(DV(vd_) x) {
+    typedef DV(vd_) vd;
+    typedef DV(vl_) vl;
+    typedef DV(vi_) vi;
+    typedef DV(vf_) vf;
+    const vd zero = {0};
+    const vl nan = x != x;
+    const vd x0 = x;
+    x = DSEL(x > zero - 746.0, x, zero - 746.0);
+    const vd t = x * SSS_8_OVER_LN2 - 0.5; /* 8 x / ln 2 - 1/2 < 0: trunc = round */
+    const vi n8 = __builtin_convertvector(t, vi);
+    const vd nf = __builtin_convertvector(n8, vd);
+    /* |n8| < 8700: n8 ln 2 / 8 within 6e-14 of exact, a relative error of the result alike */
+    const vf r = __builtin_convertvector(x - nf * SSS_LN2_8, vf);
+    const vf q = r * (1.0f + r * (0.5f + r * (1.0f / 6 + r * (1.0f / 24)))); /* e^r - 1 */
+    const vf tab = (vf)VEXP2_8F(n8 & 7);                                        /* 2^(j/8) */
+    const vd p = __builtin_convertvector(tab + tab * q, vd);
+    const vi biased = (n8 >> 3) + 1023; /* > 0: 2^n is normal */
+    const vl e = __builtin_convertvector(biased, vl) << 52;
+    const vl normal = __builtin_convertvector(biased > 0, vl);
+    const vd y = p * DSEL(normal, (vd)e, zero);
+    return DSEL(nan, x0, y);
+}
+
+/* the exp of the profile's weights: to float32 precision for a float32 image (vexpf_), to
+ * double precision for a float64 one (vexp_) */
+DV_FN DV(vd_) DV(wexp_)(DV(vd_) x) { return sizeof(SCALAR) == 4 ? DV(vexpf_)(x) : DV(vexp_)(x); }
+
+/* the exp of n doubles through wexp_ (a tail shorter than VW padded with 0): for the test of
  * its error against libm (sss_disk_vexp, disk.c) */
 __attribute__((target(ISA_TARGET), unused)) static void DV(vexp_array)(const double *x, double *y,
                                                                 int64_t n) {
@@ -84,7 +128,7 @@ __attribute__((target(ISA_TARGET), unused)) static void DV(vexp_array)(const dou
         vd v = {0};
         const int64_t k = n - i < VW ? n - i : VW;
         for (int64_t l = 0; l < k; ++l) v[l] = x[i + l];
-        v = DV(vexp_)(v);
+        v = DV(wexp_)(v);
         for (int64_t l = 0; l < k; ++l) y[i + l] = v[l];
     }
 }
@@ -233,7 +277,7 @@ __attribute__((target(ISA_TARGET))) static void DV(disk_vec_)(const disk_args *a
                 for (int c = 0; c < 3; ++c) {
                     const vd fl = zero + k->floor_[c];
                     const vd rr = DSEL((dist > fl) | (dist != dist), dist, fl);
-                    const vd e = DV(vexp_)(-rr * k->inv_d[c]) + DV(vexp_)(-rr * k->inv_3d[c]);
+                    const vd e = DV(wexp_)(-rr * k->inv_d[c]) + DV(wexp_)(-rr * k->inv_3d[c]);
                     wd[c] = k->coef[c] * e / rr;
                 }
             } else { /* sum of Gaussians: the narrow ones vanish far out (no exp where every
@@ -242,7 +286,7 @@ __attribute__((target(ISA_TARGET))) static void DV(disk_vec_)(const disk_args *a
                 for (int64_t g = 0; g < a->n_gauss; ++g) {
                     const vd x = d2 * k->inv_2v[g];
                     if (!VANY(~(x < zero + EXP_ZERO))) continue; /* (NaN: computed) */
-                    const vd e = DV(vexp_)(x);
+                    const vd e = DV(wexp_)(x);
                     for (int c = 0; c < 3; ++c) wd[c] += e * k->coef[3 * g + c];
                 }
             }
@@ -291,3 +335,4 @@ __attribute__((target(ISA_TARGET))) static void DV(disk_vec_)(const disk_args *a
 #undef VSQRT
 #undef VANY
 #undef VEXP2_32
+#undef VEXP2_8F

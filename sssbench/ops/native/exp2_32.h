@@ -11,6 +11,9 @@
 #define SSS_32_OVER_LN2 46.16624130844683
 #define SSS_LN2_32_HI 0.021660849392446835
 #define SSS_LN2_32_LO 5.145609244655338e-14
+/* 8 / ln 2 and ln 2 / 8 (the disk's float32-precision exp, disk_simd.h vexpf_) */
+#define SSS_8_OVER_LN2 11.541560327111707
+#define SSS_LN2_8 0.08664339756999316
 /* e^r - 1, Horner's scheme from 1/6! (no FMA: the libraries build with -ffp-contract=off) */
 #define SSS_EXPM1_DEG6(r) \
     (((((((r) * (1.0 / 720) + 1.0 / 120) * (r) + 1.0 / 24) * (r) + 1.0 / 6) * (r) + 0.5) * (r) + 1.0) * (r))
