@@ -45,6 +45,29 @@ typedef SCALAR DV(vs_) __attribute__((vector_size(VW * sizeof(SCALAR))));
 #define DSEL(m, a, b) \
     ((__typeof__(a))((((DV(vl_))(a)) & (m)) | (((DV(vl_))(b)) & ~(m))))
 
+/* What vexp_ and vexpf_ below share. Their reduction: x clamped to >= -746 (also -inf; NaN
+ * stays NaN), k = round(x m / ln 2) for m = 32 or 8 table steps per octave, by truncating
+ * x m / ln 2 - 1/2 (< 0: trunc = round), as int32 lanes (|k| < 2^16) and as doubles. */
+DV_FN DV(vi_) DV(exp_reduce_)(DV(vd_) * x, double m_over_ln2, DV(vd_) * kf) {
+    const DV(vd_) zero = {0};
+    *x = DSEL(*x > zero - 746.0, *x, zero - 746.0);
+    const DV(vi_) k = __builtin_convertvector(*x * m_over_ln2 - 0.5, DV(vi_));
+    *kf = __builtin_convertvector(k, DV(vd_));
+    return k;
+}
+
+/* Their result: p 2^n, n = k >> shift (k = m n + j), 2^n built in a double's exponent bits and
+ * +0 where it would be subnormal (x < -708.4: an absolute error below 2.3e-308); x0's NaN
+ * lanes as they are (the scalar loop's exp). */
+DV_FN DV(vd_) DV(exp_scale_)(DV(vd_) p, DV(vi_) k, int shift, DV(vd_) x0) {
+    typedef DV(vl_) vl;
+    const DV(vd_) zero = {0};
+    const DV(vi_) biased = (k >> shift) + 1023; /* > 0: 2^n is normal */
+    const vl e = __builtin_convertvector(biased, vl) << 52;
+    const vl normal = __builtin_convertvector(biased > 0, vl);
+    return DSEL(x0 != x0, x0, p * DSEL(normal, (DV(vd_))e, zero));
+}
+
 /* exp(x) for x <= 0 in every lane (NaN stays NaN), the scheme of exp2_32.h: 32 n + j by
  * truncating 32 x / ln 2 - 1/2 (< 0), 2^(j/32) by VEXP2_32 (a gather on AVX2, permutes of the
  * table in registers on AVX-512), 2^n built in the exponent bits; +0 where 2^n is subnormal
@@ -57,23 +80,13 @@ DV_FN DV(vd_) DV(vexp_)(DV(vd_) x) {
 #ifdef DISK_PROF_NOEXP
     return x * 0.5;
 #endif
-    typedef DV(vl_) vl;
-    typedef DV(vi_) vi;
-    const vd zero = {0};
-    const vl nan = x != x;
     const vd x0 = x;
-    x = DSEL(x > zero - 746.0, x, zero - 746.0);
-    const vd t = x * SSS_32_OVER_LN2 - 0.5; /* 32 x / ln 2 - 1/2 < 0: trunc = round */
-    const vi n32 = __builtin_convertvector(t, vi);
-    const vd nf = __builtin_convertvector(n32, vd);
+    vd nf;
+    const DV(vi_) n32 = DV(exp_reduce_)(&x, SSS_32_OVER_LN2, &nf);
     const vd r = (x - nf * SSS_LN2_32_HI) - nf * SSS_LN2_32_LO;
     const vd q = SSS_EXPM1_DEG6(r);
     const vd tab = (vd)VEXP2_32(n32); /* 2^((n32 mod 32) / 32) */
-    const vi biased = (n32 >> 5) + 1023; /* > 0: 2^n is normal */
-    const vl e = __builtin_convertvector(biased, vl) << 52;
-    const vl normal = __builtin_convertvector(biased > 0, vl);
-    const vd y = (tab + tab * q) * DSEL(normal, (vd)e, zero);
-    return DSEL(nan, x0, y); /* NaN in, NaN out (the scalar loop's exp) */
+    return DV(exp_scale_)(tab + tab * q, n32, 5, x0);
 }
 
 /* exp(x) for x <= 0 in every lane (NaN stays NaN) to float32 precision, for float32 images
@@ -92,27 +105,15 @@ DV_FN DV(vd_) DV(vexp_)(DV(vd_) x) {
  * DISK_EXPF_REL (_disk_native.py), measured by tests/ops/test_disk_native.py. */
 typedef float DV(vf_) __attribute__((vector_size(VW * 4)));
 DV_FN DV(vd_) DV(vexpf_)(DV(vd_) x) {
-    typedef DV(vd_) vd;
-    typedef DV(vl_) vl;
-    typedef DV(vi_) vi;
     typedef DV(vf_) vf;
-    const vd zero = {0};
-    const vl nan = x != x;
-    const vd x0 = x;
-    x = DSEL(x > zero - 746.0, x, zero - 746.0);
-    const vd t = x * SSS_8_OVER_LN2 - 0.5; /* 8 x / ln 2 - 1/2 < 0: trunc = round */
-    const vi n8 = __builtin_convertvector(t, vi);
-    const vd nf = __builtin_convertvector(n8, vd);
+    const DV(vd_) x0 = x;
+    DV(vd_) nf;
+    const DV(vi_) n8 = DV(exp_reduce_)(&x, SSS_8_OVER_LN2, &nf);
     /* |n8| < 8700: n8 ln 2 / 8 within 6e-14 of exact, a relative error of the result alike */
     const vf r = __builtin_convertvector(x - nf * SSS_LN2_8, vf);
     const vf q = r * (1.0f + r * (0.5f + r * (1.0f / 6 + r * (1.0f / 24)))); /* e^r - 1 */
     const vf tab = (vf)VEXP2_8F(n8 & 7);                                        /* 2^(j/8) */
-    const vd p = __builtin_convertvector(tab + tab * q, vd);
-    const vi biased = (n8 >> 3) + 1023; /* > 0: 2^n is normal */
-    const vl e = __builtin_convertvector(biased, vl) << 52;
-    const vl normal = __builtin_convertvector(biased > 0, vl);
-    const vd y = p * DSEL(normal, (vd)e, zero);
-    return DSEL(nan, x0, y);
+    return DV(exp_scale_)(__builtin_convertvector(tab + tab * q, DV(vd_)), n8, 3, x0);
 }
 
 /* the exp of the profile's weights: to float32 precision for a float32 image (vexpf_), to
