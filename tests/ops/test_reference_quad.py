@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from sssbench.ops import _reference_quad as quad
+from sssbench.ops import native
 from sssbench.ops._reference_near import box_cell_sums
 from sssbench.ops.reference import _sog_cell_weights, reference_sss
 from sssbench.profiles import SumOfGaussians
@@ -58,9 +59,11 @@ def test_box_cell_sums_equal_the_cell_integral_times_the_values(tilted):
         torch.testing.assert_close(got, want, rtol=1e-13, atol=1e-15 * float(want.abs().max()))
 
 
-def test_levels_agree_bitwise():
-    # every lane performs the same IEEE operations at every instruction-set level
-    geom = torch.stack(_cells(203, True))
+@pytest.mark.parametrize("kind", ["tilted", "one_axis"])
+def test_levels_agree_bitwise(kind):
+    # every lane performs the same IEEE operations at every instruction-set level (the split
+    # exponent's general sums, and its sums for a surface sloped along one axis)
+    geom = _geometry(kind)
     size = 400
     values = torch.from_numpy(np.random.default_rng(6).uniform(0, 1, (size, 4)))
     cells = torch.from_numpy(np.random.default_rng(7).integers(0, size, 203))
@@ -71,6 +74,72 @@ def test_levels_agree_bitwise():
             outs[used] = box_cell_sums(PROFILE, rule, geom, values, cells)
     first = next(iter(outs.values()))
     assert len(outs) >= 1 and all(torch.equal(o, first) for o in outs.values())
+
+
+def _geometry(kind: str, n: int = 203) -> torch.Tensor:
+    """``(6, n)`` cells: ``tilted`` (both slopes in [-2, 2]), ``one_axis`` (``sy = 0``: the
+    split exponent's cross factor is 1 in every lane) or ``steep`` (both slopes of 50 to 100
+    mm/mm, either sign: the cross factor's exponent above QUAD_SPLIT_MAX for every Gaussian of
+    PROFILE in every cell on the surface)."""
+    dx, dy, dz, hh, sx, sy = _cells(n, kind != "one_axis", seed=11)
+    if kind == "steep":
+        rng = np.random.default_rng(12)
+        sx = torch.from_numpy(rng.uniform(50, 100, n) * rng.choice([-1, 1], n))
+        sy = torch.from_numpy(rng.uniform(50, 100, n) * rng.choice([-1, 1], n))
+    return torch.stack([dx, dy, dz, hh, sx, sy])
+
+
+def _sums_both_ways(kind: str, rows: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """The native cell sums of ``_geometry(kind)`` with the split exponent where it applies
+    (the default) and with one exp per node (its oracle), Gauss–Legendre rules of odd and even
+    orders for the five Gaussians of PROFILE (``rows`` 1: the box's n × n rule over the cell;
+    3: the bilinear reconstruction's 2·quadrant_order(n) nodes per axis)."""
+    from sssbench.ops._reference_near import HAT_OFFSETS, hat_cell_sums
+
+    geom = _geometry(kind)
+    m, size = geom.shape[1], 400
+    rng = np.random.default_rng(13)
+    values = torch.from_numpy(rng.uniform(0, 1, (size, 4)))
+    cells = torch.from_numpy(rng.integers(30, size - 30, m))
+    rule = (3, 4, 7, 8, 10)
+    out = []
+    for on in (True, False):
+        with quad.split_exponent(on):
+            if rows == 1:
+                out.append(box_cell_sums(PROFILE, rule, geom, values, cells))
+            else:
+                hat = torch.tensor([a - 20 * b for a, b in HAT_OFFSETS])
+                out.append(hat_cell_sums(PROFILE, rule, *geom, values, cells, hat, native=True))
+    return out[0], out[1]
+
+
+@pytest.mark.parametrize("rows", [1, 3])
+@pytest.mark.parametrize("kind", ["tilted", "one_axis"])
+def test_split_exponent_equals_one_exp_per_node(kind, rows):
+    # the product of the three factors is the node's exp in real arithmetic: equal to rounding
+    split, direct = _sums_both_ways(kind, rows)
+    assert not torch.equal(split, direct)  # the split sums did run: other roundings
+    assert torch.isfinite(split).all()
+    torch.testing.assert_close(split, direct, rtol=1e-13, atol=1e-15 * float(direct.abs().max()))
+
+
+@pytest.mark.parametrize("rows", [1, 3])
+def test_split_exponent_is_not_taken_where_a_factor_would_be_large(rows):
+    # every vector block holds a cell whose cross factor's exponent exceeds QUAD_SPLIT_MAX:
+    # one exp per node everywhere, so bitwise the oracle's sums (the split form would give
+    # factors up to e^±400 here: cancellation, and overflow further out)
+    split, direct = _sums_both_ways("steep", rows)
+    assert torch.isfinite(direct).all() and float(direct.abs().max()) > 0
+    assert torch.equal(split, direct)
+
+
+def test_split_exponent_switch_is_restored():
+    lib = native.quad_library()
+    with quad.split_exponent(False):
+        with quad.split_exponent(True):
+            assert lib.quad_set_split(1) == 1
+        assert lib.quad_set_split(0) == 0
+    assert lib.quad_set_split(1) == 1  # the default is back
 
 
 def test_exp_against_libm():

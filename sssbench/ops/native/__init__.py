@@ -171,6 +171,7 @@ def _declare_quad(lib: ctypes.CDLL) -> None:
     for fn in (lib.quad_best_level, lib.quad_get_level):
         fn.restype, fn.argtypes = i32, []
     lib.quad_set_level.restype, lib.quad_set_level.argtypes = i32, [i32]
+    lib.quad_set_split.restype, lib.quad_set_split.argtypes = i32, [i32]
     lib.quad_offset_fields.restype = None
     lib.quad_offset_fields.argtypes = [p, i64, i64, p, i64, p, i64, p]
 

@@ -74,6 +74,98 @@ __attribute__((target(QISA_TARGET), unused)) static void QV(quad_exp_array)(cons
     }
 }
 
+/* One Gaussian's node sums, added to o (R^2 vectors, o[b R + c]): sum_s rs[c][s] sum_t
+ * rt[b][t] e_st with e_st = exp(c_g Q_st) and Q_st = |Delta + h xi_s t_x + h xi_t t_y|^2 from
+ * the six features f (quad.c), one exp per node. */
+QFN void QV(quad_direct)(const QV(qd) f[6], int64_t n, double cg, const double *xi,
+                         const double *rt, const double *rs, int64_t rows, QV(qd) *o) {
+    typedef QV(qd) vd;
+    const vd zero = {0};
+    vd bt[QUAD_MAX_NODES];
+    for (int64_t t = 0; t < n; ++t) bt[t] = xi[t] * f[2] + (xi[t] * xi[t]) * f[4];
+    for (int64_t s = 0; s < n; ++s) {
+        const double xs = xi[s];
+        const vd as = (f[0] + xs * f[1]) + (xs * xs) * f[3], ps = xs * f[5];
+        vd acc[QUAD_MAX_ROWS] = {zero, zero, zero};
+        for (int64_t t = 0; t < n; ++t) {
+            const vd e = QV(qexp)(((as + bt[t]) + xi[t] * ps) * cg);
+            for (int64_t b = 0; b < rows; ++b) acc[b] += rt[b * n + t] * e;
+        }
+        for (int64_t b = 0; b < rows; ++b)
+            for (int64_t c = 0; c < rows; ++c) o[b * rows + c] += rs[c * n + s] * acc[b];
+    }
+}
+
+/* Whether quad_split may take a Gaussian of the block: the factors' exponents c_g bt_t (t's
+ * own part) and kappa = c_g f5 (the cross part's, |xi_s xi_t| <= 1) at most QUAD_SPLIT_MAX in
+ * every lane (NaN: no), so that no factor overflows or cancels more than e^(2 QUAD_SPLIT_MAX)
+ * of the node's value (s's own part, c_g as_s, is <= 0: |Delta + h xi_s t_x|^2 >= 0). */
+QFN int QV(quad_splittable)(const QV(qd) f[6], int64_t n, double cg, const double *xi) {
+    typedef QV(qd) vd;
+    const vd kap = f[5] * cg;
+    int ok = 1;
+    for (int l = 0; l < QVW; ++l) ok &= kap[l] <= QUAD_SPLIT_MAX && -kap[l] <= QUAD_SPLIT_MAX;
+    for (int64_t t = 0; t < n && ok; ++t) {
+        const vd ut = (xi[t] * f[2] + (xi[t] * xi[t]) * f[4]) * cg;
+        for (int l = 0; l < QVW; ++l) ok &= ut[l] <= QUAD_SPLIT_MAX;
+    }
+    return ok;
+}
+
+/* quad_direct's sums for symmetric nodes (quad_symmetric) with e_st = V_s U_t W_st split
+ * along the exponent's three parts, Q_st = as_s + bt_t + xi_s xi_t f5 (quad.c's features):
+ * V_s = exp(c_g as_s), U_t = exp(c_g bt_t) and W_st = exp(kappa xi_s xi_t), kappa = c_g f5.
+ * With the nodes +-a_i, W takes n^2/4 values exp(kappa a_i a_j) and their reciprocals (the
+ * opposite signs), so n^2/4 + 2n exps and n^2/4 divisions instead of n^2 exps (the same
+ * product in real arithmetic; in floating point within a few ulp times the factors'
+ * exponents, at most 2 QUAD_SPLIT_MAX + |c_g as_s|: quad_splittable). Terms summed over t in
+ * the same order as quad_direct; every lane the same IEEE operations. */
+QFN void QV(quad_split)(const QV(qd) f[6], int64_t n, double cg, const double *xi,
+                        const double *rt, const double *rs, int64_t rows, QV(qd) *o) {
+    typedef QV(qd) vd;
+    const vd zero = {0}, one = zero + 1.0, kap = f[5] * cg;
+    const int64_t h = n / 2; /* pairs; an odd n has the node 0 at index h */
+    vd ru[QUAD_MAX_ROWS][QUAD_MAX_NODES];
+    for (int64_t t = 0; t < n; ++t) {
+        const vd u = QV(qexp)((xi[t] * f[2] + (xi[t] * xi[t]) * f[4]) * cg);
+        for (int64_t b = 0; b < rows; ++b) ru[b][t] = rt[b * n + t] * u;
+    }
+    /* kappa = 0 in every lane (a surface sloped along one axis or none): W = 1, so the sums
+     * over t do not depend on s; summed once, the same additions as below with w = 1 */
+    int plain = 1;
+    for (int l = 0; l < QVW; ++l) plain &= kap[l] == 0.0;
+    vd plain_acc[QUAD_MAX_ROWS] = {zero, zero, zero};
+    if (plain)
+        for (int64_t t = 0; t < n; ++t)
+            for (int64_t b = 0; b < rows; ++b) plain_acc[b] += ru[b][t];
+    vd pw[QUAD_MAX_NODES / 2], qw[QUAD_MAX_NODES / 2];
+    for (int64_t i = 0; i <= h; ++i) {
+        const int centre = i == h;
+        if (centre && !(n & 1)) break;
+        if (!centre && !plain)
+            for (int64_t j = 0; j < h; ++j) { /* t = j has xi = -a_j, t = n - 1 - j has +a_j */
+                pw[j] = QV(qexp)(kap * (xi[n - 1 - i] * xi[n - 1 - j]));
+                qw[j] = one / pw[j];
+            }
+        for (int side = 0; side < (centre ? 1 : 2); ++side) {
+            /* side 0: s = n - 1 - i (+a_i), 1: s = i (-a_i); the centre: s = h, W = 1 */
+            const int64_t s = centre ? h : side ? i : n - 1 - i;
+            const double xs = xi[s];
+            vd acc[QUAD_MAX_ROWS] = {plain_acc[0], plain_acc[1], plain_acc[2]};
+            if (!plain)
+                for (int64_t t = 0; t < n; ++t) {
+                    vd w = one;
+                    if (!centre && t < h) w = side ? pw[t] : qw[t];
+                    else if (!centre && t >= n - h) w = side ? qw[n - 1 - t] : pw[n - 1 - t];
+                    for (int64_t b = 0; b < rows; ++b) acc[b] += ru[b][t] * w;
+                }
+            const vd v = QV(qexp)(((f[0] + xs * f[1]) + (xs * xs) * f[3]) * cg);
+            for (int64_t b = 0; b < rows; ++b)
+                for (int64_t c = 0; c < rows; ++c) o[b * rows + c] += rs[c * n + s] * (acc[b] * v);
+        }
+    }
+}
+
 /* quad_cell_sums for cells [i0, i0 + k), k <= QVW, one cell per lane */
 __attribute__((target(QISA_TARGET))) static void QV(quad_block)(const quad_args *a, int64_t i0,
                                                                int64_t k) {
@@ -101,23 +193,16 @@ __attribute__((target(QISA_TARGET))) static void QV(quad_block)(const quad_args 
     for (int c = 0; c < 3; ++c)
         for (int64_t j = 0; j < nb; ++j) wsum[c][j] = zero;
     const double *xi = a->xi, *rt = a->red_t, *rs = a->red_s;
+    const vd feat[6] = {f0, f1, f2, f3, f4, f5};
     for (int64_t g = 0; g < a->n_gauss; ++g) {
         const int64_t n = a->order[g];
         const double cg = a->coef[g];
-        vd o[QUAD_MAX_NB], bt[QUAD_MAX_NODES];
+        vd o[QUAD_MAX_NB];
         for (int64_t j = 0; j < nb; ++j) o[j] = zero;
-        for (int64_t t = 0; t < n; ++t) bt[t] = xi[t] * f2 + (xi[t] * xi[t]) * f4;
-        for (int64_t s = 0; s < n; ++s) {
-            const double xs = xi[s];
-            const vd as = (f0 + xs * f1) + (xs * xs) * f3, ps = xs * f5;
-            vd acc[QUAD_MAX_ROWS] = {zero, zero, zero};
-            for (int64_t t = 0; t < n; ++t) {
-                const vd e = QV(qexp)(((as + bt[t]) + xi[t] * ps) * cg);
-                for (int64_t b = 0; b < rows; ++b) acc[b] += rt[b * n + t] * e;
-            }
-            for (int64_t b = 0; b < rows; ++b)
-                for (int64_t c = 0; c < rows; ++c) o[b * rows + c] += rs[c * n + s] * acc[b];
-        }
+        if (quad_split_on && quad_symmetric(xi, n) && QV(quad_splittable)(feat, n, cg, xi))
+            QV(quad_split)(feat, n, cg, xi, rt, rs, rows, o);
+        else
+            QV(quad_direct)(feat, n, cg, xi, rt, rs, rows, o);
         for (int c = 0; c < 3; ++c) {
             const double wc = a->w[g * 3 + c];
             for (int64_t j = 0; j < nb; ++j) wsum[c][j] += wc * o[j];
