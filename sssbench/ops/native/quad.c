@@ -31,10 +31,12 @@
  * before). Equal to the one-exp form to rounding (tests/ops/test_reference_quad.py, with
  * quad_set_split(0) as the oracle); measured on the cell sums of a 512² paper-benchmark
  * scene (one thread, both builds alternated in one process): pores at 0.3 mm/px, bilinear,
- * 0.76x the CPU time; the face at 0.1 mm/px, box, 0.83x. Vectorised across cells with GCC's vector extensions,
- * compiled three times through target attributes (SSE2 baseline, AVX2, AVX-512F; no -march)
- * and selected at run time by the CPU (__builtin_cpu_supports) or quad_set_level; every lane
- * performs the same IEEE operations (no FMA: -ffp-contract=off), so the levels agree bitwise.
+ * 0.76x the CPU time; the face at 0.1 mm/px, box, 0.83x.
+ *
+ * Vectorised across cells with GCC's vector extensions, compiled three times through target
+ * attributes (SSE2 baseline, AVX2, AVX-512F; no -march) and selected at run time by the CPU
+ * (__builtin_cpu_supports) or quad_set_level; every lane performs the same IEEE operations
+ * (no FMA: -ffp-contract=off), so the levels agree bitwise.
  */
 #include <math.h>
 #include <stdint.h>
