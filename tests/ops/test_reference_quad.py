@@ -157,6 +157,28 @@ def test_exp_against_libm():
     assert math.isnan(float(quad.native_exp(torch.tensor([math.nan]))[0]))
 
 
+def test_small_argument_exp_gives_the_exps_bits():
+    # qexp_small (the split exponent's cross factors where every exponent is small) is qexp
+    # itself there: bitwise the same at every level, up to the bound the C code uses
+    # (QEXP_SMALL; ln 2 / 64 = 0.01083 is where qexp's reduction would start to round
+    # 32 x / ln 2 away from 0, and beyond 0.0109 the two differ: measured)
+    lib = native.quad_library()
+    rng = np.random.default_rng(9)
+    small = lib.quad_exp_small_bound()
+    assert 0.01 <= small < math.log(2) / 64
+    x = np.concatenate(
+        [rng.uniform(-small, small, 100_000), 10.0 ** -rng.uniform(1.97, 300, 20_000)]
+    )
+    x = np.concatenate([x, -x[-20_000:], [0.0, -0.0, small, -small, 5e-324]])
+    x = torch.from_numpy(x)
+    for level in quad.QUAD_LEVELS:
+        with quad.quad_level(level):
+            want, got = torch.empty_like(x), torch.empty_like(x)
+            lib.quad_exp_array(x.data_ptr(), want.data_ptr(), x.numel())
+            lib.quad_exp_small_array(x.data_ptr(), got.data_ptr(), x.numel())
+            assert torch.equal(got.view(torch.int64), want.view(torch.int64))
+
+
 def test_bad_arguments_are_refused():
     geom = torch.stack(_cells(8, True))
     values = torch.ones(10, 4, dtype=torch.float64)

@@ -168,6 +168,8 @@ def _declare_quad(lib: ctypes.CDLL) -> None:
     p, i64, i32 = ctypes.c_void_p, ctypes.c_int64, ctypes.c_int
     lib.quad_cell_sums.restype, lib.quad_cell_sums.argtypes = i32, [p]  # a quad_args *
     lib.quad_exp_array.restype, lib.quad_exp_array.argtypes = None, [p, p, i64]
+    lib.quad_exp_small_array.restype, lib.quad_exp_small_array.argtypes = None, [p, p, i64]
+    lib.quad_exp_small_bound.restype, lib.quad_exp_small_bound.argtypes = ctypes.c_double, []
     for fn in (lib.quad_best_level, lib.quad_get_level):
         fn.restype, fn.argtypes = i32, []
     lib.quad_set_level.restype, lib.quad_set_level.argtypes = i32, [i32]

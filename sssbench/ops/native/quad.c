@@ -64,6 +64,9 @@ typedef struct {
 
 #include "exp2_32.h" /* sss_exp2_32: the table of qexp (quad_simd.h) */
 
+/* |x| up to which qexp's reduction is x itself and its scale 1 (ln 2 / 64 = 0.010830...,
+ * with a margin for the rounding of 32 x / ln 2): qexp_small (quad_simd.h) */
+#define QEXP_SMALL 0.0108
 /* the largest exponent of a factor of quad_split (quad_simd.h) */
 #define QUAD_SPLIT_MAX 30.0
 /* 0: every Gaussian by quad_direct (for tests: the split form's oracle); 1 (the default):
@@ -142,6 +145,18 @@ void quad_exp_array(const double *x, double *y, int64_t n) {
         case 2: quad_exp_array_avx512(x, y, n); break;
         case 1: quad_exp_array_avx2(x, y, n); break;
         default: quad_exp_array_sse2(x, y, n); break;
+    }
+}
+
+/* QEXP_SMALL, and qexp_small of n doubles at the current level, |x| <= QEXP_SMALL (for the
+ * test that it gives qexp's bits there) */
+double quad_exp_small_bound(void) { return QEXP_SMALL; }
+
+void quad_exp_small_array(const double *x, double *y, int64_t n) {
+    switch (quad_get_level()) {
+        case 2: quad_exp_small_array_avx512(x, y, n); break;
+        case 1: quad_exp_small_array_avx2(x, y, n); break;
+        default: quad_exp_small_array_sse2(x, y, n); break;
     }
 }
 

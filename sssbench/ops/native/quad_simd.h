@@ -62,6 +62,12 @@ QFN QV(qd) QV(qexp)(QV(qd) x) {
     return QV(qsel)(x0 != x0, x0, y);
 }
 
+/* qexp(x) where every lane has |x| <= QEXP_SMALL: there 32 x / ln 2 rounds to 0 (|32 x /
+ * ln 2| <= 0.4986), so qexp's reduction leaves r = x and its scale s = 1 exactly, and
+ * qexp(x) = 1 + 1 q = 1 + q: the same bits from the polynomial alone (tested against
+ * quad_exp_array by quad_exp_small_array, tests/ops/test_reference_quad.py) */
+QFN QV(qd) QV(qexp_small)(QV(qd) x) { return SSS_EXPM1_DEG6(x) + 1.0; }
+
 __attribute__((target(QISA_TARGET), unused)) static void QV(quad_exp_array)(const double *x,
                                                                         double *y, int64_t n) {
     typedef QV(qd) vd;
@@ -70,6 +76,18 @@ __attribute__((target(QISA_TARGET), unused)) static void QV(quad_exp_array)(cons
         const int64_t k = n - i < QVW ? n - i : QVW;
         for (int64_t l = 0; l < k; ++l) v[l] = x[i + l];
         v = QV(qexp)(v);
+        for (int64_t l = 0; l < k; ++l) y[i + l] = v[l];
+    }
+}
+
+__attribute__((target(QISA_TARGET), unused)) static void QV(quad_exp_small_array)(
+    const double *x, double *y, int64_t n) {
+    typedef QV(qd) vd;
+    for (int64_t i = 0; i < n; i += QVW) {
+        vd v = {0};
+        const int64_t k = n - i < QVW ? n - i : QVW;
+        for (int64_t l = 0; l < k; ++l) v[l] = x[i + l];
+        v = QV(qexp_small)(v);
         for (int64_t l = 0; l < k; ++l) y[i + l] = v[l];
     }
 }
@@ -138,13 +156,18 @@ QFN void QV(quad_split)(const QV(qd) f[6], int64_t n, double cg, const double *x
     if (plain)
         for (int64_t t = 0; t < n; ++t)
             for (int64_t b = 0; b < rows; ++b) plain_acc[b] += ru[b][t];
+    /* the largest |kappa| of the lanes: a cross factor whose exponent is at most QEXP_SMALL
+     * in every lane (|kappa a_i a_j| <= kmax a_i a_j, rounded monotonically) by qexp_small */
+    double kmax = 0.0;
+    for (int l = 0; l < QVW; ++l) kmax = kap[l] > kmax ? kap[l] : -kap[l] > kmax ? -kap[l] : kmax;
     vd pw[QUAD_MAX_NODES / 2], qw[QUAD_MAX_NODES / 2];
     for (int64_t i = 0; i <= h; ++i) {
         const int centre = i == h;
         if (centre && !(n & 1)) break;
         if (!centre && !plain)
             for (int64_t j = 0; j < h; ++j) { /* t = j has xi = -a_j, t = n - 1 - j has +a_j */
-                pw[j] = QV(qexp)(kap * (xi[n - 1 - i] * xi[n - 1 - j]));
+                const double aij = xi[n - 1 - i] * xi[n - 1 - j];
+                pw[j] = kmax * aij <= QEXP_SMALL ? QV(qexp_small)(kap * aij) : QV(qexp)(kap * aij);
                 qw[j] = one / pw[j];
             }
         for (int side = 0; side < (centre ? 1 : 2); ++side) {
