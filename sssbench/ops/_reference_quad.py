@@ -76,6 +76,14 @@ class _QuadArgs(ctypes.Structure):
     ] + [("m", ctypes.c_int64), ("n_gauss", ctypes.c_int64), ("rows", ctypes.c_int64)]
 
 
+def _library() -> ctypes.CDLL:
+    """The native quadrature's library; ``RuntimeError`` where it cannot be had."""
+    lib = native.quad_library()
+    if lib is None:
+        raise RuntimeError("the native reference quadrature is not available")
+    return lib
+
+
 def available() -> bool:
     """Whether the native quadrature can be used (the library built and loaded)."""
     return native.quad_library() is not None
@@ -92,14 +100,12 @@ class quad_level:  # noqa: N801 - used as a context manager, like torch.no_grad
         self.previous = -1
 
     def __enter__(self) -> str:
-        lib = native.quad_library()
-        if lib is None:
-            raise RuntimeError("the native reference quadrature is not available")
+        lib = _library()
         self.previous = lib.quad_get_level()
         return QUAD_LEVELS[lib.quad_set_level(QUAD_LEVELS.index(self.level))]
 
     def __exit__(self, *exc: object) -> None:
-        native.quad_library().quad_set_level(self.previous)  # type: ignore[union-attr]
+        _library().quad_set_level(self.previous)
 
 
 class split_exponent:  # noqa: N801 - used as a context manager, like quad_level
@@ -112,20 +118,16 @@ class split_exponent:  # noqa: N801 - used as a context manager, like quad_level
         self.previous = 1
 
     def __enter__(self) -> None:
-        lib = native.quad_library()
-        if lib is None:
-            raise RuntimeError("the native reference quadrature is not available")
+        lib = _library()
         self.previous = lib.quad_set_split(int(self.on))
 
     def __exit__(self, *exc: object) -> None:
-        native.quad_library().quad_set_split(self.previous)  # type: ignore[union-attr]
+        _library().quad_set_split(self.previous)
 
 
 def native_exp(x: torch.Tensor) -> torch.Tensor:
     """The native quadrature's exp of a float64 tensor (for the test of its error)."""
-    lib = native.quad_library()
-    if lib is None:
-        raise RuntimeError("the native reference quadrature is not available")
+    lib = _library()
     x = x.detach().to(torch.float64).contiguous().reshape(-1)
     y = torch.empty_like(x)
     lib.quad_exp_array(x.data_ptr(), y.data_ptr(), x.numel())
@@ -164,9 +166,7 @@ def native_cell_sums(
         weights: ``(G, 3)`` float64 channel weights.
         rows: 3 (the bilinear reconstruction's hats) or 1 (the box's whole cell).
     """
-    lib = native.quad_library()
-    if lib is None:
-        raise RuntimeError("the native reference quadrature is not available")
+    lib = _library()
     m = geom.shape[1]
     for name, t in (("geom", geom), ("values", values), ("weights", weights)):
         if t.dtype != torch.float64 or not t.is_contiguous():
@@ -218,9 +218,7 @@ def offset_fields(fields: torch.Tensor, centre: torch.Tensor, shift: torch.Tenso
         fields: ``(F, N)`` float64, field-major (contiguous).
         centre: ``(E,)`` int64 flat indices; ``shift`` ``(C,)`` int64 flat offsets.
     """
-    lib = native.quad_library()
-    if lib is None:
-        raise RuntimeError("the native reference quadrature is not available")
+    lib = _library()
     if fields.dtype != torch.float64 or not fields.is_contiguous() or fields.ndim != 2:
         raise ValueError(f"fields must be contiguous (F, N) float64, got {fields.dtype}")
     for name, t in (("centre", centre), ("shift", shift)):

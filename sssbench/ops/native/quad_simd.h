@@ -159,7 +159,7 @@ QFN void QV(quad_split)(const QV(qd) f[6], int64_t n, double cg, const double *x
     /* the largest |kappa| of the lanes: a cross factor whose exponent is at most QEXP_SMALL
      * in every lane (|kappa a_i a_j| <= kmax a_i a_j, rounded monotonically) by qexp_small */
     double kmax = 0.0;
-    for (int l = 0; l < QVW; ++l) kmax = kap[l] > kmax ? kap[l] : -kap[l] > kmax ? -kap[l] : kmax;
+    for (int l = 0; l < QVW; ++l) kmax = fmax(kmax, fabs(kap[l]));
     vd pw[QUAD_MAX_NODES / 2], qw[QUAD_MAX_NODES / 2];
     for (int64_t i = 0; i <= h; ++i) {
         const int centre = i == h;
