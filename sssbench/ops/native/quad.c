@@ -138,27 +138,23 @@ int quad_cell_sums(const quad_args *a) {
     return 0;
 }
 
-/* exp of n doubles at the current level (a tail padded with 0): its error against libm is
- * tested (tests/ops/test_reference_quad.py) */
-void quad_exp_array(const double *x, double *y, int64_t n) {
+/* exp of n doubles at the current level (a tail padded with 0): qexp, or qexp_small where
+ * small (every |x| <= QEXP_SMALL); their error against libm, and their agreement, are tested
+ * (tests/ops/test_reference_quad.py) */
+static void quad_exps(const double *x, double *y, int64_t n, int small) {
     switch (quad_get_level()) {
-        case 2: quad_exp_array_avx512(x, y, n); break;
-        case 1: quad_exp_array_avx2(x, y, n); break;
-        default: quad_exp_array_sse2(x, y, n); break;
+        case 2: quad_exp_array_avx512(x, y, n, small); break;
+        case 1: quad_exp_array_avx2(x, y, n, small); break;
+        default: quad_exp_array_sse2(x, y, n, small); break;
     }
 }
 
-/* QEXP_SMALL, and qexp_small of n doubles at the current level, |x| <= QEXP_SMALL (for the
- * test that it gives qexp's bits there) */
+void quad_exp_array(const double *x, double *y, int64_t n) { quad_exps(x, y, n, 0); }
+
+void quad_exp_small_array(const double *x, double *y, int64_t n) { quad_exps(x, y, n, 1); }
+
+/* QEXP_SMALL, the bound of quad_exp_small_array (for its test) */
 double quad_exp_small_bound(void) { return QEXP_SMALL; }
-
-void quad_exp_small_array(const double *x, double *y, int64_t n) {
-    switch (quad_get_level()) {
-        case 2: quad_exp_small_array_avx512(x, y, n); break;
-        case 1: quad_exp_small_array_avx2(x, y, n); break;
-        default: quad_exp_small_array_sse2(x, y, n); break;
-    }
-}
 
 /* The reference's per-offset neighbour fields (reference._sog_chunk): for the offsets
  * shift[j] (flat, in the padded surface) of the centres centre[i], out[f][j][i] =

@@ -68,29 +68,27 @@ QFN QV(qd) QV(qexp)(QV(qd) x) {
  * quad_exp_array by quad_exp_small_array, tests/ops/test_reference_quad.py) */
 QFN QV(qd) QV(qexp_small)(QV(qd) x) { return SSS_EXPM1_DEG6(x) + 1.0; }
 
+/* qexp (small: qexp_small) of n doubles, a tail padded with 0 (quad.c quad_exps) */
 __attribute__((target(QISA_TARGET), unused)) static void QV(quad_exp_array)(const double *x,
-                                                                        double *y, int64_t n) {
+                                                                        double *y, int64_t n,
+                                                                        int small) {
     typedef QV(qd) vd;
     for (int64_t i = 0; i < n; i += QVW) {
         vd v = {0};
         const int64_t k = n - i < QVW ? n - i : QVW;
         for (int64_t l = 0; l < k; ++l) v[l] = x[i + l];
-        v = QV(qexp)(v);
+        v = small ? QV(qexp_small)(v) : QV(qexp)(v);
         for (int64_t l = 0; l < k; ++l) y[i + l] = v[l];
     }
 }
 
-__attribute__((target(QISA_TARGET), unused)) static void QV(quad_exp_small_array)(
-    const double *x, double *y, int64_t n) {
-    typedef QV(qd) vd;
-    for (int64_t i = 0; i < n; i += QVW) {
-        vd v = {0};
-        const int64_t k = n - i < QVW ? n - i : QVW;
-        for (int64_t l = 0; l < k; ++l) v[l] = x[i + l];
-        v = QV(qexp_small)(v);
-        for (int64_t l = 0; l < k; ++l) y[i + l] = v[l];
-    }
+/* The two parts of a node's exponent from the six features f (quad.c): the row node's
+ * (xi_s, as_s = |Delta + h xi_s t_x|^2) and the column node's (xi_t, bt_t = |Delta + h xi_t
+ * t_y|^2 - |Delta|^2); the cross term is xi_s xi_t f5 */
+QFN QV(qd) QV(quad_row)(const QV(qd) f[6], double xs) {
+    return (f[0] + xs * f[1]) + (xs * xs) * f[3];
 }
+QFN QV(qd) QV(quad_col)(const QV(qd) f[6], double xt) { return xt * f[2] + (xt * xt) * f[4]; }
 
 /* One Gaussian's node sums, added to o (R^2 vectors, o[b R + c]): sum_s rs[c][s] sum_t
  * rt[b][t] e_st with e_st = exp(c_g Q_st) and Q_st = |Delta + h xi_s t_x + h xi_t t_y|^2 from
@@ -100,10 +98,10 @@ QFN void QV(quad_direct)(const QV(qd) f[6], int64_t n, double cg, const double *
     typedef QV(qd) vd;
     const vd zero = {0};
     vd bt[QUAD_MAX_NODES];
-    for (int64_t t = 0; t < n; ++t) bt[t] = xi[t] * f[2] + (xi[t] * xi[t]) * f[4];
+    for (int64_t t = 0; t < n; ++t) bt[t] = QV(quad_col)(f, xi[t]);
     for (int64_t s = 0; s < n; ++s) {
         const double xs = xi[s];
-        const vd as = (f[0] + xs * f[1]) + (xs * xs) * f[3], ps = xs * f[5];
+        const vd as = QV(quad_row)(f, xs), ps = xs * f[5];
         vd acc[QUAD_MAX_ROWS] = {zero, zero, zero};
         for (int64_t t = 0; t < n; ++t) {
             const vd e = QV(qexp)(((as + bt[t]) + xi[t] * ps) * cg);
@@ -114,38 +112,35 @@ QFN void QV(quad_direct)(const QV(qd) f[6], int64_t n, double cg, const double *
     }
 }
 
-/* Whether quad_split may take a Gaussian of the block: the factors' exponents c_g bt_t (t's
- * own part) and kappa = c_g f5 (the cross part's, |xi_s xi_t| <= 1) at most QUAD_SPLIT_MAX in
- * every lane (NaN: no), so that no factor overflows or cancels more than e^(2 QUAD_SPLIT_MAX)
- * of the node's value (s's own part, c_g as_s, is <= 0: |Delta + h xi_s t_x|^2 >= 0). */
-QFN int QV(quad_splittable)(const QV(qd) f[6], int64_t n, double cg, const double *xi) {
-    typedef QV(qd) vd;
-    const vd kap = f[5] * cg;
-    int ok = 1;
-    for (int l = 0; l < QVW; ++l) ok &= kap[l] <= QUAD_SPLIT_MAX && -kap[l] <= QUAD_SPLIT_MAX;
-    for (int64_t t = 0; t < n && ok; ++t) {
-        const vd ut = (xi[t] * f[2] + (xi[t] * xi[t]) * f[4]) * cg;
-        for (int l = 0; l < QVW; ++l) ok &= ut[l] <= QUAD_SPLIT_MAX;
-    }
-    return ok;
-}
-
 /* quad_direct's sums for symmetric nodes (quad_symmetric) with e_st = V_s U_t W_st split
  * along the exponent's three parts, Q_st = as_s + bt_t + xi_s xi_t f5 (quad.c's features):
  * V_s = exp(c_g as_s), U_t = exp(c_g bt_t) and W_st = exp(kappa xi_s xi_t), kappa = c_g f5.
  * With the nodes +-a_i, W takes n^2/4 values exp(kappa a_i a_j) and their reciprocals (the
  * opposite signs), so n^2/4 + 2n exps and n^2/4 divisions instead of n^2 exps (the same
  * product in real arithmetic; in floating point within a few ulp times the factors'
- * exponents, at most 2 QUAD_SPLIT_MAX + |c_g as_s|: quad_splittable). Terms summed over t in
- * the same order as quad_direct; every lane the same IEEE operations. */
-QFN void QV(quad_split)(const QV(qd) f[6], int64_t n, double cg, const double *xi,
-                        const double *rt, const double *rs, int64_t rows, QV(qd) *o) {
+ * exponents, at most 2 QUAD_SPLIT_MAX + |c_g as_s|: the guard below). Terms summed over t in
+ * the same order as quad_direct; every lane the same IEEE operations. Returns whether it
+ * took the Gaussian. */
+QFN int QV(quad_split)(const QV(qd) f[6], int64_t n, double cg, const double *xi,
+                       const double *rt, const double *rs, int64_t rows, QV(qd) *o) {
     typedef QV(qd) vd;
     const vd zero = {0}, one = zero + 1.0, kap = f[5] * cg;
     const int64_t h = n / 2; /* pairs; an odd n has the node 0 at index h */
+    /* taken only where the factors' exponents c_g bt_t (t's own part) and kappa (the cross
+     * part's, |xi_s xi_t| <= 1) are at most QUAD_SPLIT_MAX in every lane (NaN: not taken), so
+     * that no factor overflows or cancels more than e^(2 QUAD_SPLIT_MAX) of the node's value
+     * (s's own part, c_g as_s, is <= 0): else 0, o untouched, and quad_direct's sums */
+    vd ue[QUAD_MAX_NODES];
+    int ok = 1;
+    for (int l = 0; l < QVW; ++l) ok &= kap[l] <= QUAD_SPLIT_MAX && -kap[l] <= QUAD_SPLIT_MAX;
+    for (int64_t t = 0; t < n && ok; ++t) {
+        ue[t] = QV(quad_col)(f, xi[t]) * cg;
+        for (int l = 0; l < QVW; ++l) ok &= ue[t][l] <= QUAD_SPLIT_MAX;
+    }
+    if (!ok) return 0;
     vd ru[QUAD_MAX_ROWS][QUAD_MAX_NODES];
     for (int64_t t = 0; t < n; ++t) {
-        const vd u = QV(qexp)((xi[t] * f[2] + (xi[t] * xi[t]) * f[4]) * cg);
+        const vd u = QV(qexp)(ue[t]);
         for (int64_t b = 0; b < rows; ++b) ru[b][t] = rt[b * n + t] * u;
     }
     /* kappa = 0 in every lane (a surface sloped along one axis or none): W = 1, so the sums
@@ -182,11 +177,12 @@ QFN void QV(quad_split)(const QV(qd) f[6], int64_t n, double cg, const double *x
                     else if (!centre && t >= n - h) w = side ? qw[n - 1 - t] : pw[n - 1 - t];
                     for (int64_t b = 0; b < rows; ++b) acc[b] += ru[b][t] * w;
                 }
-            const vd v = QV(qexp)(((f[0] + xs * f[1]) + (xs * xs) * f[3]) * cg);
+            const vd v = QV(qexp)(QV(quad_row)(f, xs) * cg);
             for (int64_t b = 0; b < rows; ++b)
                 for (int64_t c = 0; c < rows; ++c) o[b * rows + c] += rs[c * n + s] * (acc[b] * v);
         }
     }
+    return 1;
 }
 
 /* quad_cell_sums for cells [i0, i0 + k), k <= QVW, one cell per lane */
@@ -222,9 +218,8 @@ __attribute__((target(QISA_TARGET))) static void QV(quad_block)(const quad_args 
         const double cg = a->coef[g];
         vd o[QUAD_MAX_NB];
         for (int64_t j = 0; j < nb; ++j) o[j] = zero;
-        if (quad_split_on && quad_symmetric(xi, n) && QV(quad_splittable)(feat, n, cg, xi))
-            QV(quad_split)(feat, n, cg, xi, rt, rs, rows, o);
-        else
+        if (!(quad_split_on && quad_symmetric(xi, n) &&
+              QV(quad_split)(feat, n, cg, xi, rt, rs, rows, o)))
             QV(quad_direct)(feat, n, cg, xi, rt, rs, rows, o);
         for (int c = 0; c < 3; ++c) {
             const double wc = a->w[g * 3 + c];
