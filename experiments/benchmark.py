@@ -21,11 +21,18 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Any
 
 import pandas as pd
 
 from experiments.common import Context, Section, main, md_table, shrink_png
+from experiments.machine import (  # noqa: F401 (also read as experiments.benchmark.*)
+    ANY_MACHINE,
+    MACHINE_KEYS,
+    cpu_generation,
+    machine_key,
+    machine_words,
+    run_machine,
+)
 from sssbench import report
 from sssbench.app import compose_spec, preset_grid
 from sssbench.report import plots
@@ -184,29 +191,6 @@ def log_cold_run(
     return record
 
 
-def cpu_generation(text: str | None = None) -> str | None:
-    """``"family/model"`` of the first CPU in ``/proc/cpuinfo``
-    (:func:`experiments.readme_timings.cpuinfo`; ``text``: its content, read when ``None``),
-    e.g. ``"23/1"`` for a first-generation AMD EPYC: a virtual machine may name its CPU only
-    ``"AMD EPYC"``, whatever its generation. ``None`` where not found."""
-    from experiments.readme_timings import cpuinfo
-
-    fields = cpuinfo(text)
-    if "cpu family" not in fields or "model" not in fields:
-        return None
-    return f"{fields['cpu family']}/{fields['model']}"
-
-
-def run_machine() -> dict[str, object]:
-    """The machine a cold run ran on: :func:`experiments.readme_timings.machine`, the CPU's
-    family and model (:func:`cpu_generation`) and the native tap loop's SIMD level (``None``
-    without the library)."""
-    from experiments.readme_timings import machine
-    from sssbench.ops import native
-
-    return {**machine(), "cpu_model": cpu_generation(), "simd": native.simd_level()}
-
-
 def _loggable(table: pd.DataFrame) -> bool:
     """Whether :func:`log_cold_run` logs ``table``'s run: cold, timed, at a resolution of
     :data:`COLD_TARGET_S`."""
@@ -217,24 +201,6 @@ def _loggable(table: pd.DataFrame) -> bool:
 def _tied_labels(cell: str) -> list[str]:
     """The labels of a recommendation's ``tied`` cell (``"a 7, b 13"``; ``–``: none)."""
     return [] if cell == report.MISSING else [t.strip() for t in str(cell).split(",")]
-
-
-#: what makes two logged cold runs' machines the same for pooling (:func:`machine_key`): the
-#: CPU's model name, its family and model numbers, its core count and the tap loop's SIMD
-#: level (the Python and the system are recorded, not compared)
-MACHINE_KEYS = ("cpu", "cpu_model", "cores", "simd")
-
-#: ``machine=`` of the log's readers: records of every machine
-ANY_MACHINE: Any = object()
-
-
-def machine_key(machine: object) -> tuple | None:
-    """The pooling key of a record's ``machine`` (:func:`run_machine`): its
-    :data:`MACHINE_KEYS` values; ``None`` for a record without one (logged before machines
-    were, 2026-12-04: such runs pool only with each other)."""
-    if not isinstance(machine, dict):
-        return None
-    return tuple(str(machine.get(k)) for k in MACHINE_KEYS)
 
 
 def _cold_records(
@@ -429,17 +395,6 @@ def recommendation_stability(
             else ""
         )
     )
-
-
-def machine_words(machine: object) -> str:
-    """``"AMD EPYC (family/model 23/1), 2 cores, SIMD level avx2"``: a record's machine
-    (:data:`MACHINE_KEYS`) in words; ``"a machine not recorded"`` for a record without
-    one."""
-    if not isinstance(machine, dict):
-        return "a machine not recorded"
-    gen = machine.get("cpu_model")
-    cpu = f"{machine.get('cpu')}" + (f" (family/model {gen})" if gen else "")
-    return f"{cpu}, {machine.get('cores')} cores, SIMD level {machine.get('simd')}"
 
 
 def cold_verdict(totals: list[float], target: float, machine: object = ANY_MACHINE) -> str:

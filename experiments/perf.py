@@ -26,6 +26,7 @@ from pathlib import Path
 import torch
 
 from experiments.common import Context, Section, main, md_table, median_ms
+from experiments.machine import ANY_MACHINE, machine_key, machine_words, run_machine
 
 RESOLUTIONS = {"512²": (512, 512), "1080p": (1080, 1920)}
 
@@ -222,11 +223,12 @@ def verdict_within(value: float, se: float, low: float, high: float) -> str:
 
 
 #: one JSON line per full run of the section (appended by :func:`run`, committed with the
-#: report): the figures of the targets judged on a median of per-round ratios. A run's
-#: standard error is of its own rounds, and the machine drifts more between runs than within
-#: one (docs/numerics.md: the kornia ratio 0.66–1.37× over runs of the same operator), so
-#: with two or more logged runs of the same code at the same setting each such target is
-#: judged on all of them (:func:`pooled_text`)
+#: report): the figures of the targets judged on a median of per-round ratios and the machine
+#: (:func:`experiments.machine.run_machine`). A run's standard error is of its own rounds, and
+#: the machine drifts more between runs than within one (docs/numerics.md: the kornia ratio
+#: 0.66–1.37× over runs of the same operator), so with two or more logged runs of the same
+#: code at the same setting on the same machine (:func:`experiments.machine.machine_key`)
+#: each such target is judged on all of them (:func:`pooled_text`)
 PERF_LOG = Path(__file__).resolve().parent / "perf_runs.jsonl"
 
 
@@ -238,18 +240,28 @@ def mean_se(values: list[float]) -> tuple[float, float]:
     return mean, statistics.stdev(values) / math.sqrt(n) if n >= 2 else math.nan
 
 
-def log_perf_run(figures: dict[str, float], setting: str, log: Path = PERF_LOG) -> dict:
+def log_perf_run(
+    figures: dict[str, float],
+    setting: str,
+    log: Path = PERF_LOG,
+    machine: dict[str, object] | None = None,
+) -> dict:
     """Append this run's ``figures`` (target name → ratio) at ``setting`` (resolution,
-    threads, vector level) with the code's digest to ``log``; returns the record."""
+    threads, vector level) with the code's digest and the ``machine`` (default: this one,
+    :func:`~experiments.machine.run_machine`) to ``log``; returns the record."""
     import datetime
     import json
 
+    from experiments.machine import run_machine
     from sssbench._digest import code_digest
 
     record = {
         "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         "code": code_digest(),
         "setting": setting,
+        # pooled only with runs of the same machine: the same code's ratios differ by machine
+        # (an AVX-512 machine's tap loop runs 16 pixels a vector, an AVX2 one 8)
+        "machine": run_machine() if machine is None else machine,
         "figures": {k: round(float(v), 4) for k, v in figures.items()},
     }
     with open(log, "a", encoding="utf-8") as out:
@@ -257,18 +269,26 @@ def log_perf_run(figures: dict[str, float], setting: str, log: Path = PERF_LOG) 
     return record
 
 
-def logged_figures(log: Path, code: str, setting: str) -> dict[str, list[float]]:
-    """Each target's figures in ``log``'s runs of the code ``code`` at ``setting``, in the
-    order logged (unreadable lines and records are skipped)."""
+def logged_figures(
+    log: Path, code: str, setting: str, machine: object = ANY_MACHINE
+) -> dict[str, list[float]]:
+    """Each target's figures in ``log``'s runs of the code ``code`` at ``setting`` on
+    ``machine`` (a :func:`~experiments.machine.run_machine` dict, compared by
+    :func:`~experiments.machine.machine_key`; ``None``: the runs logged without a machine,
+    before 2026-12-05, which pool only with each other; :data:`ANY_MACHINE`: every machine),
+    in the order logged (unreadable lines and records are skipped)."""
     import json
 
     out: dict[str, list[float]] = {}
     if not log.exists():
         return out
+    key = None if machine is ANY_MACHINE else machine_key(machine)
     for line in log.read_text(encoding="utf-8").splitlines():
         try:
             rec = json.loads(line)
             if rec["code"] != code or rec["setting"] != setting:
+                continue
+            if machine is not ANY_MACHINE and machine_key(rec.get("machine")) != key:
                 continue
             for name, value in rec["figures"].items():
                 out.setdefault(str(name), []).append(float(value))
@@ -280,7 +300,8 @@ def logged_figures(log: Path, code: str, setting: str) -> dict[str, list[float]]
 def pooled_text(
     values: list[float], target: float, low: float = -math.inf
 ) -> tuple[str, str | None]:
-    """``("; over the 3 logged runs of this code at this setting (experiments/…): 1.37,
+    """``("; over the 3 logged runs of this code at this setting on this machine
+    (experiments/…): 1.37,
     0.99, 1.05×, mean 1.14× ± 0.12", verdict)``: the target ``[low, target]`` (default: at
     most ``target``) judged on the mean of every run's figure and its standard error
     (:func:`mean_se`, :func:`verdict_within`); with fewer than two runs ``("", None)``: the
@@ -290,7 +311,7 @@ def pooled_text(
     mean, se = mean_se(values)
     listed = ", ".join(f"{v:.2f}" for v in values)
     return (
-        f"; over the {len(values)} logged runs of this code at this setting "
+        f"; over the {len(values)} logged runs of this code at this setting on this machine "
         f"(experiments/{PERF_LOG.name}): {listed}×, mean {ratio_text(mean, se)}",
         verdict_within(mean, se, low, target),
     )
@@ -787,7 +808,8 @@ def run(ctx: Context) -> Section:
     from sssbench._digest import code_digest
 
     setting = f"{big}, {torch.get_num_threads()} threads, level {level}"
-    prior = {} if quick else logged_figures(PERF_LOG, code_digest(), setting)
+    machine = run_machine()  # pooled with the logged runs of this machine only
+    prior = {} if quick else logged_figures(PERF_LOG, code_digest(), setting, machine)
     figures: dict[str, float] = {}
 
     def over_runs(
@@ -815,7 +837,8 @@ def run(ctx: Context) -> Section:
     targets.append(
         "(A timing check below without a standard error of its own, a ratio of medians or of "
         "timings taken one after another, is judged on this run's figure while fewer than two "
-        f"runs of this code at this setting ({setting}) are logged in "
+        f"runs of this code at this setting ({setting}) on this machine "
+        f"({machine_words(machine)}) are logged in "
         f"experiments/{PERF_LOG.name}; with two or more, on the mean of their figures ± its "
         "standard error between runs, **not resolved** when a bound of its band lies within "
         "one standard error.)"
@@ -927,7 +950,8 @@ def run(ctx: Context) -> Section:
         "(± the standard error of each median of per-round ratios, bootstrapped over the "
         "rounds; a target within one standard error of its figure is **not resolved**: the "
         "difference is not a finding. With two or more logged runs of this code at this "
-        f"setting ({setting}; experiments/{PERF_LOG.name}) such a target is judged on the mean "
+        f"setting ({setting}) on this machine ({machine_words(machine)}; "
+        f"experiments/{PERF_LOG.name}) such a target is judged on the mean "
         "of every run's figure and its standard error between the runs: the machine drifts "
         "more between runs than within one.)"
     ]
@@ -1004,9 +1028,10 @@ def run(ctx: Context) -> Section:
     t30.append(line)
     judged(v)
     if not quick:
-        log_perf_run(figures, setting)
+        log_perf_run(figures, setting, machine=machine)
     t30.append(
-        f"- machine state: load average (1, 5, 15 min) {', '.join(f'{x:.1f}' for x in load_start)}"
+        f"- machine state: {machine_words(machine)}; load average (1, 5, 15 min) "
+        f"{', '.join(f'{x:.1f}' for x in load_start)}"
         f" at the start, {', '.join(f'{x:.1f}' for x in load_end)} at the end, on "
         f"{os.cpu_count()} cores shared with other jobs: every figure above is a ratio of "
         f"times taken in this one run, interleaved round by round; absolute times are not "

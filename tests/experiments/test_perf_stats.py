@@ -122,29 +122,43 @@ def test_disk_line_states_the_error_and_its_verdict():
 
 
 def test_the_logged_runs_of_this_code_at_this_setting_are_pooled(tmp_path):
-    """By hand: kornia ratios 1.2 and 0.9 of this code at this setting (a third of another
-    code and a fourth at another setting ignored): mean 1.05, sample sd 0.2121, se 0.15,
-    1.0 within one se: not resolved; 1.2, 1.15, 1.1: mean 1.15, sd 0.05, se 0.0289: not met. One
-    run: no clause, the run's own verdict stands."""
+    """By hand: kornia ratios 1.2 and 0.9 of this code at this setting on this machine (a
+    third of another code, a fourth at another setting, a fifth on another machine and a sixth
+    logged without one ignored): mean 1.05, sample sd 0.2121, se 0.15, 1.0 within one se: not
+    resolved; 1.2, 1.15, 1.1: mean 1.15, sd 0.05, se 0.0289: not met. One run: no clause, the
+    run's own verdict stands."""
+    from experiments.machine import ANY_MACHINE, run_machine
     from experiments.perf import log_perf_run, logged_figures, mean_se, pooled_text
     from sssbench._digest import code_digest
 
     log = tmp_path / "perf.jsonl"
     here = "1080p, 2 threads, level avx512"
+    this = run_machine()
+    other = dict(this, cpu_model="25/17")  # another generation under the same name
     log_perf_run({"kornia": 1.2, "disk": 15.0}, here, log)
     log_perf_run({"kornia": 0.5}, "1080p, 1 threads, level avx512", log)
-    log_perf_run({"kornia": 0.9, "disk": 14.0}, here, log)
+    log_perf_run({"kornia": 0.7}, here, log, machine=other)
+    log_perf_run({"kornia": 0.9, "disk": 14.0}, here, log, machine=this)
     with open(log, "a") as out:
         out.write(json.dumps({"code": "other", "setting": here, "figures": {"kornia": 9.0}}))
         out.write("\n")
+        unrecorded = {"code": code_digest(), "setting": here, "figures": {"kornia": 2.0}}
+        out.write(json.dumps(unrecorded) + "\n")
         out.write("not json\n")
-    got = logged_figures(log, code_digest(), here)
+    assert [json.loads(line).get("machine") for line in log.read_text().splitlines()[:2]] == [
+        this,
+        this,
+    ]
+    got = logged_figures(log, code_digest(), here, this)
     assert got == {"kornia": [1.2, 0.9], "disk": [15.0, 14.0]}
+    assert logged_figures(log, code_digest(), here, other) == {"kornia": [0.7]}
+    assert logged_figures(log, code_digest(), here, None) == {"kornia": [2.0]}
+    assert logged_figures(log, code_digest(), here, ANY_MACHINE)["kornia"] == [1.2, 0.7, 0.9, 2.0]
     mean, se = mean_se(got["kornia"])
     assert mean == pytest.approx(1.05) and se == pytest.approx(0.15)
     text, verdict = pooled_text(got["kornia"], 1.0)
     assert verdict == "not resolved"
-    assert "over the 2 logged runs of this code at this setting" in text
+    assert "over the 2 logged runs of this code at this setting on this machine" in text
     assert text.endswith("1.20, 0.90×, mean 1.05× ± 0.15")
     text, verdict = pooled_text([1.2, 1.15, 1.1], 1.0)
     assert verdict == "not met" and text.endswith("1.20, 1.15, 1.10×, mean 1.15× ± 0.03")
