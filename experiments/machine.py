@@ -47,7 +47,8 @@ ANY_MACHINE: Any = object()
 def machine_key(machine: object) -> tuple | None:
     """The pooling key of a record's ``machine`` (:func:`run_machine`): its
     :data:`MACHINE_KEYS` values; ``None`` for a record without one (logged before machines
-    were, 2026-12-04: such runs pool only with each other)."""
+    were: cold runs until 2026-12-04, perf runs until 2026-12-05; such runs pool only with
+    each other)."""
     if not isinstance(machine, dict):
         return None
     return tuple(str(machine.get(k)) for k in MACHINE_KEYS)
