@@ -31,6 +31,7 @@ from experiments.machine import (  # noqa: F401 (also read as experiments.benchm
     cpu_generation,
     machine_key,
     machine_words,
+    on_machine,
     run_machine,
 )
 from sssbench import report
@@ -215,13 +216,12 @@ def _cold_records(
 
     if not log.exists():
         return []
-    key = None if machine is ANY_MACHINE else machine_key(machine)
     records = []
     for line in log.read_text(encoding="utf-8").splitlines():
         try:
             rec = json.loads(line)
             if rec["resolution"] == resolution and code in (None, rec["code"]):
-                if machine is ANY_MACHINE or machine_key(rec.get("machine")) == key:
+                if on_machine(rec, machine):
                     records.append(rec)
         except (ValueError, KeyError, TypeError):
             continue

@@ -63,3 +63,10 @@ def machine_words(machine: object) -> str:
     gen = machine.get("cpu_model")
     cpu = f"{machine.get('cpu')}" + (f" (family/model {gen})" if gen else "")
     return f"{cpu}, {machine.get('cores')} cores, SIMD level {machine.get('simd')}"
+
+
+def on_machine(record: dict, machine: object) -> bool:
+    """Whether a logged ``record`` (a cold run's or a perf run's) ran on ``machine`` (a
+    :func:`run_machine` dict, compared by :func:`machine_key`; ``None``: the records logged
+    without a machine; :data:`ANY_MACHINE`: every machine): the one pooling rule of both logs."""
+    return machine is ANY_MACHINE or machine_key(record.get("machine")) == machine_key(machine)

@@ -26,7 +26,7 @@ from pathlib import Path
 import torch
 
 from experiments.common import Context, Section, main, md_table, median_ms
-from experiments.machine import ANY_MACHINE, machine_key, machine_words, run_machine
+from experiments.machine import ANY_MACHINE, machine_words, on_machine, run_machine
 
 RESOLUTIONS = {"512²": (512, 512), "1080p": (1080, 1920)}
 
@@ -252,7 +252,6 @@ def log_perf_run(
     import datetime
     import json
 
-    from experiments.machine import run_machine
     from sssbench._digest import code_digest
 
     record = {
@@ -282,13 +281,12 @@ def logged_figures(
     out: dict[str, list[float]] = {}
     if not log.exists():
         return out
-    key = None if machine is ANY_MACHINE else machine_key(machine)
     for line in log.read_text(encoding="utf-8").splitlines():
         try:
             rec = json.loads(line)
             if rec["code"] != code or rec["setting"] != setting:
                 continue
-            if machine is not ANY_MACHINE and machine_key(rec.get("machine")) != key:
+            if not on_machine(rec, machine):
                 continue
             for name, value in rec["figures"].items():
                 out.setdefault(str(name), []).append(float(value))
@@ -301,11 +299,10 @@ def pooled_text(
     values: list[float], target: float, low: float = -math.inf
 ) -> tuple[str, str | None]:
     """``("; over the 3 logged runs of this code at this setting on this machine
-    (experiments/…): 1.37,
-    0.99, 1.05×, mean 1.14× ± 0.12", verdict)``: the target ``[low, target]`` (default: at
-    most ``target``) judged on the mean of every run's figure and its standard error
-    (:func:`mean_se`, :func:`verdict_within`); with fewer than two runs ``("", None)``: the
-    run's own verdict stands."""
+    (experiments/…): 1.37, 0.99, 1.05×, mean 1.14× ± 0.12", verdict)``: the target
+    ``[low, target]`` (default: at most ``target``) judged on the mean of every run's figure
+    and its standard error (:func:`mean_se`, :func:`verdict_within`); with fewer than two
+    runs ``("", None)``: the run's own verdict stands."""
     if len(values) < 2:
         return "", None
     mean, se = mean_se(values)
