@@ -83,7 +83,7 @@ class DiskArgs(ctypes.Structure):
     _fields_ = [
         (name, _P)
         for name in (
-            "rgb", "pos", "accept", "area", "packed", "pix", "turn", "shift", "step", "u0",
+            "area", "packed", "pix", "turn", "shift", "step", "u0",
             "theta0", "rcp", "num", "den", "mom", "tab_r", "tab_cdf", "guide", "prof_a",
             "prof_b", "total",
         )  # fmt: skip
@@ -132,17 +132,19 @@ def usable(ctx, kernel) -> bool:
 
 
 def _packed(ctx, accept: torch.Tensor) -> torch.Tensor:
-    """``(N, 8)`` per pixel ``(r, g, b, z, accept, area, 0, 0)`` in the image dtype (copies,
-    no arithmetic): a fetched pixel is one cache line (the loop's random reads dominated its
-    time); built once per forward and acceptance (kept on ``ctx``)."""
+    """``(N, 8)`` per pixel ``(r, g, b, z, accept, area, x, y)`` in the image dtype (copies,
+    no arithmetic; area 0 without ``surface_area``): a fetched pixel is one cache line (the
+    loop's random reads dominated its time), and a centre's position is read from the same
+    lines (no channels-last copy of the positions); built once per forward and acceptance
+    (kept on ``ctx``)."""
     cache = ctx.__dict__.setdefault("_disk_native_packed", {})
     key = id(accept)
     if key not in cache:
         n = ctx.rgb.shape[0]
         area = ctx.area if ctx.area is not None else torch.zeros(n, dtype=ctx.dtype)
-        zeros = torch.zeros(n, 2, dtype=ctx.dtype)
         cols = [ctx.rgb.detach(), ctx.depth.detach()[:, None], accept.detach()[:, None]]
-        cache[key] = (accept, torch.cat([*cols, area.detach()[:, None], zeros], 1))
+        cols += [area.detach()[:, None], ctx.pos.detach()[:, :2]]
+        cache[key] = (accept, torch.cat(cols, 1))
     return cache[key][1]
 
 
@@ -153,9 +155,6 @@ class _Call:
         self.keep: list[torch.Tensor] = []
         a = self.args = DiskArgs()
         dt = ctx.dtype
-        a.rgb = self.ptr(ctx.rgb, dt)
-        a.pos = self.ptr(ctx.pos, dt)
-        a.accept = self.ptr(accept, dt)
         a.packed = self.ptr(_packed(ctx, accept), dt)
         a.pix = self.ptr(pix, torch.int64)
         m = pix.numel()

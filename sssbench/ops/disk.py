@@ -175,6 +175,8 @@ multiply after the pass (texturing mode) is the pipeline's texturing stage here.
 
 from __future__ import annotations
 
+import functools
+import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -483,9 +485,9 @@ class DiskSSS(nn.Module):
     def _phase(self, ctx: _Pixels, sel: torch.Tensor, frame: int, stream: int) -> torch.Tensor:
         """The rotation (turns, float64) of the active pixels ``sel`` in ``frame``: keyed on
         the pixel's position *in its image*, the seed, the frame and the stream."""
-        row, col = ctx.row[sel], ctx.col[sel]
         if self.rotation == "hash":
-            return hash_uniform(ctx.index[sel] % ctx.hw, self.seed, frame, 2 * stream)
+            return hash_uniform(ctx.take(ctx.index, sel) % ctx.hw, self.seed, frame, 2 * stream)
+        row, col = ctx.take(ctx.row, sel), ctx.take(ctx.col, sel)
         if self.rotation == "ign":
             return interleaved_gradient_noise(row, col, _ign_frame(self.seed, frame, stream))
         if self.rotation == "blue_noise":
@@ -505,9 +507,8 @@ class DiskSSS(nn.Module):
         frame = check_int("frame", frame, 0, MAX_DISK_FRAMES - 1)
         stream = check_int("stream", stream, 0, MAX_DISK_SAMPLES)
         ctx = _Pixels(gbuffer)
-        sel = torch.arange(ctx.index.numel())
         pix = ctx.index
-        phase = self._phase(ctx, sel, frame, stream)
+        phase = self._phase(ctx, ctx.every, frame, stream)
         shift = (
             hash_uniform(pix % ctx.hw, self.seed, frame, 2 * stream + 1)
             if self.jitter_radius
@@ -548,9 +549,8 @@ class DiskSSS(nn.Module):
         from its centre pixel, its depth as ``Δz = z_i − z_p`` (fetched as differences of
         depths), and ``x_i − x_p = x_p Δz / z_p + Δc · pixel_size(z_p + Δz)`` — never an
         absolute position subtracted from another."""
-        pix = ctx.index[sel]
-        pos_c = ctx.pos[pix]  # (M, 3)
-        z_c = pos_c[:, 2]
+        pix = ctx.take(ctx.index, sel)
+        z_c = ctx.depth[pix]
         # pixels per mm at the centre, float64 whatever the dtype: which pixel a sample lands
         # in must not depend on the dtype (a sample on a pixel boundary would jump)
         step = 1.0 / pixel_size_mm(z_c.double(), ctx.fov_y, ctx.h)
@@ -582,7 +582,7 @@ class DiskSSS(nn.Module):
         # R(d) at a distance formed from a sub-pixel offset and interpolated depths, which the
         # long fuzz profile showed off by 6e-5 in float32 at 1 km depth; only colours stay in dt
         per_mm = pixel_size_mm(torch.ones((), dtype=torch.float64), ctx.fov_y, ctx.h)
-        z_c64, pos_c64 = z_c.double(), pos_c.double()
+        z_c64, pos_c64 = z_c.double(), ctx.pos[pix].double()  # (M,), (M, 3)
         for i in range(n):
             u = torch.frac(u0[i] + shift) if self.jitter_radius else u0[i].expand(m)
             r, inv_pdf = kernel.sampler.sample(u)
@@ -636,7 +636,7 @@ class DiskSSS(nn.Module):
         """One frame's scattered irradiance ``(M, 3)`` at the active pixels ``sel``."""
         if self.estimator == "hdrp":
             return self._frame_hdrp(ctx, kernel, accept, sel, frame)
-        centre = ctx.rgb[ctx.index[sel]]
+        centre = ctx.take(ctx.centre, sel)
         if self.adaptive is None:
             with timed_pass("disk", self.samples, sel.numel()):
                 num, den, _ = self._gather(
@@ -677,8 +677,8 @@ class DiskSSS(nn.Module):
     ) -> torch.Tensor:
         """One frame of HDRP's pass at the active pixels ``sel`` (module doc): the pixels
         are grouped by their sample count, each group one recorded pass."""
-        out = ctx.rgb[ctx.index[sel]].clone()  # fewer than one sample: no filtering
-        z_c = ctx.depth[ctx.index[sel]].double()
+        out = ctx.take(ctx.centre, sel).clone()  # fewer than one sample: no filtering
+        z_c = ctx.depth[ctx.take(ctx.index, sel)].double()
         counts = _hdrp_counts(kernel, z_c, ctx.fov_y, ctx.h, self.samples)
         self.last_counts[sel] = counts
         for n in sorted(set(counts.tolist()) - {0}):
@@ -698,9 +698,9 @@ class DiskSSS(nn.Module):
         frame: int,
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """``Σ w E`` and ``Σ w`` ``(M, 3)`` over HDRP's ``n`` samples for the pixels ``sel``."""
-        pix = ctx.index[sel]
+        pix = ctx.take(ctx.index, sel)
         base = pix - pix % ctx.hw
-        row, col = ctx.row[sel].long(), ctx.col[sel].long()
+        row, col = ctx.take(ctx.row, sel).long(), ctx.take(ctx.col, sel).long()
         z_c = ctx.depth[pix]
         ppm = 1.0 / pixel_size_mm(z_c.double(), ctx.fov_y, ctx.h).clamp_min(HDRP_MIN_PIXEL_MM)
         turn = 2 * math.pi * self._phase(ctx, sel, frame, 0)
@@ -731,7 +731,7 @@ class DiskSSS(nn.Module):
         """``(kernel, accept, sel)`` per profile: its kernel, the pixels its samples may land
         on (flat 1 / 0) and its active pixels (indices into ``ctx``)."""
         if not self.per_pixel:
-            return [(self.kernels[0], ctx.on, torch.arange(ctx.index.numel()))]
+            return [(self.kernels[0], ctx.on, ctx.every)]
         if g.profile_id is None:
             raise ValueError("DiskSSS with a list of profiles needs gbuffer.profile_id")
         ids = g.profile_id.reshape(-1)
@@ -757,19 +757,23 @@ class DiskSSS(nn.Module):
             return gbuffer.diffuse.copy_(out) if inplace else out
         ctx = _Pixels(gbuffer, surface_area=self.surface_area)
         m = ctx.index.numel()
-        acc = torch.zeros(m, 3, dtype=gbuffer.dtype)
         counted = self.adaptive is not None or self.estimator == "hdrp"
         self.last_counts = torch.zeros(m, dtype=torch.long) if counted else None
-        for kernel, accept, sel in self._groups(gbuffer, ctx):
-            for frame in range(self.frames):
-                acc[sel] += self._frame(ctx, kernel, accept, sel, frame)
-        scattered = acc / self.frames
-        centre = ctx.rgb[ctx.index]
+        groups = self._groups(gbuffer, ctx)
+        if self.frames == 1 and len(groups) == 1 and groups[0][2] is ctx.every:
+            # one frame of every active pixel: the sum below is 0 + x and its mean x / 1,
+            # x itself but for a zero's sign, which the lerp below does not keep
+            scattered = self._frame(ctx, *groups[0], 0)
+        else:
+            acc = torch.zeros(m, 3, dtype=gbuffer.dtype)
+            for kernel, accept, sel in groups:
+                for frame in range(self.frames):
+                    acc[sel] += self._frame(ctx, kernel, accept, sel, frame)
+            scattered = acc / self.frames
+        centre = ctx.centre
         strength = ctx.mask[ctx.index][:, None]
         value = centre + strength * (scattered - centre)
-        b, h, w = gbuffer.shape
-        flat = ctx.rgb.index_copy(0, ctx.index, value.to(ctx.rgb.dtype))
-        out = flat.reshape(b, h, w, 3).permute(0, 3, 1, 2).contiguous()
+        out = ctx.scatter(gbuffer.diffuse, value.to(ctx.rgb.dtype))
         if inplace:
             return gbuffer.diffuse.copy_(out)
         return out
@@ -845,9 +849,43 @@ class _Pixels:
             self.area = (foot**2 * torch.sqrt(1 + sx * sx + sy * sy)).reshape(-1)
         index = active_pixels(g.mask, b * h * w)
         self.index = torch.arange(b * h * w) if index is None else index
-        rem = self.index % self.hw
-        self.row = (rem // w).to(g.dtype)
-        self.col = (rem % w).to(g.dtype)
+        #: the selection of every active pixel, in order (:meth:`take` answers it without
+        #: an index pass: a 512² call spent 3–5 ms on each such gather of every pixel)
+        self.every = torch.arange(self.index.numel())
+
+    def take(self, t: torch.Tensor, sel: torch.Tensor) -> torch.Tensor:
+        """``t[sel]`` for ``t`` indexed like :attr:`index` (one entry per active pixel):
+        ``t`` itself when ``sel`` is :attr:`every` (the same values; callers only read it)."""
+        return t if sel is self.every else t[sel]
+
+    @functools.cached_property
+    def row(self) -> torch.Tensor:
+        """Each active pixel's row in its image ``(M,)``, in the image dtype."""
+        return (self.index % self.hw // self.w).to(self.dtype)
+
+    @functools.cached_property
+    def col(self) -> torch.Tensor:
+        """Each active pixel's column ``(M,)``, in the image dtype."""
+        return (self.index % self.hw % self.w).to(self.dtype)
+
+    @functools.cached_property
+    def centre(self) -> torch.Tensor:
+        """Each active pixel's own irradiance ``(M, 3)`` (read, never written)."""
+        return self.rgb[self.index]
+
+    def scatter(self, image: torch.Tensor, value: torch.Tensor) -> torch.Tensor:
+        """A contiguous copy of ``image`` ``(B, 3, H, W)`` with the active pixels set to
+        ``value`` ``(M, 3)`` (in :attr:`index`'s order: by image, then flat pixel): written
+        plane by plane into each image's ``(3, H·W)`` view, no channels-last round trip (the
+        index copy into a channels-last copy and the transpose back took 3× as long at
+        512², measured)."""
+        out = image.clone(memory_format=torch.contiguous_format)
+        starts = torch.arange(out.shape[0] + 1) * self.hw
+        cuts = torch.searchsorted(self.index, starts).tolist()  # the index is sorted
+        for bi, (lo, hi) in enumerate(itertools.pairwise(cuts)):
+            pixels = self.index[lo:hi] - bi * self.hw
+            out[bi].view(3, self.hw).index_copy_(1, pixels, value[lo:hi].t())
+        return out
 
     def fetch(
         self,

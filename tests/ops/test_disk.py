@@ -305,6 +305,47 @@ def test_two_materials_accept_uses_the_centre_profile_everywhere():
     assert torch.allclose(both[..., : w // 2], whole[..., : w // 2], rtol=1e-12)
 
 
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_one_profile_list_equals_the_single_profile_bitwise(dtype):
+    # a one-profile list takes the general path (its selection, a sum over frames and
+    # profiles); a single profile's one frame skips the sum: the same bits, a masked
+    # fractional stencil included
+    h, w = 10, 12
+    gen = torch.Generator().manual_seed(3)
+    e = torch.rand(1, 3, h, w, generator=gen, dtype=DT).to(dtype)
+    z = (300 * (1 + 0.05 * torch.rand(1, 1, h, w, generator=gen, dtype=DT))).to(dtype)
+    mask = torch.rand(1, 1, h, w, generator=gen, dtype=DT).to(dtype)
+    mask[mask < 0.3] = 0
+    ids = torch.zeros(1, 1, h, w, dtype=torch.int64)
+    p = SumOfGaussians.from_table("skin_deon6")
+    listed = DiskSSS([p], 8)(GBuffer(e, z, FOV, mask=mask, profile_id=ids))
+    single = DiskSSS(p, 8)(GBuffer(e, z, FOV, mask=mask))
+    assert torch.equal(listed, single)
+
+
+@pytest.mark.parametrize("inplace", [False, True])
+def test_batch_with_different_stencils_writes_each_image_its_own_pixels(inplace):
+    # every image of a batch, with its own stencil (an empty one included), equals the same
+    # image alone, and a pixel outside its image's stencil is the input's, bitwise
+    b, h, w = 3, 9, 11
+    gen = torch.Generator().manual_seed(5)
+    e = torch.rand(b, 3, h, w, generator=gen, dtype=DT)
+    z = 300 * (1 + 0.05 * torch.rand(b, 1, h, w, generator=gen, dtype=DT))
+    mask = (torch.rand(b, 1, h, w, generator=gen, dtype=DT) > 0.4).to(DT)
+    mask[1] = 0
+    mask[2, 0, 0, 0] = 0.5  # a fractional strength
+    op = DiskSSS(BurleyNormalized(0.4, 0.8), 8)
+    g = GBuffer(e.clone(), z, FOV, mask=mask)
+    together = op(g, inplace=inplace)
+    if inplace:
+        assert together.data_ptr() == g.diffuse.data_ptr()
+    outside = (mask == 0).expand(b, 3, h, w)
+    assert torch.equal(together[outside], e[outside])
+    for i in range(b):
+        alone = op(GBuffer(e[i : i + 1], z[i : i + 1], FOV, mask=mask[i : i + 1]))
+        assert torch.allclose(together[i : i + 1], alone, rtol=1e-12, atol=0), i
+
+
 def test_profile_id_validation():
     e, ids = _two_materials(6, 8)
     z = torch.full((1, 1, 6, 8), 60.0, dtype=DT)

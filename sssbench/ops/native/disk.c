@@ -41,11 +41,10 @@ int sss_simd_best(void); /* gather.c: the widest level the CPU supports */
  * HDRP's pixels per mm, `u0` the radii, `rcp` the inverse polar densities and `theta0` the
  * angles of the n samples. */
 typedef struct {
-    const void *rgb;       /* (N, 3) channels-last irradiance of the batch */
-    const void *pos;       /* (N, 3) view positions (mm) */
-    const void *accept;    /* (N,) 1 / 0: may a sample land here */
-    const void *area;      /* (N,) surface area (mm^2), or NULL */
-    const void *packed;    /* (N, 8) the pixels' (r, g, b, z, accept, area, 0, 0): the fetch */
+    const void *area;      /* (N,) surface area (mm^2), or NULL (then packed's area is 0) */
+    const void *packed;    /* (N, 8) the pixels' (r, g, b, z, accept, area, x, y): irradiance,
+                              view position (mm), 1 / 0 may a sample land here, surface area
+                              (mm^2): the centre's reads and the fetches, one line each */
     const int64_t *pix;    /* (M,) the centre pixels (flat indices into the batch) */
     const double *turn;    /* (M,) 2 pi x the rotation (radians) */
     const double *shift;   /* (M,) the radial Cranley-Patterson shift, or NULL (none) */

@@ -59,14 +59,14 @@ static inline __attribute__((always_inline)) SCALAR DCAT(fetch, SUFFIX)(
 static inline __attribute__((always_inline)) void DCAT(disk_pixels, SUFFIX)(const disk_args *a,
                                                                             int64_t p0,
                                                                             int64_t p1) {
-    const SCALAR *pos = (const SCALAR *)a->pos;
+    const SCALAR *centre = (const SCALAR *)a->packed;
     SCALAR *num = (SCALAR *)a->num, *den = (SCALAR *)a->den, *mom = (SCALAR *)a->mom;
     for (int64_t p = p0; p < p1; ++p) {
         const int64_t pix = a->pix[p];
         const int64_t base = pix - pix % a->hw, rem = pix % a->hw;
         const int64_t row = rem / a->w, col = rem % a->w;
-        const SCALAR z_cs = pos[3 * pix + 2];
-        const double x_c = (double)pos[3 * pix], y_c = (double)pos[3 * pix + 1];
+        const SCALAR z_cs = centre[8 * pix + 3];
+        const double x_c = (double)centre[8 * pix + 6], y_c = (double)centre[8 * pix + 7];
         const double z_c = (double)z_cs, step = a->step[p];
         double turn, shift;
         disk_noise(a, p, pix, &turn, &shift);
@@ -135,14 +135,14 @@ static inline __attribute__((always_inline)) void DCAT(disk_pixels, SUFFIX)(cons
 static inline __attribute__((always_inline)) void DCAT(hdrp_pixels, SUFFIX)(const disk_args *a,
                                                                             int64_t p0,
                                                                             int64_t p1) {
-    const SCALAR *pos = (const SCALAR *)a->pos, *px = (const SCALAR *)a->packed;
+    const SCALAR *px = (const SCALAR *)a->packed;
     SCALAR *num = (SCALAR *)a->num, *den = (SCALAR *)a->den;
     const int64_t h = a->h, w = a->w;
     for (int64_t p = p0; p < p1; ++p) {
         const int64_t pix = a->pix[p];
         const int64_t base = pix - pix % a->hw, rem = pix % a->hw;
         const int64_t row = rem / w, col = rem % w;
-        const SCALAR z_c = pos[3 * pix + 2];
+        const SCALAR z_c = px[8 * pix + 3];
         const double ppm = a->step[p], turn = a->turn[p];
         SCALAR s_num[3] = {0, 0, 0}, s_den[3] = {0, 0, 0};
         for (int64_t k = 0; k < a->n; ++k) {

@@ -206,7 +206,7 @@ __attribute__((target(ISA_TARGET))) static void DV(disk_vec_)(const disk_args *a
     typedef DV(vd_) vd;
     typedef DV(vl_) vl;
     typedef DV(vs_) vs;
-    const SCALAR *pos = (const SCALAR *)a->pos, *px = (const SCALAR *)a->packed;
+    const SCALAR *px = (const SCALAR *)a->packed;
     SCALAR *num = (SCALAR *)a->num, *den = (SCALAR *)a->den, *mom = (SCALAR *)a->mom;
     const int64_t w = a->w;
     const double hmax = (double)(a->h - 1), wmax = (double)(a->w - 1), per_mm = a->per_mm;
@@ -222,8 +222,8 @@ __attribute__((target(ISA_TARGET))) static void DV(disk_vec_)(const disk_args *a
             const int64_t rem = pix % a->hw;
             base[l] = pix - rem;
             row[l] = (double)(rem / w), col[l] = (double)(rem % w);
-            z_cs[l] = pos[3 * pix + 2];
-            x_c[l] = (double)pos[3 * pix], y_c[l] = (double)pos[3 * pix + 1];
+            z_cs[l] = px[8 * pix + 3];
+            x_c[l] = (double)px[8 * pix + 6], y_c[l] = (double)px[8 * pix + 7];
             z_c[l] = (double)z_cs[l];
             step[l] = a->step[q];
             double turn;
