@@ -176,7 +176,6 @@ multiply after the pass (texturing mode) is the pipeline's texturing stage here.
 from __future__ import annotations
 
 import functools
-import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -190,7 +189,7 @@ from sssbench.ops import _disk_native
 from sssbench.ops._disk_noise import blue_noise_mask
 from sssbench.ops._disk_radial import RadialSampler, radial_sampler
 from sssbench.ops._repr import options_repr
-from sssbench.ops._stencil import active_pixels
+from sssbench.ops._stencil import active_pixels, write_active
 from sssbench.ops.functional import functional
 from sssbench.ops.gather import get_backend
 from sssbench.ops.pass_backends import PASS_BACKENDS_ABOVE, _disk_pass_backend
@@ -773,7 +772,7 @@ class DiskSSS(nn.Module):
         centre = ctx.centre
         strength = ctx.mask[ctx.index][:, None]
         value = centre + strength * (scattered - centre)
-        out = ctx.scatter(gbuffer.diffuse, value.to(ctx.rgb.dtype))
+        out = write_active(gbuffer.diffuse, ctx.index, value.to(ctx.rgb.dtype))
         if inplace:
             return gbuffer.diffuse.copy_(out)
         return out
@@ -873,20 +872,6 @@ class _Pixels:
     def centre(self) -> torch.Tensor:
         """Each active pixel's own irradiance ``(M, 3)`` (read, never written)."""
         return self.rgb[self.index]
-
-    def scatter(self, image: torch.Tensor, value: torch.Tensor) -> torch.Tensor:
-        """A contiguous copy of ``image`` ``(B, 3, H, W)`` with the active pixels set to
-        ``value`` ``(M, 3)`` (in :attr:`index`'s order: by image, then flat pixel): written
-        plane by plane into each image's ``(3, H·W)`` view, no channels-last round trip (the
-        index copy into a channels-last copy and the transpose back took 3× as long at
-        512², measured)."""
-        out = image.clone(memory_format=torch.contiguous_format)
-        starts = torch.arange(out.shape[0] + 1) * self.hw
-        cuts = torch.searchsorted(self.index, starts).tolist()  # the index is sorted
-        for bi, (lo, hi) in enumerate(itertools.pairwise(cuts)):
-            pixels = self.index[lo:hi] - bi * self.hw
-            out[bi].view(3, self.hw).index_copy_(1, pixels, value[lo:hi].t())
-        return out
 
     def fetch(
         self,
