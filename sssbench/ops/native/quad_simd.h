@@ -185,11 +185,11 @@ QFN int QV(quad_split)(const QV(qd) f[6], int64_t n, double cg, const double *xi
     return 1;
 }
 
-/* quad_cell_sums for cells [i0, i0 + k), k <= QVW, one cell per lane */
-__attribute__((target(QISA_TARGET))) static void QV(quad_block)(const quad_args *a, int64_t i0,
-                                                               int64_t k) {
+/* quad_cell_sums for cells [i0, i0 + k), k <= QVW, one cell per lane, with rows (1 or 3) a
+ * constant of each call site (quad_block below) */
+QFN void QV(quad_block_rows)(const quad_args *a, int64_t i0, int64_t k, const int64_t rows) {
     typedef QV(qd) vd;
-    const int64_t m = a->m, rows = a->rows, nb = rows * rows;
+    const int64_t m = a->m, nb = rows * rows;
     const vd zero = {0};
     vd g6[6];
     for (int f = 0; f < 6; ++f) {
@@ -250,6 +250,21 @@ __attribute__((target(QISA_TARGET))) static void QV(quad_block)(const quad_args 
             a->out[(3 + c) * m + i0 + l] = den[c];
         }
     }
+}
+
+/* quad_block_rows compiled once per reconstruction (since 2026-12-05, issue 30): with rows a
+ * constant the loops over the rows and the R^2 neighbours are unrolled and their sums kept in
+ * registers, where a run-time rows left them loops over memory. The same operations in the
+ * same order: bitwise the same sums. Measured on native_cell_sums calls captured from
+ * references (one thread, 25 rounds, the builds in random order each round, one process):
+ * 0.85x the CPU time on the box reference of the 256² face at 0.3 mm/px, 0.91x on the
+ * bilinear one of pores at 1 mm/px. */
+__attribute__((target(QISA_TARGET))) static void QV(quad_block)(const quad_args *a, int64_t i0,
+                                                               int64_t k) {
+    if (a->rows == QUAD_MAX_ROWS)
+        QV(quad_block_rows)(a, i0, k, QUAD_MAX_ROWS);
+    else
+        QV(quad_block_rows)(a, i0, k, 1);
 }
 
 __attribute__((target(QISA_TARGET))) static void QV(quad_run)(const quad_args *a) {
