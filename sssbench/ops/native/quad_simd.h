@@ -256,10 +256,10 @@ QFN void QV(quad_block_rows)(const quad_args *a, int64_t i0, int64_t k, const in
  * constant the loops over the rows and the R^2 neighbours are unrolled, with constant bounds
  * and indices, where a run-time rows left them loops with run-time bounds and indices (the
  * R^2 sums of quad_split are still updated in memory at every row node: perf annotate). The
- * same operations in the same order: bitwise the same sums. Measured on native_cell_sums calls captured from
- * references (one thread, 25 rounds, the builds in random order each round, one process):
- * 0.85x the CPU time on the box reference of the 256² face at 0.3 mm/px, 0.91x on the
- * bilinear one of pores at 1 mm/px. */
+ * same operations in the same order: bitwise the same sums. Measured on native_cell_sums
+ * calls captured from references (one thread, 25 rounds, the builds in random order each
+ * round, one process): 0.85x the CPU time on the box reference of the 256² face at
+ * 0.3 mm/px, 0.91x on the bilinear one of pores at 1 mm/px (docs/numerics.md). */
 __attribute__((target(QISA_TARGET))) static void QV(quad_block)(const quad_args *a, int64_t i0,
                                                                int64_t k) {
     if (a->rows == QUAD_MAX_ROWS)
