@@ -134,7 +134,9 @@ def test_the_logged_runs_of_this_code_at_this_setting_are_pooled(tmp_path):
     log = tmp_path / "perf.jsonl"
     here = "1080p, 2 threads, level avx512"
     this = run_machine()
-    other = dict(this, cpu_model="25/17")  # another generation under the same name
+    # another generation under the same name: a family/model this machine cannot have (a fixed
+    # real one, e.g. "25/17", is this machine on some hosts)
+    other = dict(this, cpu_model=f"{this.get('cpu_model')}-other")
     log_perf_run({"kornia": 1.2, "disk": 15.0}, here, log)
     log_perf_run({"kornia": 0.5}, "1080p, 1 threads, level avx512", log)
     log_perf_run({"kornia": 0.7}, here, log, machine=other)
