@@ -6,6 +6,8 @@ fresh install):
 
 - ``benchmark``: ``sssbench -m +experiment=benchmark`` (the first top command's main job);
 - ``paper`` (``--paper``): ``sssbench -m +experiment=paper_benchmark`` (long: tens of minutes);
+- ``paper_fast`` (``--paper-fast``): the same preset two jobs side by side, without the PNG
+  previews (``hydra/launcher=joblib previews=false``: docs/sweeps.md says where the time goes);
 - ``tests`` (``--tests``): ``python -m pytest -q`` (the second top command's main job).
 
 and prints, for each, the wall time, the CPU time of the child processes and the machine
@@ -16,7 +18,8 @@ README's timing lines from it (the block between :data:`BEGIN` and :data:`END`,
 those lines from the JSON. ``--no-benchmark`` leaves the default benchmark out (e.g. to time
 only the paper benchmark, on an idle machine, at merge time):
 
-    python -m experiments.readme_timings [--paper] [--tests] [--no-benchmark] [--write]
+    python -m experiments.readme_timings [--paper] [--paper-fast] [--tests] [--no-benchmark]
+        [--write]
     python -m experiments.readme_timings --paper --no-benchmark --write   # the paper's cold time
     python -m experiments.readme_timings --readme
 """
@@ -45,6 +48,10 @@ RESULTS = Path(__file__).resolve().parent / "readme_timings.json"
 JOBS = {
     "benchmark": [sys.executable, "-m", "sssbench", "-m", "+experiment=benchmark"],
     "paper": [sys.executable, "-m", "sssbench", "-m", "+experiment=paper_benchmark"],
+    "paper_fast": [
+        *(sys.executable, "-m", "sssbench", "-m", "+experiment=paper_benchmark"),
+        *("hydra/launcher=joblib", "previews=false"),
+    ],
     "tests": [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", str(REPO / "tests")],
 }
 
@@ -62,6 +69,7 @@ IDLE_LOAD = 0.75
 COMMANDS = {
     "benchmark": "sssbench -m +experiment=benchmark",
     "paper": "sssbench -m +experiment=paper_benchmark",
+    "paper_fast": "sssbench -m +experiment=paper_benchmark hydra/launcher=joblib previews=false",
     "tests": "python -m pytest -q",
 }
 
@@ -169,6 +177,14 @@ def readme_block(record: dict[str, object]) -> str:
             "(`python -m experiments.readme_timings --paper --no-benchmark --write`, on an idle "
             "machine)."
         )
+    fast = record.get("paper_fast")
+    if isinstance(fast, dict):
+        when = str(fast["measured_at"])[:10]
+        lines.append(
+            f"Two jobs side by side and no PNG previews ({when}): `{fast['command']}` took "
+            f"{fast['wall_s'] / 60:.0f} min wall, {fast['cpu_s'] / 60:.0f} min CPU, "
+            f"{_conditions(fast, fast.get('machine', top))}."
+        )
     wrap = functools.partial(
         textwrap.fill, width=100, break_long_words=False, break_on_hyphens=False
     )
@@ -191,6 +207,11 @@ def write_readme(record: dict[str, object], path: Path = README) -> bool:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--paper", action="store_true", help="also the paper benchmark (long)")
+    parser.add_argument(
+        "--paper-fast",
+        action="store_true",
+        help="also the paper benchmark under joblib without previews (long)",
+    )
     parser.add_argument("--tests", action="store_true", help="also the test suite")
     parser.add_argument(
         "--no-benchmark", action="store_true", help="leave the default benchmark out"
@@ -209,10 +230,11 @@ def main(argv: list[str] | None = None) -> int:
     names = [
         *([] if args.no_benchmark else ["benchmark"]),
         *(["paper"] if args.paper else []),
+        *(["paper_fast"] if args.paper_fast else []),
         *(["tests"] if args.tests else []),
     ]
     if not names:
-        parser.error("nothing to time (--no-benchmark without --paper or --tests)")
+        parser.error("nothing to time (--no-benchmark without --paper, --paper-fast or --tests)")
     results: dict[str, object] = {"machine": machine()}
     for name in names:
         print(f"timing {name} from an empty cache ...", flush=True)
