@@ -150,6 +150,16 @@ def _conditions(r: dict[str, object], mach: dict[str, object]) -> str:
     )
 
 
+def _minutes_line(what: str, r: dict, top: dict) -> str:
+    """A long job's README line from its record ``r``: ``what``, the date, the command, its wall
+    and CPU minutes and :func:`_conditions` (``top``: the machine when ``r`` names none)."""
+    when = str(r["measured_at"])[:10]
+    return (
+        f"{what} ({when}): `{r['command']}` took {r['wall_s'] / 60:.0f} min wall, "
+        f"{r['cpu_s'] / 60:.0f} min CPU, {_conditions(r, r.get('machine', top))}."
+    )
+
+
 def readme_block(record: dict[str, object]) -> str:
     """The README's timing lines from ``record`` (the JSON), between :data:`BEGIN` and
     :data:`END`: every figure is the record's, every qualifier computed from its load."""
@@ -165,12 +175,7 @@ def readme_block(record: dict[str, object]) -> str:
         )
     paper = record.get("paper")
     if isinstance(paper, dict):
-        when = str(paper["measured_at"])[:10]
-        lines.append(
-            f"The paper benchmark from cold ({when}): `{paper['command']}` took "
-            f"{paper['wall_s'] / 60:.0f} min wall, {paper['cpu_s'] / 60:.0f} min CPU, "
-            f"{_conditions(paper, paper.get('machine', top))}."
-        )
+        lines.append(_minutes_line("The paper benchmark from cold", paper, top))
     else:
         lines.append(
             "The paper benchmark's time from cold has not been measured by the script yet "
@@ -179,12 +184,7 @@ def readme_block(record: dict[str, object]) -> str:
         )
     fast = record.get("paper_fast")
     if isinstance(fast, dict):
-        when = str(fast["measured_at"])[:10]
-        lines.append(
-            f"Two jobs side by side and no PNG previews ({when}): `{fast['command']}` took "
-            f"{fast['wall_s'] / 60:.0f} min wall, {fast['cpu_s'] / 60:.0f} min CPU, "
-            f"{_conditions(fast, fast.get('machine', top))}."
-        )
+        lines.append(_minutes_line("Two jobs side by side and no PNG previews", fast, top))
     wrap = functools.partial(
         textwrap.fill, width=100, break_long_words=False, break_on_hyphens=False
     )
