@@ -5,6 +5,8 @@ of a sweep, and the experiments call it for their grids. It reads as its steps, 
 function in the module of its job:
 
 1. **skip** the point if the run store already holds it with status ``ok`` (unless ``force``);
+   else **claim** it (:mod:`sssbench.store.claims`): while another job of the sweep runs the
+   same point, wait for it, and skip the point if that job stored it ``ok``;
 2. **build** the profile, the pipelines and the scene with the fields they need
    (:func:`sssbench.run.inputs.build`);
 3. **time** the pipeline: ``warmup`` untimed runs, ``repeats`` timed ones (per pass: median /
@@ -90,6 +92,7 @@ from sssbench.run.stochastic import is_stochastic, seed_split
 from sssbench.score import verdict
 from sssbench.score.bias_noise import bias_noise
 from sssbench.score.metrics import METRICS, compute_all, flip_map_over
+from sssbench.store.claims import LEASE_MARGIN_S, LEASE_NO_LIMIT_S, PointClaims
 from sssbench.store.tracking import PassStats, RunStore, config_hash, utc_now
 
 log = logging.getLogger("sssbench")
@@ -169,19 +172,37 @@ def execute(spec: RunSpec, run_dir: str | Path, sweep_dir: str | Path | None = N
         log.info("skip %s: already stored ok in %s (force=true re-runs)", label, store.path)
         write_json(run_dir / "point.json", {**info, "status": "skipped"})
         return RunOutcome("skipped", h)
-    started, t0 = utc_now(), time.perf_counter()
-    status, message, payload, stats = _guarded_measure(spec, run_dir)  # 2.-6.
-    wall = time.perf_counter() - t0
-    metrics = {k: payload[k] for k in METRIC_KEYS if k in payload}
-    write_outputs(run_dir, payload, stats, {"status": status, "config_hash": h, "wall_s": wall})
-    store_run(store, point=point, status=status, message=message, metrics=metrics,  # 7. record
-              payload=payload, stats=stats, wall=wall, run_dir=run_dir, sweep_dir=sweep_dir,
-              started=started)  # fmt: skip
+    claims = PointClaims(store, lease_s=claim_lease_s(spec))
+    since = utc_now() if spec.force else ""  # forced: only a concurrent job's row counts
+    if claims.wait(h, since, label) == "done":  # 1. another job stored it while we waited
+        log.info("skip %s: stored ok by a concurrent job in %s", label, store.path)
+        write_json(run_dir / "point.json", {**info, "status": "skipped"})
+        return RunOutcome("skipped", h)
+    try:
+        started, t0 = utc_now(), time.perf_counter()
+        status, message, payload, stats = _guarded_measure(spec, run_dir)  # 2.-6.
+        wall = time.perf_counter() - t0
+        metrics = {k: payload[k] for k in METRIC_KEYS if k in payload}
+        write_outputs(run_dir, payload, stats, {"status": status, "config_hash": h, "wall_s": wall})
+        store_run(store, point=point, status=status, message=message, metrics=metrics,  # 7.
+                  payload=payload, stats=stats, wall=wall, run_dir=run_dir, sweep_dir=sweep_dir,
+                  started=started)  # fmt: skip
+    finally:
+        claims.release(h)
     write_json(run_dir / "point.json", {**info, "status": status, "error": message or None})
     if spec.mlflow:
         mirror(spec, point, metrics, payload, run_dir, status, h, sweep_dir)
     log_outcome(label, status, message, payload, len(stats), wall)
     return RunOutcome(status, h, message, metrics)
+
+
+def claim_lease_s(spec: RunSpec) -> float:
+    """How long a claim on ``spec``'s point holds for a job on another host (s;
+    :mod:`sssbench.store.claims`): the run's time limit plus a margin for building, scoring and
+    recording, or a long default for a run without a limit."""
+    if spec.timeout_s:
+        return float(spec.timeout_s) + LEASE_MARGIN_S
+    return LEASE_NO_LIMIT_S
 
 
 def _guarded_measure(
