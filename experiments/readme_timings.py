@@ -105,8 +105,9 @@ def machine() -> dict[str, object]:
     }
 
 
-def measure(name: str) -> dict[str, object]:
-    """Run job ``name`` from an empty folder and cache; its wall and CPU seconds."""
+def measure(name: str, log_dir: Path | None = None) -> dict[str, object]:
+    """Run job ``name`` from an empty folder and cache; its wall and CPU seconds (``log_dir``:
+    also keep the job's output there, as ``<name>.log``)."""
     with tempfile.TemporaryDirectory(prefix=f"sssbench-timing-{name}-") as tmp:
         env = dict(os.environ)
         env |= {"SSSBENCH_CACHE_DIR": f"{tmp}/cache", "MPLCONFIGDIR": f"{tmp}/mpl"}
@@ -121,6 +122,9 @@ def measure(name: str) -> dict[str, object]:
         wall = time.perf_counter() - t0
         cpu1 = resource.getrusage(resource.RUSAGE_CHILDREN)
         load_after = os.getloadavg()
+    if log_dir is not None:
+        log_dir.mkdir(parents=True, exist_ok=True)
+        (log_dir / f"{name}.log").write_text(proc.stdout)
     if proc.returncode != 0:
         print(proc.stdout[-3000:], file=sys.stderr)
     return {
@@ -222,6 +226,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--readme", action="store_true", help=f"only rewrite the README's lines from {RESULTS.name}"
     )
+    parser.add_argument(
+        "--log", type=Path, metavar="DIR", help="keep each job's output in DIR/<job>.log"
+    )
     args = parser.parse_args(argv)
     if args.readme:
         changed = write_readme(_json.loads(RESULTS.read_text()))
@@ -238,7 +245,7 @@ def main(argv: list[str] | None = None) -> int:
     results: dict[str, object] = {"machine": machine()}
     for name in names:
         print(f"timing {name} from an empty cache ...", flush=True)
-        r = measure(name)
+        r = measure(name, args.log)
         results[name] = r
         print(
             f"{name}: {r['wall_s']:.0f} s wall, {r['cpu_s']:.0f} s CPU, exit {r['exit_code']}; "
