@@ -5,6 +5,7 @@ is taken over; and two processes executing the same point at once run it once.""
 from __future__ import annotations
 
 import multiprocessing as mp
+import os
 import sqlite3
 import subprocess
 import sys
@@ -75,8 +76,6 @@ def test_a_dead_holder_on_this_host_is_taken_over(tmp_path):
 
 def test_a_live_holder_on_this_host_keeps_its_claim(tmp_path):
     store = RunStore(tmp_path / "s.sqlite")
-    import os
-
     _insert_claim(store, claims_mod.socket.gethostname(), os.getppid(), time.time() + 3600)
     assert PointClaims(store, 60.0).claim(H) == "busy"
 
