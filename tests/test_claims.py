@@ -4,6 +4,7 @@ is taken over; and two processes executing the same point at once run it once.""
 
 from __future__ import annotations
 
+import logging
 import multiprocessing as mp
 import os
 import sqlite3
@@ -11,6 +12,7 @@ import subprocess
 import sys
 import threading
 import time
+import types
 
 import pytest
 from specs import small_spec
@@ -85,6 +87,38 @@ def test_a_holder_on_another_host_is_live_until_its_lease_ends(tmp_path, expires
     store = RunStore(tmp_path / "s.sqlite")
     _insert_claim(store, "another-host.invalid", 1, time.time() + expires_in)
     assert PointClaims(store, 60.0).claim(H) == answer
+
+
+def test_a_long_wait_says_so_every_wait_log_s(tmp_path, monkeypatch, caplog):
+    """A job waiting on a holder on another host logs when it starts and every WAIT_LOG_S after
+    (on a fake clock: 0.25 s polls, a line per second), naming the holder and its lease end, and
+    claims the point once the holder is gone."""
+    store = RunStore(tmp_path / "s.sqlite")
+    _insert_claim(store, "another-host.invalid", 1, time.time() + 3600)
+    clock = {"now": 0.0, "sleeps": 0}
+
+    def sleep(s: float) -> None:
+        clock["now"] += s
+        clock["sleeps"] += 1
+        if clock["sleeps"] == 13:  # 3.25 s: the holder finishes without storing the point
+            with sqlite3.connect(store.path) as conn:
+                conn.execute("DELETE FROM claims WHERE config_hash = ?", (H,))
+
+    fake = types.SimpleNamespace(
+        time=time.time, strftime=time.strftime, localtime=time.localtime,
+        monotonic=lambda: clock["now"], sleep=sleep,
+    )  # fmt: skip
+    monkeypatch.setattr(claims_mod, "time", fake)
+    monkeypatch.setattr(claims_mod, "POLL_S", 0.25)
+    monkeypatch.setattr(claims_mod, "WAIT_LOG_S", 1.0)
+    with caplog.at_level(logging.INFO, logger=claims_mod.log.name):
+        assert PointClaims(store, 60.0).wait(H, label="the point") == "mine"
+    lines = [r.getMessage() for r in caplog.records if "waiting for the point" in r.getMessage()]
+    assert len(lines) == 4, lines  # the start, then after 1, 2 and 3 s
+    assert lines[0].startswith("waiting for the point: the same point is being run by other")
+    for line, waited in zip(lines[1:], (1, 2, 3), strict=True):
+        assert line.startswith(f"still waiting for the point after {waited} s: held by other")
+    assert all("another-host.invalid" in line and "lapses at" in line for line in lines)
 
 
 def test_bad_arguments_are_named(tmp_path):

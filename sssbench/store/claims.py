@@ -26,8 +26,10 @@ plus ``lease_s`` (the runner gives the run's time limit plus :data:`LEASE_MARGIN
 without releasing blocks its point for at most the lease; a heartbeat would shorten that, at
 the cost of a thread writing the store during every timed run.
 
-The table ``claims`` is created on first use (``CREATE TABLE IF NOT EXISTS``); readers of the
-store (``readonly=True``) never touch it.
+The table ``claims`` is created on first use (``CREATE TABLE IF NOT EXISTS``, once per
+:class:`PointClaims`); readers of the store (``readonly=True``) never touch it. A waiting job
+logs one line when it starts waiting and one every :data:`WAIT_LOG_S` seconds after, each naming
+the holder, how long it has waited and, for a holder on another host, when its lease ends.
 """
 
 from __future__ import annotations
@@ -41,7 +43,9 @@ from typing import Literal
 
 from sssbench.store.tracking import RunStore, utc_now
 
-__all__ = ["PointClaims", "ClaimAnswer", "LEASE_MARGIN_S", "LEASE_NO_LIMIT_S", "POLL_S"]
+__all__ = [
+    "PointClaims", "ClaimAnswer", "LEASE_MARGIN_S", "LEASE_NO_LIMIT_S", "POLL_S", "WAIT_LOG_S",
+]  # fmt: skip
 
 log = logging.getLogger(__name__)
 
@@ -53,6 +57,9 @@ LEASE_MARGIN_S = 600.0
 LEASE_NO_LIMIT_S = 6 * 3600.0
 #: how often a waiting job asks again (s)
 POLL_S = 0.25
+#: how often a waiting job says it is still waiting (s): a wait on a holder on another host
+#: that died can last up to its lease, and a log that says nothing for that long looks hung
+WAIT_LOG_S = 60.0
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS claims (
@@ -105,6 +112,13 @@ class PointClaims:
         self.host = socket.gethostname()
         self.pid = os.getpid()
         self.owner = owner or f"{self.host}:{self.pid}:{uuid.uuid4().hex[:8]}"
+        self._schema_ready = False  # the table exists (created by this object)
+
+    def _schema(self, conn) -> None:
+        """Create the ``claims`` table unless this object already has."""
+        if not self._schema_ready:
+            conn.execute(_SCHEMA)
+            self._schema_ready = True
 
     def claim(self, hash_: str, since: str = "") -> ClaimAnswer:
         """Claim the point ``hash_`` in one transaction: ``"done"`` if an ``ok`` row of it
@@ -113,7 +127,7 @@ class PointClaims:
 
         def write() -> ClaimAnswer:
             with self.store._connect() as conn:
-                conn.execute(_SCHEMA)
+                self._schema(conn)
                 conn.execute("BEGIN IMMEDIATE")
                 try:
                     answer = self._claim_in(conn, hash_, since)
@@ -151,31 +165,56 @@ class PointClaims:
 
     def holder(self, hash_: str) -> str | None:
         """The owner of the claim on ``hash_``, or ``None`` (live or not)."""
+        row = self._holder_row(hash_)
+        return None if row is None else row[0]
 
-        def read() -> str | None:
+    def _holder_row(self, hash_: str) -> tuple[str, str, float] | None:
+        """``(owner, host, lease end in Unix s)`` of the claim on ``hash_``, or ``None``."""
+
+        def read() -> tuple[str, str, float] | None:
             with self.store._connect() as conn:
-                conn.execute(_SCHEMA)
+                self._schema(conn)
                 row = conn.execute(
-                    "SELECT owner FROM claims WHERE config_hash = ?", (hash_,)
+                    "SELECT owner, host, expires FROM claims WHERE config_hash = ?", (hash_,)
                 ).fetchone()
-                return None if row is None else str(row["owner"])
+                return None if row is None else (str(row[0]), str(row[1]), float(row[2]))
 
         return self.store._retry(read)
 
+    def _log_wait(self, what: str, hash_: str, waited_s: float | None) -> None:
+        """One line about a wait on ``hash_`` (``what`` names the point): its holder, for one
+        on another host when its lease ends, and ``waited_s`` so far (``None``: starting)."""
+        row = self._holder_row(hash_)
+        holder = "another job" if row is None else row[0]
+        lease = ""
+        if row is not None and row[1] != self.host:
+            end = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(row[2]))
+            lease = f" (on host {row[1]}: if that job died, its claim lapses at {end})"
+        if waited_s is None:
+            log.info("waiting for %s: the same point is being run by %s%s", what, holder, lease)
+        else:
+            log.info(
+                "still waiting for %s after %.0f s: held by %s%s", what, waited_s, holder, lease
+            )
+
     def wait(self, hash_: str, since: str = "", label: str = "") -> ClaimAnswer:
         """:meth:`claim` until the answer is ``"mine"`` or ``"done"`` (every :data:`POLL_S`
-        seconds while ``"busy"``; one log line names the holder); ``label`` names the point
-        in that line."""
+        seconds while ``"busy"``), logging one line when the wait starts and one every
+        :data:`WAIT_LOG_S` seconds after (each names the holder; module doc); ``label`` names
+        the point in them."""
         answer = self.claim(hash_, since)
-        if answer == "busy":
-            log.info(
-                "waiting for %s: the same point is being run by %s",
-                label or hash_,
-                self.holder(hash_),
-            )
+        if answer != "busy":
+            return answer
+        what = label or hash_
+        self._log_wait(what, hash_, None)
+        start = last = time.monotonic()
         while answer == "busy":
             time.sleep(POLL_S)
             answer = self.claim(hash_, since)
+            now = time.monotonic()
+            if answer == "busy" and now - last >= WAIT_LOG_S:
+                self._log_wait(what, hash_, now - start)
+                last = now
         return answer
 
     def release(self, hash_: str) -> None:
@@ -183,7 +222,7 @@ class PointClaims:
 
         def write() -> None:
             with self.store._connect() as conn:
-                conn.execute(_SCHEMA)
+                self._schema(conn)
                 conn.execute(
                     "DELETE FROM claims WHERE config_hash = ? AND owner = ?", (hash_, self.owner)
                 )
