@@ -12,6 +12,7 @@ import pytest
 
 from experiments.perf import (
     DISK_SAMPLES,
+    covered_fixed_sentence,
     disk_line,
     median_ratio,
     ratio_text,
@@ -175,3 +176,18 @@ def test_the_disk_line_takes_the_pooled_verdict():
     assert ok == "met" and line.endswith("— **met**.")
     line, ok = disk_line(d, "512²", pooled=("; over the 2 logged runs", "not met"))
     assert ok == "not met" and line.endswith("); over the 2 logged runs — **not met**.")
+
+
+@pytest.mark.parametrize("empty_cold, over", [(0.9, True), (0.3, False)])
+def test_covered_fixed_sentence_computes_its_figures(empty_cold, over):
+    """The covered-pixels decomposition: the target's allowance is 1.5 × share × the close-up's
+    time, the call's own cost is compared with it, and the rest is the far call's work over its
+    share (hand-computed: share 0.02, close-up 20 ms -> allowance 0.60 ms)."""
+    fixed = {("far", "cold"): 1.1, ("empty", "cold"): empty_cold,
+             ("far", "warm"): 0.5, ("empty", "warm"): 0.07}  # fmt: skip
+    text = covered_fixed_sentence(fixed, close_ms=20.0, share=0.02)
+    assert "allowance of 0.60 ms" in text
+    assert f"{empty_cold / 0.6:.2f}× the target's allowance" in text
+    assert ("more than" in text) == over and ("less than" in text) == (not over)
+    work = 1.1 - empty_cold
+    assert f"{work:.2f} ms, is {work / 20.0 / 0.02:.2f}× its share" in text
