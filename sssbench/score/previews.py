@@ -12,7 +12,7 @@ from pathlib import Path
 
 import torch
 
-__all__ = ["preview_strip", "relative_error", "MIN_HEIGHT_PX"]
+__all__ = ["preview_strip", "relative_error", "strip_layout", "MIN_HEIGHT_PX"]
 
 #: smallest height of the strip's panels on screen (pixels)
 MIN_HEIGHT_PX = 256
@@ -26,6 +26,37 @@ def relative_error(result: torch.Tensor, reference: torch.Tensor) -> torch.Tenso
     return err / (peak if peak > 0 else 1.0)
 
 
+#: the strip's margins in pixels: above the panels (the title and the panel labels), between
+#: panels, around them, and the colour bar's width and the room for its tick labels
+_TOP_PX, _GAP_PX, _EDGE_PX, _BAR_PX, _TICKS_PX = 44, 10, 10, 16, 76
+
+
+def strip_layout(h: int, w: int) -> dict[str, object]:
+    """Where :func:`preview_strip` puts things for an ``h × w`` image, in pixels of the
+    strip.
+
+    Returns:
+        ``scale``: each image pixel is drawn as ``scale × scale`` strip pixels, the smallest
+        integer that makes a panel at least :data:`MIN_HEIGHT_PX` high unless that makes it
+        wider than 2048 px (1 for larger images; never resampled); ``size``: ``(height,
+        width)`` of the strip; ``panels``: the ``(row, column)`` of the top-left pixel of the
+        result, reference and error panels, each ``(h · scale, w · scale)`` inside a 1-pixel
+        black frame; ``bar``: ``(row, column, height, width)`` of the colour bar."""
+    # ceil(MIN_HEIGHT_PX / h), but a panel no wider than 2048 px for a flat image (1 × 4096)
+    scale = max(1, min(-(-MIN_HEIGHT_PX // h), 2048 // w))
+    ph, pw = h * scale, w * scale
+    row = _TOP_PX + 1  # inside the frame
+    cols = [_EDGE_PX + 1 + i * (pw + 2 + _GAP_PX) for i in range(3)]
+    bar_col = cols[2] + pw + 1 + _GAP_PX
+    width = bar_col + _BAR_PX + _TICKS_PX
+    return {
+        "scale": scale,
+        "size": (row + ph + 1 + _EDGE_PX, width),
+        "panels": [(row, c) for c in cols],
+        "bar": (row, bar_col, ph, _BAR_PX),
+    }
+
+
 def preview_strip(
     run_dir: Path,
     result: torch.Tensor,
@@ -36,6 +67,12 @@ def preview_strip(
 ) -> list[str]:
     """Write ``result.png``, ``reference.png``, ``error.png`` (native resolution) and
     ``preview.png`` (the labelled strip with a colour bar); return their file names.
+
+    The strip's panels are the three images' own pixels, each drawn as an integer block
+    (:func:`strip_layout`: never resampled), pasted into a matplotlib figure that draws only
+    the text labels and one colour-bar axes. Until 2026-12-05 it was three matplotlib axes
+    with constrained layout, which resampled each panel to the layout's size and cost about
+    0.3 s of CPU per run (axes, ticks, layout, resampling; docs/sweeps.md).
 
     Args:
         run_dir: output directory.
@@ -48,39 +85,53 @@ def preview_strip(
 
     matplotlib.use("Agg")
     import matplotlib.image
-    import matplotlib.pyplot as plt
+    import numpy as np
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import Normalize
+    from matplotlib.figure import Figure
 
     from sssbench.score.metrics import tonemap
 
     run_dir = Path(run_dir)
-    images = {}
+    pixels = {}  # name -> (H, W, 4) uint8, as matplotlib's imsave converts them
     for name, img in (("result", result), ("reference", reference)):
         rgb = tonemap(img[:1].double().clamp(min=0)).squeeze(0).permute(1, 2, 0).clamp(0, 1)
-        images[name] = rgb.numpy()
-        matplotlib.image.imsave(run_dir / f"{name}.png", images[name])
+        pixels[name] = ScalarMappable().to_rgba(rgb.numpy(), bytes=True)
     rel = relative_error(result, reference).numpy()
     vmax = error_scale if error_scale and error_scale > 0 else max(float(rel.max()), 1e-12)
-    matplotlib.image.imsave(run_dir / "error.png", rel, cmap="magma", vmin=0.0, vmax=vmax)
+    colour = ScalarMappable(Normalize(0.0, vmax), cmap="magma")
+    pixels["error"] = colour.to_rgba(rel, bytes=True)
+    for name, rgba in pixels.items():
+        matplotlib.image.imsave(run_dir / f"{name}.png", rgba)
 
     h, w = rel.shape
-    scale = max(1.0, MIN_HEIGHT_PX / h)
+    lay = strip_layout(h, w)
+    k = lay["scale"]
+    height, width = lay["size"]
     dpi = 100
-    fig_h = h * scale / dpi + 0.6
-    fig_w = 3 * w * scale / dpi + 1.2
-    fig, axes = plt.subplots(1, 3, figsize=(fig_w, fig_h), dpi=dpi, constrained_layout=True)
-    for ax, (label, data) in zip(
-        axes, (("result", images["result"]), ("reference", images["reference"])), strict=False
-    ):
-        ax.imshow(data, interpolation="nearest")
-        ax.set_title(label, fontsize=9)
-    im = axes[2].imshow(rel, cmap="magma", vmin=0.0, vmax=vmax, interpolation="nearest")
-    axes[2].set_title("|error| / reference peak", fontsize=9)
-    for ax in axes:
-        ax.set_xticks([])
-        ax.set_yticks([])
-    fig.colorbar(im, ax=axes[2], fraction=0.046, pad=0.02)
+    fig = Figure(figsize=(width / dpi, height / dpi), dpi=dpi)
+    canvas = FigureCanvasAgg(fig)
+
+    def at(row: float, col: float) -> tuple[float, float]:
+        """Figure fraction of the strip pixel (row from the top, column from the left)."""
+        return col / width, 1.0 - row / height
+
+    labels = ("result", "reference", "|error| / reference peak")
+    for (r, c), label in zip(lay["panels"], labels, strict=True):
+        fig.text(*at(r - 4, c + w * k / 2), label, ha="center", va="bottom", fontsize=9)
     if title:
-        fig.suptitle(title, fontsize=10)
-    fig.savefig(run_dir / "preview.png")
-    plt.close(fig)
+        fig.text(*at(4, width / 2), title, ha="center", va="top", fontsize=10)
+    br, bc, bh, bw = lay["bar"]
+    x0, y1 = at(br, bc)
+    x1, y0 = at(br + bh, bc + bw)
+    fig.colorbar(colour, cax=fig.add_axes((x0, y0, x1 - x0, y1 - y0)))
+    canvas.draw()  # the labels and the colour bar; the panels are pasted in below
+    strip = np.array(canvas.buffer_rgba(), dtype=np.uint8)
+    if strip.shape[:2] != (height, width):  # Agg sizes the canvas from figsize · dpi
+        raise RuntimeError(f"preview canvas {strip.shape[:2]}, expected {(height, width)}")
+    for (r, c), name in zip(lay["panels"], ("result", "reference", "error"), strict=True):
+        strip[r - 1 : r + h * k + 1, c - 1 : c + w * k + 1] = (0, 0, 0, 255)  # the frame
+        strip[r : r + h * k, c : c + w * k] = pixels[name].repeat(k, 0).repeat(k, 1)
+    matplotlib.image.imsave(run_dir / "preview.png", strip)
     return ["result.png", "reference.png", "error.png", "preview.png"]
