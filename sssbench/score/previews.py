@@ -127,9 +127,12 @@ def preview_strip(
     x1, y0 = at(br + bh, bc + bw)
     fig.colorbar(colour, cax=fig.add_axes((x0, y0, x1 - x0, y1 - y0)))
     canvas.draw()  # the labels and the colour bar; the panels are pasted in below
-    strip = np.array(canvas.buffer_rgba(), dtype=np.uint8)
-    if strip.shape[:2] != (height, width):  # Agg sizes the canvas from figsize · dpi
-        raise RuntimeError(f"preview canvas {strip.shape[:2]}, expected {(height, width)}")
+    drawn = np.asarray(canvas.buffer_rgba())
+    # Agg sizes its canvas from figsize · dpi, a float product that a matplotlib version may
+    # truncate one pixel short: the strip keeps the layout's size either way
+    strip = np.full((height, width, 4), 255, dtype=np.uint8)
+    rows, cols = min(height, drawn.shape[0]), min(width, drawn.shape[1])
+    strip[:rows, :cols] = drawn[:rows, :cols]
     for (r, c), name in zip(lay["panels"], ("result", "reference", "error"), strict=True):
         strip[r - 1 : r + h * k + 1, c - 1 : c + w * k + 1] = (0, 0, 0, 255)  # the frame
         strip[r : r + h * k, c : c + w * k] = pixels[name].repeat(k, 0).repeat(k, 1)

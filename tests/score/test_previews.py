@@ -70,3 +70,26 @@ def test_a_given_error_scale_sets_the_colours(tmp_path):
     lut = colormaps["magma"].resampled(256)
     idx = np.clip((rel / 10.0).numpy() * 256, 0, 255).astype(int)
     np.testing.assert_allclose(err, lut(idx)[..., :3], atol=1 / 255)
+
+
+def test_a_canvas_one_pixel_short_still_gives_the_layout(tmp_path, monkeypatch):
+    """Agg sizes its canvas from figsize · dpi, a float product (0.29 · 100 = 28.999...) that
+    some matplotlib versions truncate: a canvas one pixel short on both sides must still give
+    the layout's strip with every panel in place (here simulated by cropping the buffer)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    full = FigureCanvasAgg.buffer_rgba
+    monkeypatch.setattr(
+        FigureCanvasAgg, "buffer_rgba", lambda self: np.asarray(full(self))[:-1, :-1]
+    )
+    result, reference = _pair(24, 24)
+    preview_strip(tmp_path, result, reference)
+    strip = matplotlib.image.imread(tmp_path / "preview.png")
+    lay = strip_layout(24, 24)
+    assert strip.shape[:2] == lay["size"]
+    k = lay["scale"]
+    (r, c) = lay["panels"][2]
+    native = matplotlib.image.imread(tmp_path / "error.png")
+    np.testing.assert_array_equal(
+        strip[r : r + 24 * k, c : c + 24 * k], native.repeat(k, 0).repeat(k, 1)
+    )
