@@ -17,6 +17,12 @@ from sssbench.score.metrics import tonemap  # noqa: E402
 from sssbench.score.previews import MIN_HEIGHT_PX, preview_strip, strip_layout  # noqa: E402
 
 
+def _magma(rel: torch.Tensor, top: float) -> np.ndarray:
+    """The 8-bit colours matplotlib's 256-entry magma gives ``rel`` on [0, top], as floats."""
+    idx = np.clip((rel / top).numpy() * 256, 0, 255).astype(int)
+    return colormaps["magma"].resampled(256)(idx)[..., :3]
+
+
 def _pair(h: int, w: int) -> tuple[torch.Tensor, torch.Tensor]:
     gen = torch.Generator().manual_seed(h * 1000 + w)
     reference = torch.rand(1, 3, h, w, generator=gen, dtype=torch.float64) * 2.0
@@ -50,10 +56,8 @@ def test_the_strip_holds_each_native_image_pixel_for_pixel(tmp_path, h, w):
     np.testing.assert_array_equal(np.round(got * 255), np.floor(want * 255))
     # the error map's colours: magma over [0, the run's maximum] of |result - ref| / ref peak
     rel = (result - reference).abs().mean(1)[0] / reference.max()
-    lut = colormaps["magma"].resampled(256)
-    idx = np.clip((rel / rel.max()).numpy() * 256, 0, 255).astype(int)
     err = matplotlib.image.imread(tmp_path / "error.png")[..., :3]
-    np.testing.assert_allclose(err, lut(idx)[..., :3], atol=1 / 255)
+    np.testing.assert_allclose(err, _magma(rel, float(rel.max())), atol=1 / 255)
     # the colour bar: the magma ramp inside its box, brightest at the top (a flat image's
     # strip, 2 px high, has no room for one to test)
     br, bc, bh, bw = lay["bar"]
@@ -67,9 +71,7 @@ def test_a_given_error_scale_sets_the_colours(tmp_path):
     preview_strip(tmp_path, result, reference, error_scale=10.0)  # far above every error
     err = matplotlib.image.imread(tmp_path / "error.png")[..., :3]
     rel = (result - reference).abs().mean(1)[0] / reference.max()
-    lut = colormaps["magma"].resampled(256)
-    idx = np.clip((rel / 10.0).numpy() * 256, 0, 255).astype(int)
-    np.testing.assert_allclose(err, lut(idx)[..., :3], atol=1 / 255)
+    np.testing.assert_allclose(err, _magma(rel, 10.0), atol=1 / 255)
 
 
 def test_a_canvas_one_pixel_short_still_gives_the_layout(tmp_path, monkeypatch):
