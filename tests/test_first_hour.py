@@ -557,7 +557,7 @@ console.log(a+' '+b);
 
 
 def test_the_native_library_build_is_announced(tmp_path, monkeypatch, caplog):
-    # the first run from an empty cache compiles the native gather (about 35 s of CPU with gcc 12):
+    # the first run from an empty cache compiles the native gather (about 28 s of CPU with gcc 12):
     # one line says so, instead of a silent pause (issue 28, point 6: nothing silent for long)
     import logging
 
@@ -573,10 +573,12 @@ def test_the_native_library_build_is_announced(tmp_path, monkeypatch, caplog):
     monkeypatch.setattr(native.subprocess, "run", compile_nothing)
     with caplog.at_level(logging.INFO, logger="sssbench"):
         path = native._build("cc")
-    assert len(calls) == 1 and path.parent == tmp_path / "native"
+    # each of the library's units compiled on its own, then one link
+    assert len(calls) == len(native._GATHER_UNITS) + 1 and path.parent == tmp_path / "native"
+    assert [c.count("-c") for c in calls] == [1] * len(native._GATHER_UNITS) + [0]
     (line,) = [r.getMessage() for r in caplog.records if "native" in r.getMessage()]
     assert line.startswith("building the native gather library with cc")
     with caplog.at_level(logging.INFO, logger="sssbench"):
         caplog.clear()
         assert native._build("cc") == path  # cached: built once, announced once
-    assert not caplog.records and len(calls) == 1
+    assert not caplog.records and len(calls) == len(native._GATHER_UNITS) + 1

@@ -10,8 +10,11 @@ the source and the compiler, written atomically so that parallel sweep workers m
 Python package beyond the declared ones is needed; on a machine without a C compiler
 :func:`library` returns ``None`` once with a warning and the gather runs its torch loop.
 ``disk.c`` (with ``disk_body.h`` and the vectorised ``disk_simd.h``), the disk's sample loop
-(:mod:`sssbench.ops._disk_native`), is a second translation unit of the same command and
-library, at the same SIMD level.
+(:mod:`sssbench.ops._disk_native`), is another translation unit of the same library, at the
+same SIMD level. The library's units (``gather.c``'s float32 and float64 halves, ``disk.c``:
+:data:`_GATHER_UNITS`) are compiled side by side, one compiler per core this process may use,
+and linked: on 2 cores the build takes 15-17 s of wall time instead of 26 s (its CPU time,
+about 28 s with gcc 12, is the same).
 ``quad.c`` (with ``quad_simd.h``), the Gauss–Legendre cell sums of the exact reference's near
 field (:mod:`sssbench.ops._reference_quad`), is a library of its own (:func:`quad_library`):
 it builds in about a second, so a reference never waits for the tap loop's long build.
@@ -42,6 +45,7 @@ import shutil
 import subprocess
 import tempfile
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 __all__ = [
@@ -70,9 +74,20 @@ _SOURCES = (
     "disk_simd.h",
     "exp2_32.h",
 )
+#: the gather library's translation units, each a source and its ``-D`` flags: ``gather.c``
+#: compiled twice (``SSS_PART`` 1: the shared state and the float32 loops, 2: the float64
+#: loops; their compile times are about equal, 12 s each with gcc 12), then the disk's loop;
+#: the longest first, so that on 2 cores the short one follows whichever ends first
+_GATHER_UNITS: tuple[tuple[str, ...], ...] = (
+    ("gather.c", "-DSSS_PART=1"),
+    ("gather.c", "-DSSS_PART=2"),
+    ("disk.c",),
+)
 #: the reference quadrature's library (:func:`quad_library`): its sources, its one unit
 _QUAD_SOURCES = ("quad.c", "quad_simd.h", "exp2_32.h")
-_FLAGS = ["-O3", "-fPIC", "-shared", "-ffp-contract=off", "-fno-math-errno", "-Wno-psabi"]
+_QUAD_UNITS: tuple[tuple[str, ...], ...] = (("quad.c",),)
+#: each unit's compile flags (the link adds ``-shared`` and the libraries)
+_FLAGS = ["-O3", "-fPIC", "-ffp-contract=off", "-fno-math-errno", "-Wno-psabi"]
 _STATE: dict[str, object] = {"lib": None, "tried": False}
 _QUAD_STATE: dict[str, object] = {"lib": None, "tried": False}
 _BUILD_TIMEOUT_S = 1800
@@ -93,20 +108,48 @@ def _compiler() -> str | None:
     return None
 
 
+def _cores() -> int:
+    """The cores this process may run on (its affinity, else the machine's count)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
+def _compile_and_link(cc: str, units: tuple[tuple[str, ...], ...], out: str, folder: Path) -> None:
+    """Compile each of ``units`` (a source and its ``-D`` flags) to an object in a temporary
+    folder inside ``folder``, at most :func:`_cores` compilers at a time, and link the objects
+    into the shared library ``out``. A failing compiler raises its ``CalledProcessError`` (its
+    ``stderr`` is what the fallback warning shows) once the units already started have ended."""
+    run = {"check": True, "capture_output": True, "text": True, "timeout": _BUILD_TIMEOUT_S}
+    with tempfile.TemporaryDirectory(dir=folder) as objects:
+        paths = [str(Path(objects) / f"unit{i}.o") for i in range(len(units))]
+        cmds = [
+            [cc, *_FLAGS, *flags, "-c", "-o", path, str(_HERE / source)]
+            for (source, *flags), path in zip(units, paths, strict=True)
+        ]
+        with ThreadPoolExecutor(max(1, min(len(cmds), _cores()))) as compilers:
+            done = [compilers.submit(subprocess.run, cmd, **run) for cmd in cmds]
+        for each in done:
+            each.result()  # the first failure, in the units' order
+        subprocess.run([cc, "-shared", "-o", out, *paths, "-lm", "-lpthread"], **run)
+
+
 def _build(
     cc: str,
     fresh: bool = False,
     sources: tuple[str, ...] = _SOURCES,
-    units: tuple[str, ...] = ("gather.c", "disk.c"),  # disk.c: the disk's loop
+    units: tuple[tuple[str, ...], ...] = _GATHER_UNITS,
     prefix: str = "sssgather",
 ) -> Path:
-    """The library of ``units`` (``sources``: every file it is built from) for the current
-    sources and ``cc``: the cached one, or a new build (``fresh``: build anew even when one is
-    cached, replacing it atomically)."""
+    """The library of ``units`` (each a source and its ``-D`` flags; ``sources``: every file
+    it is built from) for the current sources and ``cc``: the cached one, or a new build
+    (``fresh``: build anew even when one is cached, replacing it atomically)."""
     digest = hashlib.sha256()
     for name in sources:
         digest.update((_HERE / name).read_bytes())
     digest.update(" ".join([cc, *_FLAGS]).encode())
+    digest.update(repr(units).encode())  # how the sources are split into units
     name = f"{prefix}-{digest.hexdigest()[:16]}.so"
     fallback = Path(tempfile.gettempdir()) / f"sssbench-native-{os.getuid()}"
     for folder in (cache_dir(), fallback):  # an unwritable home: the temp dir
@@ -125,19 +168,23 @@ def _build(
     target = folder / name
     os.close(fd)
     try:
-        cmd = [cc, *_FLAGS, "-o", tmp, *(str(_HERE / u) for u in units), "-lm", "-lpthread"]
+        compilers = max(1, min(len(units), _cores()))
         log.info(  # the first run's longest silence otherwise (issue 28: nothing silent for long)
-            "building the native %s library with %s into %s (once per source version: "
-            "about 35 s of CPU with gcc 12 for the gather library, 1 s for the quadrature's)",
+            "building the native %s library with %s into %s (once per source version: %s)",
             "reference quadrature" if prefix == "sssquad" else "gather",
             cc,
             folder,
+            "about a second"
+            if prefix == "sssquad"
+            else "about 28 s of CPU with gcc 12, "
+            + (f"{compilers} compilers side by side" if compilers > 1 else "one compiler"),
         )
-        # once per source version and user (cached): 33 s of CPU with gcc 12 on a 2-core AMD
-        # EPYC (83 s before each loop specialisation became its own function, 18 s before
-        # issue 30's multi-set sweep; the scalar loop and the AVX2 and AVX-512 loops, float32
-        # and float64, disk.c included); the timeout leaves room for a slow, loaded machine
-        subprocess.run(cmd, check=True, capture_output=True, text=True, timeout=_BUILD_TIMEOUT_S)
+        # once per source version and user (cached): 28 s of CPU with gcc 12 on a 2-core AMD
+        # EPYC, 15-17 s of wall time with two compilers (83 s before each loop specialisation
+        # became its own function, 18 s before issue 30's multi-set sweep; the scalar loop and
+        # the AVX2 and AVX-512 loops, float32 and float64, disk.c included); the timeout leaves
+        # room for a slow, loaded machine
+        _compile_and_link(cc, units, tmp, folder)
         os.replace(tmp, target)  # atomic: a racing worker sees a whole library or none
     finally:
         if os.path.exists(tmp):
@@ -190,7 +237,7 @@ def quad_library() -> ctypes.CDLL | None:
     computes the same sums with torch (equal to rounding, slower)."""
     if not _QUAD_STATE["tried"]:
         _QUAD_STATE["tried"] = True
-        spec = {"sources": _QUAD_SOURCES, "units": ("quad.c",), "prefix": "sssquad"}
+        spec = {"sources": _QUAD_SOURCES, "units": _QUAD_UNITS, "prefix": "sssquad"}
         try:
             cc = _compiler()
             if cc is None:

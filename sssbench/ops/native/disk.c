@@ -1,7 +1,7 @@
 /* Native sample loop of the importance-sampled disk (sssbench.ops.disk.DiskSSS), float32 and
- * float64 images, both estimators. Built into the same library as gather.c (a second
- * translation unit of the same compiler command, sssbench/ops/native/__init__.py) and called
- * through ctypes by sssbench/ops/_disk_native.py; the torch loops DiskSSS._gather and
+ * float64 images, both estimators. Built into the same library as gather.c (a translation
+ * unit of its own, compiled beside gather.c's two halves, sssbench/ops/native/__init__.py)
+ * and called through ctypes by sssbench/ops/_disk_native.py; the torch loops DiskSSS._gather and
  * DiskSSS._gather_hdrp are the specification and the fallback.
  *
  * Per centre pixel the loop runs the samples in the torch loop's order and performs its float

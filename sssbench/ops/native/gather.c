@@ -1,6 +1,19 @@
 /* Native tap loop of the one gather primitive (sssbench.ops.gather), float32 and float64.
  * Built on first use by sssbench/ops/native/__init__.py with the system C compiler and
- * called through ctypes; the torch loop is the specification and the fallback. */
+ * called through ctypes; the torch loop is the specification and the fallback.
+ *
+ * The build compiles this file twice, side by side (two compilers on two cores: half the wall
+ * time of one unit, whose float32 and float64 halves take about the same time), and links the
+ * objects with disk.c's: SSS_PART=1 gives the shared state (the OpenMP hand-over, the SIMD
+ * level) and the float32 loops, SSS_PART=2 the float64 loops; without SSS_PART, one unit holds
+ * all of it. The two halves share no static function; pool.h's pool and workspace are static,
+ * so each half has its own (as disk.c has), each used by its own passes one at a time. */
+#ifndef SSS_PART
+#define SSS_PART 0
+#endif
+#define SSS_PART_SHARED (SSS_PART != 2) /* the OpenMP hand-over, the SIMD level */
+#define SSS_PART_F32 (SSS_PART != 2)
+#define SSS_PART_F64 (SSS_PART != 1)
 #include <float.h>
 #include <math.h>
 #include <pthread.h>
@@ -44,6 +57,9 @@
 
 #include "pool.h"
 
+int sss_get_simd(void); /* the SIMD level a pass uses (below: SSS_PART_SHARED) */
+
+#if SSS_PART_SHARED
 sss_omp_parallel_fn sss_omp_parallel = NULL;
 int (*sss_omp_thread_num)(void) = NULL;
 int (*sss_omp_num_threads)(void) = NULL;
@@ -63,6 +79,7 @@ int sss_set_omp(void *parallel, void *thread_num, void *num_threads, void *in_pa
     sss_omp_parallel = on ? (sss_omp_parallel_fn)parallel : NULL;
     return on;
 }
+#endif
 
 /* The vectorised tap loop (gather_simd.h): x86-64 with GCC or clang builds it for AVX2 and
  * AVX-512F through target attributes (no -march: the library runs on any x86-64) and a pass
@@ -83,6 +100,7 @@ int sss_set_omp(void *parallel, void *thread_num, void *num_threads, void *in_pa
                      _mm256_permutevar8x32_ps((hi), (idx)),                            \
                      _mm256_castsi256_ps(_mm256_slli_epi32((idx), 28)))
 
+#if SSS_PART_SHARED
 static int simd_level = -1; /* 0: the scalar loop, 1: AVX2, 2: AVX-512F; -1: not chosen yet */
 
 /* the widest level this CPU (and the OS, which must save its registers) supports */
@@ -107,7 +125,9 @@ int sss_get_simd(void) {
     const int level = __atomic_load_n(&simd_level, __ATOMIC_RELAXED);
     return level >= 0 ? level : sss_set_simd(-1);
 }
+#endif
 
+#if SSS_PART_F32
 #define SCALAR float
 #define LANE int32_t
 #define SUFFIX f32
@@ -186,7 +206,9 @@ int sss_get_simd(void) {
 #undef VIMIN_AVX512
 #undef KANY_GTU_AVX512
 #undef KANY_NE2_AVX512
+#endif
 
+#if SSS_PART_F64
 #define SCALAR double
 #define LANE int64_t
 #define SUFFIX f64
@@ -215,3 +237,4 @@ int sss_get_simd(void) {
 #define VIMIN_AVX2(a, b) ((__typeof__(a))_mm_min_epi32((__m128i)(a), (__m128i)(b)))
 #define VIMIN_AVX512(a, b) ((__typeof__(a))_mm256_min_epi32((__m256i)(a), (__m256i)(b)))
 #include "gather_body.h"
+#endif

@@ -1,5 +1,5 @@
 /* A persistent pool of worker threads and a kept workspace for the tap loop (type-independent;
- * included once per translation unit: gather.c, disk.c).
+ * included once per translation unit: gather.c's two halves, disk.c; each unit has its own).
  *
  * A pass splits its lines over torch.get_num_threads() threads (the caller passes the count).
  * By default a pass runs on torch's own OpenMP team (sss_set_omp: torch hands over its
