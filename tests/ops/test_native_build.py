@@ -48,6 +48,25 @@ def test_units_compile_side_by_side_up_to_the_cores_then_link(monkeypatch, tmp_p
     assert out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["lib.so"]
 
 
+def test_a_failing_unit_stops_the_units_not_yet_started(monkeypatch, tmp_path):
+    """One core, the first of three units fails: its error is raised and the two units
+    queued behind it never run, nor does the link."""
+    calls: list[list[str]] = []
+
+    def fake_run(cmd, **kwargs):
+        calls.append(cmd)
+        if len(calls) == 1:
+            raise subprocess.CalledProcessError(1, cmd, stderr="gather.c: error")
+        Path(cmd[cmd.index("-o") + 1]).write_bytes(b"")
+
+    monkeypatch.setattr(native.subprocess, "run", fake_run)
+    monkeypatch.setattr(native, "_cores", lambda: 1)
+    with pytest.raises(subprocess.CalledProcessError) as caught:
+        native._compile_and_link("cc", native._GATHER_UNITS, str(tmp_path / "lib.so"), tmp_path)
+    assert caught.value.stderr == "gather.c: error"
+    assert len(calls) == 1 and list(tmp_path.iterdir()) == []
+
+
 def test_a_unit_that_does_not_compile_raises_the_compilers_message(tmp_path):
     """A unit with an error: the compiler's ``CalledProcessError`` with its stderr (what the
     fallback warning shows), no library written, no object left behind."""

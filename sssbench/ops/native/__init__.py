@@ -45,7 +45,7 @@ import shutil
 import subprocess
 import tempfile
 import warnings
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
 from pathlib import Path
 
 __all__ = [
@@ -118,20 +118,28 @@ def _cores() -> int:
 
 def _compile_and_link(cc: str, units: tuple[tuple[str, ...], ...], out: str, folder: Path) -> None:
     """Compile each of ``units`` (a source and its ``-D`` flags) to an object in a temporary
-    folder inside ``folder``, at most :func:`_cores` compilers at a time, and link the objects
-    into the shared library ``out``. A failing compiler raises its ``CalledProcessError`` (its
-    ``stderr`` is what the fallback warning shows) once the units already started have ended."""
+    folder inside ``folder``, at most :func:`_cores` compilers at a time (a unit starts when a
+    compiler ends), and link the objects into the shared library ``out``. After a compiler
+    fails no further unit starts; once those running have ended, the failure's
+    ``CalledProcessError`` is raised (its ``stderr`` is what the fallback warning shows)."""
     run = {"check": True, "capture_output": True, "text": True, "timeout": _BUILD_TIMEOUT_S}
     with tempfile.TemporaryDirectory(dir=folder) as objects:
         paths = [str(Path(objects) / f"unit{i}.o") for i in range(len(units))]
-        cmds = [
+        waiting = [
             [cc, *_FLAGS, *flags, "-c", "-o", path, str(_HERE / source)]
             for (source, *flags), path in zip(units, paths, strict=True)
         ]
-        with ThreadPoolExecutor(max(1, min(len(cmds), _cores()))) as compilers:
-            done = [compilers.submit(subprocess.run, cmd, **run) for cmd in cmds]
-        for each in done:
-            each.result()  # the first failure, in the units' order
+        slots = max(1, min(len(waiting), _cores()))
+        failure: BaseException | None = None
+        with ThreadPoolExecutor(slots) as compilers:
+            running: set[Future] = set()
+            while running or (waiting and failure is None):
+                while waiting and failure is None and len(running) < slots:
+                    running.add(compilers.submit(subprocess.run, waiting.pop(0), **run))
+                ended, running = wait(running, return_when=FIRST_COMPLETED)
+                failure = failure or next((e.exception() for e in ended if e.exception()), None)
+        if failure is not None:
+            raise failure
         subprocess.run([cc, "-shared", "-o", out, *paths, "-lm", "-lpthread"], **run)
 
 
