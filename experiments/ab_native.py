@@ -24,8 +24,8 @@ the next, the 33-tap pass 0.941 ± 0.002 and 1.010 ± 0.009. A ratio within two 
 errors of 1 is "not resolved" (:func:`ab_verdict`).
 
 Both builds use the same compiler and flags (``native._FLAGS``); a base whose ``gather.c`` has
-no ``SSS_PART`` halves is built as one unit with ``disk.c`` (:func:`units_for`). A base that
-lacks a symbol the working tree declares cannot be loaded, and the tool says so.
+no ``SSS_PART`` halves compiles it whole, as one unit, beside ``disk.c`` (:func:`units_for`).
+A base that lacks a symbol the working tree declares cannot be loaded, and the tool says so.
 """
 
 from __future__ import annotations
