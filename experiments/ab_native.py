@@ -113,21 +113,20 @@ def alternated_ms(
     rounds: int,
     clock: Callable[[], float] = time.perf_counter,
 ) -> dict[str, tuple[list[float], list[float]]]:
-    """ms per round of each operator's ``(base, new)`` calls: one untimed call of each first;
-    then every round calls, operator by operator, both of its calls back to back, base first
-    in even rounds and new first in odd ones (so that neither always runs on the caches the
-    other left). Returns ``{operator: (base ms, new ms)}``."""
-    for base, new in calls.values():
-        base()
-        new()
-    out: dict[str, tuple[list[float], list[float]]] = {k: ([], []) for k in calls}
-    for r in range(rounds):
-        for key, pair in calls.items():
-            for side in (0, 1) if r % 2 == 0 else (1, 0):
-                start = clock()
-                pair[side]()
-                out[key][side].append((clock() - start) * 1e3)
-    return out
+    """ms per round of each operator's ``(base, new)`` calls by
+    :func:`experiments.perf.interleaved_ms`: one untimed call of each first; then every round
+    calls, operator by operator, both of its calls back to back, base first in even rounds and
+    new first in odd ones (so that neither always runs on the caches the other left). Returns
+    ``{operator: (base ms, new ms)}``."""
+    from experiments.perf import interleaved_ms
+
+    fns = {(key, side): pair[side] for key, pair in calls.items() for side in (0, 1)}
+
+    def order(r: int) -> list[tuple[str, int]]:
+        return [(key, side) for key in calls for side in ((0, 1) if r % 2 == 0 else (1, 0))]
+
+    times = interleaved_ms(fns, rounds, clock, order=order)
+    return {key: (times[(key, 0)], times[(key, 1)]) for key in calls}
 
 
 def pooled(ratios: Sequence[float], within_se: float) -> tuple[float, float]:

@@ -20,7 +20,7 @@ import os
 import statistics
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import torch
@@ -169,6 +169,7 @@ def interleaved_ms(
     rounds: int,
     clock: Callable[[], float] = time.perf_counter,
     settle: float = 0.0,
+    order: Callable[[int], Sequence[object]] | None = None,
 ) -> dict[object, list[float]]:
     """ms of each of ``fns`` per round by ``clock``, the functions called in turn within every
     round (so that a drift of the machine's speed, seen here under other jobs' load, hits all
@@ -176,12 +177,14 @@ def interleaved_ms(
     the process's threads (the native loop's workers too): the work, whatever else the shared
     machine runs meanwhile. ``settle``: seconds slept before each timed call, outside the
     clock (:data:`SETTLE_S`: so that the CPU time of a call does not hold the previous call's
-    OpenMP workers spinning idle)."""
+    OpenMP workers spinning idle). ``order(r)``: the keys in the order round ``r`` calls them
+    (default: the dict's order in every round)."""
     for fn in fns.values():
         fn()
     out: dict[object, list[float]] = {key: [] for key in fns}
-    for _ in range(rounds):
-        for key, fn in fns.items():
+    for r in range(rounds):
+        for key in order(r) if order is not None else list(fns):
+            fn = fns[key]
             if settle:
                 time.sleep(settle)
             start = clock()
