@@ -57,7 +57,9 @@ NATIVE_DIR = "sssbench/ops/native"
 
 def units_for(gather_source: str, has_disk: bool) -> tuple[tuple[str, ...], ...]:
     """The translation units (a file name and its ``-D`` flags) that build a revision's native
-    library: ``gather.c``'s two halves where its source selects them by ``SSS_PART``, else
+    library: ``gather.c``'s shared state and float32 loops where its source selects them by
+    ``SSS_PART`` (the gather library's units, :data:`sssbench.ops.native._GATHER_UNITS`; the
+    float64 loops, a library of their own since 2026-12-06, time no operator here), else
     ``gather.c`` whole; ``disk.c`` where the revision has it."""
     from sssbench.ops import native
 

@@ -557,7 +557,7 @@ console.log(a+' '+b);
 
 
 def test_the_native_library_build_is_announced(tmp_path, monkeypatch, caplog):
-    # the first run from an empty cache compiles the native gather (about 28 s of CPU with gcc 12):
+    # the first run from an empty cache compiles the native gather (about 14 s of CPU with gcc 12):
     # one line says so, instead of a silent pause (issue 28, point 6: nothing silent for long)
     import logging
 

@@ -193,7 +193,7 @@ def run_pass(
     loop without the C library. Bumps no version counter: the operators below
     (and :func:`~sssbench.ops.gather.separable_pass` when it calls this directly) do.
     ``blend``: see :func:`native_pass` (the C library is required for it)."""
-    lib = native.library()
+    lib = native.library_for(image.dtype)
     if lib is None:
         with torch.no_grad():
             return gather_torch(image, *args, out=image if inplace else None)
@@ -264,8 +264,9 @@ def _blend(out: Tensor, end: Tensor, weight: Tensor, mask: Tensor | None) -> Non
     separate multiply and add (torch fuses them: the two agree to a rounding).
 
     ``out``, ``end``: ``(B, 3, H, W)`` (``out`` contiguous); ``weight``: ``(3,)`` of their
-    dtype; ``mask``: ``(B, 1, H, W)`` or ``None``. Needs the C library."""
-    lib = native.library()
+    dtype; ``mask``: ``(B, 1, H, W)`` or ``None``. Needs the C library of their dtype
+    (:func:`~sssbench.ops.native.library_for`)."""
+    lib = native.library_for(out.dtype)
     b, _, h, w = out.shape
     fn = lib.sss_blend_f32 if out.dtype == torch.float32 else lib.sss_blend_f64
     end = end.contiguous()

@@ -80,7 +80,7 @@ def _runs(mask: torch.Tensor, h: int, w: int) -> list[torch.Tensor]:
     """The ``(S, 3)`` runs of each image of a ``(B, 1, H, W)`` mask (see :func:`image_spans`):
     one C scan per image, the images found by address (no torch call but the output's), or
     ``torch.nonzero`` without the C library."""
-    lib = native.library()
+    lib = native.library_for(mask.dtype)
     fn = _SPANS.get(mask.dtype)
     if lib is None or fn is None or mask.device.type != "cpu":
         return [_runs_of_indices(torch.nonzero(m.reshape(-1) > 0).squeeze(1), w) for m in mask]

@@ -680,7 +680,8 @@ def separable_sweep(
         for t in (images, gbuffer.depth, strength, per_pixel, weights, kernels[0].offsets,
                   scale_t, coefficients, out)
     )  # fmt: skip
-    native_ok = name_ == "native" and first.device.type == "cpu" and native.library() is not None
+    lib = native.library_for(dtype) if name_ == "native" and first.device.type == "cpu" else None
+    native_ok = lib is not None
     start = time.perf_counter()
     with memo_scope():
         if native_ok and not (grads or torch.compiler.is_compiling()):
@@ -696,7 +697,7 @@ def separable_sweep(
                     for img, cs in zip(images_c, c.to(dtype), strict=True):
                         out = out + cs.view(1, 3, 1, 1) * img
                 target = out if out.is_contiguous() else out.contiguous()
-                n_total = native_pass(native.library(), images_c, target, args, False,
+                n_total = native_pass(lib, images_c, target, args, False,
                                       sets=(True, c))  # fmt: skip
                 if target is not out:
                     out.copy_(target)
@@ -709,7 +710,7 @@ def separable_sweep(
                     result = torch.empty((n_sets, *first.shape), dtype=dtype, device=first.device)
                 elif not result.is_inference():
                     torch.autograd.graph.increment_version(result)
-                n_total = native_pass(native.library(), images_c, result, args, True,
+                n_total = native_pass(lib, images_c, result, args, True,
                                       sets=(False, None))  # fmt: skip
         else:
             offsets, w_t = _taps(kernels[0], dtype)[0], weights.to(dtype)
@@ -769,7 +770,7 @@ def _backend_for(
         return "torch"  # rotated taps and bilateral weights: torch loop only
     if name != "native":
         return name
-    if image.device.type != "cpu" or native.library() is None:
+    if image.device.type != "cpu" or native.library_for(image.dtype) is None:
         return "torch"
     return "native"
 

@@ -26,6 +26,7 @@ __all__ = [
     "budget_metrics",
     "budget_truth",
     "has_budget",
+    "runs_float64",
 ]
 
 #: the tap ladder of the converged method in a run's budget: 17, 33, 65, 129, 257 taps
@@ -62,6 +63,14 @@ def has_budget(spec: RunSpec) -> bool:
         or reference_stages(spec)
         or spec.samples is None
     )
+
+
+def runs_float64(spec: RunSpec) -> bool:
+    """Whether a run of ``spec`` runs float64 passes: a float64 run, or one with an error
+    budget, whose method runs once on the float64 G-buffer
+    (:func:`sssbench.score.budget.error_budget`): the native loops of both dtypes are then
+    built side by side (:func:`sssbench.ops.native.want_float64`)."""
+    return spec.dtype == "float64" or bool(spec.budget and has_budget(spec))
 
 
 def _limit_sampling(spec: RunSpec) -> str | None:

@@ -47,11 +47,13 @@ from typing import Any
 import torch
 
 from sssbench._checks import check_choice
+from sssbench.ops import native
 from sssbench.run.budget_step import (
     bilinear_reference,
     budget_limit,
     budget_metrics,
     has_budget,
+    runs_float64,
 )
 from sssbench.run.inputs import (
     Built,
@@ -256,6 +258,8 @@ def measure(spec: RunSpec, run_dir: Path) -> tuple[dict[str, Any], list[PassStat
     warmup, repeats = (0, 1) if is_reference else (spec.warmup, spec.repeats)
     if is_reference and (spec.warmup, spec.repeats) != (0, 1):
         log.info("method=reference is timed once (warmup 0, repeats 1)")
+    if runs_float64(spec):  # a cold first run builds both dtypes' loops side by side
+        native.want_float64()
     with torch_settings(spec.threads, spec.backend):
         built = build(spec)  # 2. build
         pristine = scene_gbuffer(spec, built.fields)  # the same scene, never handed out

@@ -81,7 +81,7 @@ def _prepare_group(specs: list[RunSpec], part: str = "all") -> list[str]:
     if part == "bilinear":
         specs = [s for s in specs if s.budget and has_budget(s)][:1]
     elif any(s.budget and has_budget(s) for s in specs):
-        _native_library()  # the converged limits run the tap loop: one compile for all
+        _native_library(True)  # the converged limits run the tap loop: one compile for all
     errors = []
     for spec in specs:
         try:
@@ -102,21 +102,28 @@ def tasks(specs: Sequence[RunSpec]) -> list[tuple[str, list[RunSpec]]]:
     return bilinear + [("reference", g) for g in groups]
 
 
-def _native_library() -> None:
+def _native_library(float64: bool) -> None:
     """Build (or load) the native tap loop under a lock file beside it, shared by the warm-up's
     processes: the first one compiles, the others wait (blocked, not compiling the same source
-    again) and load its library. A failure is the runs' to report (they fall back to the torch
-    loop and warn themselves)."""
+    again) and load its library. ``float64``: the runs will run float64 passes
+    (:func:`sssbench.run.budget_step.runs_float64`), so the float64 loops are built too, side
+    by side with the others (:func:`sssbench.ops.native.want_float64`). A failure is the runs'
+    to report (they fall back to the torch loop and warn themselves)."""
     try:
         import fcntl
 
         from sssbench.ops import native
+
+        if float64:
+            native.want_float64()
 
         folder = native.cache_dir()
         folder.mkdir(parents=True, exist_ok=True, mode=0o700)
         with open(folder / "build.lock", "a") as lock:
             fcntl.flock(lock, fcntl.LOCK_EX)
             native.library()
+            if float64:  # built with it from cold; alone if the gather library was cached
+                native.library64()
     except Exception:  # the runs report it
         pass
 
@@ -160,7 +167,10 @@ def warm(specs: Sequence[RunSpec], workers: int = 2, *, progress: bool = True) -
             errors = _prepare_group(task[1], task[0])
             report(k, task, errors, time.perf_counter() - start)
         return time.perf_counter() - t0
-    builder = threading.Thread(target=_native_library, daemon=True)
+    from sssbench.run.budget_step import runs_float64
+
+    float64 = any(runs_float64(s) for s in specs)
+    builder = threading.Thread(target=_native_library, args=(float64,), daemon=True)
     builder.start()  # a compiler process: it does not hold this process's GIL
     context = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(workers, mp_context=context, initializer=_init_worker) as pool:

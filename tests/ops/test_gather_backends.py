@@ -296,7 +296,7 @@ def test_native_pool_restarts_in_a_forked_child(pool):
     torch.set_num_threads(2)
     try:
         g = scene(seed=1, h=BIG_H, w=203, cover=0.9)
-        lib = native.library()
+        lib = native.library_for(g.diffuse.dtype)
         args = (g.depth, g.mask, None, None,
                 torch.linspace(-4.0, 4.0, 9, dtype=torch.float64),
                 torch.full((9, 3), 1 / 9, dtype=torch.float64),

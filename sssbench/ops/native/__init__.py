@@ -11,10 +11,13 @@ Python package beyond the declared ones is needed; on a machine without a C comp
 :func:`library` returns ``None`` once with a warning and the gather runs its torch loop.
 ``disk.c`` (with ``disk_body.h`` and the vectorised ``disk_simd.h``), the disk's sample loop
 (:mod:`sssbench.ops._disk_native`), is another translation unit of the same library, at the
-same SIMD level. The library's units (``gather.c``'s float32 and float64 halves, ``disk.c``:
-:data:`_GATHER_UNITS`) are compiled side by side, one compiler per core this process may use,
-and linked: on 2 cores the build takes 15-17 s of wall time instead of 26 s (its CPU time,
-about 28 s with gcc 12, is the same).
+same SIMD level. The library's units (``gather.c``'s shared state and float32 loops,
+``disk.c``: :data:`_GATHER_UNITS`) are compiled side by side, one compiler per core this process
+may use, and linked. ``gather.c``'s float64 loops are a second library (:func:`library64`,
+:data:`_GATHER64_UNITS`), built the first time a float64 pass runs and linked against the first,
+whose shared state (the SIMD level, the OpenMP hand-over) it uses: a float32 run never waits for
+them (about 12 of the 28 s of CPU with gcc 12). :func:`library_for` gives the library of an
+image's dtype.
 ``quad.c`` (with ``quad_simd.h``), the Gauss–Legendre cell sums of the exact reference's near
 field (:mod:`sssbench.ops._reference_quad`), is a library of its own (:func:`quad_library`):
 it builds in about a second, so a reference never waits for the tap loop's long build.
@@ -75,20 +78,22 @@ _SOURCES = (
     "exp2_32.h",
 )
 #: the gather library's translation units, each a source and its ``-D`` flags: ``gather.c``
-#: compiled twice (``SSS_PART`` 1: the shared state and the float32 loops, 2: the float64
-#: loops; their compile times are about equal, 12 s each with gcc 12), then the disk's loop;
-#: the longest first, so that on 2 cores the short one follows whichever ends first
+#: with ``SSS_PART`` 1 (the shared state and the float32 loops, 12 s with gcc 12), then the
+#: disk's loop (2 s), compiled side by side
 _GATHER_UNITS: tuple[tuple[str, ...], ...] = (
     ("gather.c", "-DSSS_PART=1"),
-    ("gather.c", "-DSSS_PART=2"),
     ("disk.c",),
 )
+#: the float64 loops' library (:func:`library64`): ``gather.c`` with ``SSS_PART`` 2 (12 s),
+#: linked against the gather library for its shared state
+_GATHER64_UNITS: tuple[tuple[str, ...], ...] = (("gather.c", "-DSSS_PART=2"),)
 #: the reference quadrature's library (:func:`quad_library`): its sources, its one unit
 _QUAD_SOURCES = ("quad.c", "quad_simd.h", "exp2_32.h")
 _QUAD_UNITS: tuple[tuple[str, ...], ...] = (("quad.c",),)
 #: each unit's compile flags (the link adds ``-shared`` and the libraries)
 _FLAGS = ["-O3", "-fPIC", "-ffp-contract=off", "-fno-math-errno", "-Wno-psabi"]
 _STATE: dict[str, object] = {"lib": None, "tried": False}
+_STATE64: dict[str, object] = {"lib": None, "tried": False}
 _QUAD_STATE: dict[str, object] = {"lib": None, "tried": False}
 _BUILD_TIMEOUT_S = 1800
 log = logging.getLogger("sssbench")
@@ -116,31 +121,128 @@ def _cores() -> int:
         return os.cpu_count() or 1
 
 
-def _compile_and_link(cc: str, units: tuple[tuple[str, ...], ...], out: str, folder: Path) -> None:
+def _compile_and_link(
+    cc: str,
+    units: tuple[tuple[str, ...], ...],
+    out: str,
+    folder: Path,
+    link: tuple[str, ...] = (),
+) -> None:
     """Compile each of ``units`` (a source and its ``-D`` flags) to an object in a temporary
     folder inside ``folder``, at most :func:`_cores` compilers at a time (a unit starts when a
-    compiler ends), and link the objects into the shared library ``out``. After a compiler
-    fails no further unit starts; once those running have ended, the failure's
-    ``CalledProcessError`` is raised (its ``stderr`` is what the fallback warning shows)."""
-    run = {"check": True, "capture_output": True, "text": True, "timeout": _BUILD_TIMEOUT_S}
+    compiler ends), and link the objects into the shared library ``out`` (``link``: further
+    arguments of the link, before the system libraries). After a compiler fails no further
+    unit starts; once those running have ended, the failure's ``CalledProcessError`` is raised
+    (its ``stderr`` is what the fallback warning shows)."""
     with tempfile.TemporaryDirectory(dir=folder) as objects:
-        paths = [str(Path(objects) / f"unit{i}.o") for i in range(len(units))]
-        waiting = [
-            [cc, *_FLAGS, *flags, "-c", "-o", path, str(_HERE / source)]
-            for (source, *flags), path in zip(units, paths, strict=True)
-        ]
-        slots = max(1, min(len(waiting), _cores()))
-        failure: BaseException | None = None
-        with ThreadPoolExecutor(slots) as compilers:
-            running: set[Future] = set()
-            while running or (waiting and failure is None):
-                while waiting and failure is None and len(running) < slots:
-                    running.add(compilers.submit(subprocess.run, waiting.pop(0), **run))
-                ended, running = wait(running, return_when=FIRST_COMPLETED)
-                failure = failure or next((e.exception() for e in ended if e.exception()), None)
-        if failure is not None:
-            raise failure
-        subprocess.run([cc, "-shared", "-o", out, *paths, "-lm", "-lpthread"], **run)
+        _link(cc, _compile(cc, units, objects), out, link)
+
+
+_RUN = {"check": True, "capture_output": True, "text": True, "timeout": _BUILD_TIMEOUT_S}
+
+
+def _compile(cc: str, units: tuple[tuple[str, ...], ...], objects: str) -> list[str]:
+    """The objects of ``units`` compiled into the folder ``objects`` as
+    :func:`_compile_and_link` compiles them (side by side, stopping at a failure)."""
+    paths = [str(Path(objects) / f"unit{i}.o") for i in range(len(units))]
+    waiting = [
+        [cc, *_FLAGS, *flags, "-c", "-o", path, str(_HERE / source)]
+        for (source, *flags), path in zip(units, paths, strict=True)
+    ]
+    slots = max(1, min(len(waiting), _cores()))
+    failure: BaseException | None = None
+    with ThreadPoolExecutor(slots) as compilers:
+        running: set[Future] = set()
+        while running or (waiting and failure is None):
+            while waiting and failure is None and len(running) < slots:
+                running.add(compilers.submit(subprocess.run, waiting.pop(0), **_RUN))
+            ended, running = wait(running, return_when=FIRST_COMPLETED)
+            failure = failure or next((e.exception() for e in ended if e.exception()), None)
+    if failure is not None:
+        raise failure
+    return paths
+
+
+def _link(cc: str, paths: list[str], out: str, link: tuple[str, ...]) -> None:
+    subprocess.run([cc, "-shared", "-o", out, *paths, *link, "-lm", "-lpthread"], **_RUN)
+
+
+def _library_name(
+    cc: str,
+    sources: tuple[str, ...],
+    units: tuple[tuple[str, ...], ...],
+    prefix: str,
+    needs: str | None = None,
+) -> str:
+    """The file name of the library of ``units`` built from ``sources`` with ``cc``: a digest
+    of the sources, the compiler and flags, the units and the name of the library it needs."""
+    digest = hashlib.sha256()
+    for name in sources:
+        digest.update((_HERE / name).read_bytes())
+    digest.update(" ".join([cc, *_FLAGS]).encode())
+    digest.update(repr(units).encode())  # how the sources are split into units
+    if needs is not None:
+        digest.update(needs.encode())  # the library it binds to, by name
+    return f"{prefix}-{digest.hexdigest()[:16]}.so"
+
+
+def _place(name: str, fresh: bool = False) -> tuple[Path, bool]:
+    """``(folder, found)``: the folder the library ``name`` is kept in (the cache, or the
+    temp dir where the cache is not writable) and whether it is there (never with ``fresh``)."""
+    fallback = Path(tempfile.gettempdir()) / f"sssbench-native-{os.getuid()}"
+    for folder in (cache_dir(), fallback):  # an unwritable home: the temp dir
+        try:
+            folder.mkdir(parents=True, exist_ok=True, mode=0o700)
+            if folder.stat().st_uid != os.getuid():
+                continue  # never load a library from a folder somebody else owns
+            if (folder / name).exists() and not fresh:
+                return folder, True
+            if os.access(folder, os.W_OK):
+                return folder, False
+        except OSError:
+            continue
+    raise OSError(f"cannot write the native library to {cache_dir()} or {fallback}")
+
+
+def _build_both(cc: str) -> Path:
+    """The gather library, built together with the float64 one when neither is there: every
+    unit of the two compiled side by side (2 cores: 15-17 s of wall time, as one library took
+    before the split, against about 13 s for the gather library and 12 s for the float64 one
+    after it), then each linked (the float64 library against the gather library's file, which
+    its ``DT_NEEDED`` names by the gather library's ``SONAME``). Otherwise, or if building both
+    fails, :func:`_build` of the gather library alone (:func:`library64` builds the other)."""
+    name = _library_name(cc, _SOURCES, _GATHER_UNITS, "sssgather")
+    name64 = _library_name(cc, _SOURCES, _GATHER64_UNITS, "sssgather64", name)
+    try:
+        folder, found = _place(name)
+        if found or (folder / name64).exists():
+            return _build(cc)
+        log.info(
+            "building the native gather and float64 gather libraries with %s into %s (once "
+            "per source version: about 26 s of CPU with gcc 12, %d compilers side by side)",
+            cc,
+            folder,
+            max(1, min(3, _cores())),
+        )
+        fd, tmp = tempfile.mkstemp(suffix=".so", dir=folder)
+        os.close(fd)
+        fd, tmp64 = tempfile.mkstemp(suffix=".so", dir=folder)
+        os.close(fd)
+        try:
+            with tempfile.TemporaryDirectory(dir=folder) as objects:
+                paths = _compile(cc, _GATHER_UNITS + _GATHER64_UNITS, objects)
+                n = len(_GATHER_UNITS)
+                _link(cc, paths[:n], tmp, (f"-Wl,-soname,{name}",))
+                _link(cc, paths[n:], tmp64, (tmp, f"-Wl,-rpath,{folder}", f"-Wl,-soname,{name64}"))
+            os.replace(tmp, folder / name)  # atomic, the one needed first
+            os.replace(tmp64, folder / name64)
+        finally:
+            for t in (tmp, tmp64):
+                if os.path.exists(t):
+                    os.unlink(t)
+        return folder / name
+    except Exception:  # built alone, as library() alone would: its own errors
+        return _build(cc)
 
 
 def _build(
@@ -149,50 +251,43 @@ def _build(
     sources: tuple[str, ...] = _SOURCES,
     units: tuple[tuple[str, ...], ...] = _GATHER_UNITS,
     prefix: str = "sssgather",
+    needs: Path | None = None,
 ) -> Path:
     """The library of ``units`` (each a source and its ``-D`` flags; ``sources``: every file
     it is built from) for the current sources and ``cc``: the cached one, or a new build
-    (``fresh``: build anew even when one is cached, replacing it atomically)."""
-    digest = hashlib.sha256()
-    for name in sources:
-        digest.update((_HERE / name).read_bytes())
-    digest.update(" ".join([cc, *_FLAGS]).encode())
-    digest.update(repr(units).encode())  # how the sources are split into units
-    name = f"{prefix}-{digest.hexdigest()[:16]}.so"
-    fallback = Path(tempfile.gettempdir()) / f"sssbench-native-{os.getuid()}"
-    for folder in (cache_dir(), fallback):  # an unwritable home: the temp dir
-        try:
-            folder.mkdir(parents=True, exist_ok=True, mode=0o700)
-            if folder.stat().st_uid != os.getuid():
-                continue  # never load a library from a folder somebody else owns
-            if (folder / name).exists() and not fresh:
-                return folder / name
-            fd, tmp = tempfile.mkstemp(suffix=".so", dir=folder)
-            break
-        except OSError:
-            continue
-    else:
-        raise OSError(f"cannot write the native library to {cache_dir()} or {fallback}")
+    (``fresh``: build anew even when one is cached, replacing it atomically). ``needs``: a
+    library this one is linked against (its file name is part of this one's, its folder the
+    run-time search path), whose symbols this one's undefined ones bind to when it loads."""
+    name = _library_name(cc, sources, units, prefix, None if needs is None else needs.name)
+    link: tuple[str, ...] = ()
+    if needs is not None:
+        link = (f"-L{needs.parent}", f"-l:{needs.name}", f"-Wl,-rpath,{needs.parent}")
+    folder, found = _place(name, fresh)
+    if found:
+        return folder / name
+    fd, tmp = tempfile.mkstemp(suffix=".so", dir=folder)
     target = folder / name
     os.close(fd)
     try:
         compilers = max(1, min(len(units), _cores()))
+        what, cost = _ABOUT[prefix]
+        side = f"{compilers} compilers side by side" if compilers > 1 else "one compiler"
         log.info(  # the first run's longest silence otherwise (issue 28: nothing silent for long)
             "building the native %s library with %s into %s (once per source version: %s)",
-            "reference quadrature" if prefix == "sssquad" else "gather",
+            what,
             cc,
             folder,
-            "about a second"
-            if prefix == "sssquad"
-            else "about 28 s of CPU with gcc 12, "
-            + (f"{compilers} compilers side by side" if compilers > 1 else "one compiler"),
+            cost if len(units) == 1 else f"{cost}, {side}",
         )
-        # once per source version and user (cached): 28 s of CPU with gcc 12 on a 2-core AMD
-        # EPYC, 15-17 s of wall time with two compilers (83 s before each loop specialisation
-        # became its own function, 18 s before issue 30's multi-set sweep; the scalar loop and
-        # the AVX2 and AVX-512 loops, float32 and float64, disk.c included); the timeout leaves
-        # room for a slow, loaded machine
-        _compile_and_link(cc, units, tmp, folder)
+        # once per source version and user (cached), on a 2-core AMD EPYC with gcc 12: the
+        # gather library (the scalar, AVX2 and AVX-512 float32 loops, disk.c) about 14 s of CPU,
+        # 13-14 s of wall time with two compilers; the float64 library about 12 s (the two were
+        # one library of 28 s until 2026-12-06, 83 s before each loop specialisation became its
+        # own function); the timeout leaves room for a slow, loaded machine
+        # the name a library needing this one records (its DT_NEEDED): the loader then finds
+        # the copy already loaded, not a second one with a state of its own
+        soname = (f"-Wl,-soname,{name}",)
+        _compile_and_link(cc, units, tmp, folder, (*link, *soname))
         os.replace(tmp, target)  # atomic: a racing worker sees a whole library or none
     finally:
         if os.path.exists(tmp):
@@ -200,17 +295,35 @@ def _build(
     return target
 
 
-def _declare(lib: ctypes.CDLL) -> None:
+#: what the build's log line says of each library: its name and its cost
+_ABOUT = {
+    "sssgather": ("gather", "about 14 s of CPU with gcc 12"),
+    "sssgather64": ("float64 gather", "about 12 s of CPU with gcc 12"),
+    "sssquad": ("reference quadrature", "about a second"),
+}
+
+
+def _declare_loops(lib: ctypes.CDLL, suffix: str) -> None:
+    """The argument types of the gather library's loops for one dtype (``"f32"``, ``"f64"``)."""
     p, i64, i32, f64 = ctypes.c_void_p, ctypes.c_int64, ctypes.c_int, ctypes.c_double
-    for fn in (lib.sss_gather_f32, lib.sss_gather_f64):
-        fn.restype = ctypes.c_int64  # active pixels, -1: out of memory
-        fn.argtypes = [p] * 10 + [f64] * 4 + [i64] * 4 + [i32] * 4 + [p] * 2 + [i64] * 2 + [i32, p]
-    for fn in (lib.sss_blend_f32, lib.sss_blend_f64):
-        fn.restype = ctypes.c_int64  # active pixels
-        fn.argtypes = [p] * 4 + [i64] * 3 + [i32]
-    for fn in (lib.sss_spans_f32, lib.sss_spans_f64):
-        fn.restype = ctypes.c_int64  # runs of active pixels
-        fn.argtypes = [p, i64, i64, p, i64]
+    fn = getattr(lib, f"sss_gather_{suffix}")
+    fn.restype = ctypes.c_int64  # active pixels, -1: out of memory
+    fn.argtypes = [p] * 10 + [f64] * 4 + [i64] * 4 + [i32] * 4 + [p] * 2 + [i64] * 2 + [i32, p]
+    fn = getattr(lib, f"sss_blend_{suffix}")
+    fn.restype = ctypes.c_int64  # active pixels
+    fn.argtypes = [p] * 4 + [i64] * 3 + [i32]
+    fn = getattr(lib, f"sss_spans_{suffix}")
+    fn.restype = ctypes.c_int64  # runs of active pixels
+    fn.argtypes = [p, i64, i64, p, i64]
+
+
+def _declare64(lib: ctypes.CDLL) -> None:
+    _declare_loops(lib, "f64")
+
+
+def _declare(lib: ctypes.CDLL) -> None:
+    p, i32 = ctypes.c_void_p, ctypes.c_int
+    _declare_loops(lib, "f32")
     for fn in (lib.sss_simd_best, lib.sss_get_simd):
         fn.restype, fn.argtypes = i32, []
     lib.sss_set_simd.restype, lib.sss_set_simd.argtypes = i32, [i32]
@@ -288,10 +401,12 @@ def library() -> ctypes.CDLL | None:
             if cc is None:
                 raise OSError("no C compiler found ($CC, cc, gcc, clang)")
             try:
-                lib = _load(_build(cc))
+                path = _build_both(cc) if _STATE.get("want64") else _build(cc)
+                lib = _load(path)
             except (OSError, AttributeError):  # a corrupt or stale cached file: build anew
-                lib = _load(_build(cc, fresh=True))
-            _STATE["lib"] = lib
+                path = _build(cc, fresh=True)
+                lib = _load(path)
+            _STATE["lib"], _STATE["path"], _STATE["cc"] = lib, path, cc
             want = os.environ.get("SSSBENCH_SIMD", "").strip().lower()
             if want:
                 set_simd(want)
@@ -305,6 +420,59 @@ def library() -> ctypes.CDLL | None:
                 stacklevel=3,
             )
     return _STATE["lib"]  # type: ignore[return-value]
+
+
+def want_float64() -> None:
+    """Say that this process will run float64 passes (a run with an error budget, whose
+    method runs once in float64, or a float64 run): if :func:`library` has not loaded the
+    gather library yet and neither library is built, it then builds both side by side
+    (:func:`_build_both`) instead of the float64 one alone after it. Only the build's order
+    changes: the libraries are the same."""
+    _STATE["want64"] = True
+
+
+def library64() -> ctypes.CDLL | None:
+    """The float64 loops' library (``gather.c``'s ``SSS_PART`` 2: ``sss_gather_f64``,
+    ``sss_blend_f64``, ``sss_spans_f64``), building it the first time it is asked for (about
+    12 s of CPU with gcc 12; a float32 run never asks). It is linked against :func:`library`'s
+    file and binds to that loaded copy, so the SIMD level (:func:`set_simd`) and the pool
+    (:func:`set_pool`) set there are the float64 loops' too. ``None`` if either cannot be had,
+    with ONE warning per process (none more when :func:`library` has warned already): the
+    float64 passes run the torch loop."""
+    if not _STATE64["tried"]:
+        _STATE64["tried"] = True
+        if library() is None:
+            return None  # library() has warned
+        cc, needs = str(_STATE["cc"]), _STATE["path"]
+        spec = {"units": _GATHER64_UNITS, "prefix": "sssgather64", "needs": needs}
+        try:
+            try:
+                lib = _load(_build(cc, **spec), _declare64)  # type: ignore[arg-type]
+            except (OSError, AttributeError):  # a corrupt or stale cached file: build anew
+                lib = _load(_build(cc, fresh=True, **spec), _declare64)  # type: ignore[arg-type]
+            _STATE64["lib"] = lib
+        except Exception as exc:  # any failure: the torch loop for float64
+            detail = getattr(exc, "stderr", None) or f"{type(exc).__name__}: {exc}"
+            warnings.warn(
+                f"sssbench: native float64 gather unavailable ({str(detail).strip()[:300]}); "
+                + FALLBACK_NOTE,
+                UserWarning,
+                stacklevel=3,
+            )
+    return _STATE64["lib"]  # type: ignore[return-value]
+
+
+def library_for(dtype: object) -> ctypes.CDLL | None:
+    """The library holding the gather loops of ``dtype`` (a torch dtype): :func:`library` for
+    ``torch.float32``, :func:`library64` for ``torch.float64``, ``None`` for any other dtype or
+    when that library cannot be had (then the passes run the torch loop)."""
+    import torch
+
+    if dtype == torch.float32:
+        return library()
+    if dtype == torch.float64:
+        return library64()
+    return None
 
 
 #: the tap loop's instruction-set levels, narrowest first: ``"scalar"`` (one pixel at a time,
