@@ -425,7 +425,7 @@ def _payload(
         "repeats": repeats,
         "warmup": warmup,
         "threads": spec.threads if spec.threads is not None else torch.get_num_threads(),
-        "backend": backend_used(spec.backend),
+        "backend": backend_used(spec.backend, spec.dtype),
     }
 
 

@@ -263,12 +263,15 @@ def torch_settings(threads: int | None, backend: str) -> Iterator[None]:
         torch.set_num_threads(before_threads)
 
 
-def backend_used(backend: str) -> str:
-    """The tap-loop backend a run really used: ``native`` falls back to ``torch`` without a C
-    compiler (see :mod:`sssbench.ops.native`)."""
+def backend_used(backend: str, dtype: str = "float32") -> str:
+    """The tap-loop backend a run in ``dtype`` (``"float32"``, ``"float64"``) really used:
+    ``native`` falls back to ``torch`` without a C compiler, or without the library of the
+    dtype's loops (see :func:`sssbench.ops.native.library_for`)."""
     from sssbench.ops import native
 
-    return "torch" if backend == "native" and native.library() is None else backend
+    if backend != "native":
+        return backend
+    return "torch" if native.library_for(getattr(torch, dtype, None)) is None else backend
 
 
 def versions() -> dict[str, str]:

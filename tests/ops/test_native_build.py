@@ -181,6 +181,11 @@ def test_without_the_float64_library_float64_passes_run_the_torch_loop(monkeypat
                torch.full((5, 3), 0.2, dtype=torch.float64))  # fmt: skip
     assert gather._backend_for(g.diffuse, None, None) == "torch"
     assert gather._backend_for(g.diffuse.float(), None, None) == "native"
+    from sssbench.run.settings import backend_used  # what a run's record says it used
+
+    assert backend_used("native", "float64") == "torch"
+    assert backend_used("native", "float32") == "native"
+    assert backend_used("torch", "float32") == "torch"
     with gather.backend("native"):
         fell_back = gather.separable_pass(g.diffuse, k, "x", g)
     with gather.backend("torch"):
