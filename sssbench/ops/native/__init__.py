@@ -48,8 +48,10 @@ import shutil
 import subprocess
 import tempfile
 import warnings
+from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
 from pathlib import Path
+from typing import Any
 
 __all__ = [
     "library",
@@ -352,6 +354,31 @@ def _load(path: Path, declare=_declare) -> ctypes.CDLL:
     return lib
 
 
+def _load_or_rebuild(
+    cc: str, declare=_declare, build: Callable[[], Path] | None = None, **spec: Any
+) -> tuple[ctypes.CDLL, Path]:
+    """``(library, its file)``: the library of ``spec`` (:func:`_build`'s keywords; ``build``:
+    another way to get its file the first time) loaded and its symbols declared; a corrupt or
+    stale cached file (it does not load, or lacks a symbol) is built anew once."""
+    try:
+        path = build() if build is not None else _build(cc, **spec)
+        return _load(path, declare), path
+    except (OSError, AttributeError):
+        path = _build(cc, fresh=True, **spec)
+        return _load(path, declare), path
+
+
+def _warn_unavailable(what: str, exc: BaseException, instead: str) -> None:
+    """The ONE warning of a library that cannot be had: ``what`` failed (the compiler's
+    message, or the error's), and what runs ``instead``."""
+    detail = getattr(exc, "stderr", None) or f"{type(exc).__name__}: {exc}"
+    warnings.warn(
+        f"sssbench: native {what} unavailable ({str(detail).strip()[:300]}); {instead}",
+        UserWarning,
+        stacklevel=4,  # the caller of library() / library64() / quad_library()
+    )
+
+
 def quad_library() -> ctypes.CDLL | None:
     """The reference quadrature's native library (``quad.c``), building it on first use (about
     a second); ``None`` if it cannot be had, with ONE warning per process, and the reference
@@ -363,18 +390,12 @@ def quad_library() -> ctypes.CDLL | None:
             cc = _compiler()
             if cc is None:
                 raise OSError("no C compiler found ($CC, cc, gcc, clang)")
-            try:
-                lib = _load(_build(cc, **spec), _declare_quad)
-            except (OSError, AttributeError):  # a corrupt or stale cached file: build anew
-                lib = _load(_build(cc, fresh=True, **spec), _declare_quad)
-            _QUAD_STATE["lib"] = lib
+            _QUAD_STATE["lib"] = _load_or_rebuild(cc, _declare_quad, **spec)[0]
         except Exception as exc:  # any failure: the torch sums
-            detail = getattr(exc, "stderr", None) or f"{type(exc).__name__}: {exc}"
-            warnings.warn(
-                f"sssbench: native reference quadrature unavailable ({str(detail).strip()[:300]});"
-                " the reference uses its torch sums instead (equal to rounding, slower)",
-                UserWarning,
-                stacklevel=3,
+            _warn_unavailable(
+                "reference quadrature",
+                exc,
+                "the reference uses its torch sums instead (equal to rounding, slower)",
             )
     return _QUAD_STATE["lib"]  # type: ignore[return-value]
 
@@ -400,25 +421,15 @@ def library() -> ctypes.CDLL | None:
             cc = _compiler()
             if cc is None:
                 raise OSError("no C compiler found ($CC, cc, gcc, clang)")
-            try:
-                path = _build_both(cc) if _STATE.get("want64") else _build(cc)
-                lib = _load(path)
-            except (OSError, AttributeError):  # a corrupt or stale cached file: build anew
-                path = _build(cc, fresh=True)
-                lib = _load(path)
+            both = (lambda: _build_both(cc)) if _STATE.get("want64") else None
+            lib, path = _load_or_rebuild(cc, build=both)
             _STATE["lib"], _STATE["path"], _STATE["cc"] = lib, path, cc
             want = os.environ.get("SSSBENCH_SIMD", "").strip().lower()
             if want:
                 set_simd(want)
             set_pool(os.environ.get("SSSBENCH_POOL", "").strip().lower() or "openmp")
         except Exception as exc:  # any failure: the torch loop
-            detail = getattr(exc, "stderr", None) or f"{type(exc).__name__}: {exc}"
-            warnings.warn(
-                f"sssbench: native gather unavailable ({str(detail).strip()[:300]}); "
-                + FALLBACK_NOTE,
-                UserWarning,
-                stacklevel=3,
-            )
+            _warn_unavailable("gather", exc, FALLBACK_NOTE)
     return _STATE["lib"]  # type: ignore[return-value]
 
 
@@ -443,22 +454,11 @@ def library64() -> ctypes.CDLL | None:
         _STATE64["tried"] = True
         if library() is None:
             return None  # library() has warned
-        cc, needs = str(_STATE["cc"]), _STATE["path"]
-        spec = {"units": _GATHER64_UNITS, "prefix": "sssgather64", "needs": needs}
+        spec = {"units": _GATHER64_UNITS, "prefix": "sssgather64", "needs": _STATE["path"]}
         try:
-            try:
-                lib = _load(_build(cc, **spec), _declare64)  # type: ignore[arg-type]
-            except (OSError, AttributeError):  # a corrupt or stale cached file: build anew
-                lib = _load(_build(cc, fresh=True, **spec), _declare64)  # type: ignore[arg-type]
-            _STATE64["lib"] = lib
+            _STATE64["lib"] = _load_or_rebuild(str(_STATE["cc"]), _declare64, **spec)[0]
         except Exception as exc:  # any failure: the torch loop for float64
-            detail = getattr(exc, "stderr", None) or f"{type(exc).__name__}: {exc}"
-            warnings.warn(
-                f"sssbench: native float64 gather unavailable ({str(detail).strip()[:300]}); "
-                + FALLBACK_NOTE,
-                UserWarning,
-                stacklevel=3,
-            )
+            _warn_unavailable("float64 gather", exc, FALLBACK_NOTE)
     return _STATE64["lib"]  # type: ignore[return-value]
 
 
