@@ -779,6 +779,63 @@ def test_gaussian_follow_surface_exp_is_within_one_ulp(level):
     assert subnormal_seen  # and arguments past them
 
 
+@pytest.mark.parametrize("level", LEVELS)
+@pytest.mark.parametrize("direction", ["x", "y"])
+def test_gaussian_factor_does_not_depend_on_the_pixels_sharing_its_vector(level, direction):
+    """A pixel's gaussian follow-surface factor is a function of its own depth step only, not
+    of the pixels the vectorised loop holds in the same vector (issue 30: where every lane's
+    exponent is below 1/2 the float loops take a 4-operation path, ``expz_near_``, that must
+    give the full ``expz_``'s bits). Image A: in every line the first 7 pixels' steps keep all
+    three channels' exponents below 1/2; image B: the same, but a pixel in the same vector
+    (at 8 and 16 lanes: the line's 8th in an x pass, whose vectors run along the line; the 8th
+    line's in a y pass, whose vectors run across the lines) steps by 5 mm, so its vector takes
+    the full path. The other pixels' results must be the same bits in both, and within 1 ulp
+    of the correctly rounded factor. One tap of weight 1 clamped onto the line's last pixel, colour 1: each result is
+    the factor of its pixel's depth step to that pixel."""
+    import numpy as np
+
+    lines, n = 257, 64
+    gen = torch.Generator().manual_seed(3)
+    inv = torch.tensor([1.0, 0.37, 2.9], dtype=torch.float64)  # 1 / surface_scale
+    k_max = float(inv.max()) ** 2 * (4.0 / math.log(2.0))
+    steps = torch.rand(lines, 7, generator=gen, dtype=torch.float64) * math.sqrt(0.5 / k_max)
+    depth_a = torch.full((lines, n), 100.0, dtype=torch.float32)
+    depth_a[:, :7] += steps.to(torch.float32)
+    depth_b = depth_a.clone()
+    kept = torch.ones(lines, 7, dtype=torch.bool)  # the pixels compared
+    if direction == "x":
+        depth_b[:, 7] += 5.0
+    else:
+        depth_b[7::8, :7] += 5.0
+        kept[7::8] = False
+    k = Kernel1D(torch.tensor([1e6], dtype=torch.float64), torch.ones(1, 3, dtype=torch.float64))
+
+    def factors(depth: torch.Tensor) -> torch.Tensor:
+        d = depth if direction == "x" else depth.t()
+        d = d.contiguous().view(1, 1, *d.shape)
+        g = GBuffer(torch.ones(1, 3, *d.shape[-2:]), d, 0.7)
+        with native.simd(level), backend("native"):
+            out = separable_pass(g.diffuse, k, direction, g, follow_surface="gaussian",
+                                 surface_scale=1.0 / inv, use_mask=False)  # fmt: skip
+        out = out[0] if direction == "x" else out[0].transpose(1, 2)
+        return out[:, :, :7]  # (3, lines, 7)
+
+    fa, fb = factors(depth_a), factors(depth_b)
+    assert torch.equal(fa.view(torch.int32)[:, kept], fb.view(torch.int32)[:, kept])
+    # every exponent of A's 7 pixels below 1/2, so each channel's vectors took the near path
+    dz = (depth_a[:, :7] - depth_a[:, -1:]).abs().numpy()
+    inv32 = (1.0 / (1.0 / inv)).to(torch.float32).numpy()
+    for ch in range(3):
+        k32 = np.float32(float(inv32[ch]) ** 2 * (4.0 / math.log(2.0)))
+        z = (dz * dz) * k32
+        assert float(z.max()) < 0.5 and float(z.max()) > (0.3 if ch == 2 else 0.0)
+        exact = np.exp(-z.astype(np.float64) * (math.log(2.0) / 8.0)).astype(np.float32)
+        if level == "scalar":
+            continue  # the C library's expf of the torch loop's argument: the test above
+        ulps = np.abs(fa[ch].numpy().view(np.int32).astype(np.int64) - exact.view(np.int32))
+        assert int(ulps.max()) <= 1, ch
+
+
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 def test_gaussian_pass_underflow_is_flushed_and_the_callers_fp_state_restored(simd, dtype):
     """Issue 30: a gaussian pass runs with flush-to-zero (the far taps' exp(-d²/2) across a
