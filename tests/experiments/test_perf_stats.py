@@ -12,9 +12,11 @@ import pytest
 
 from experiments.perf import (
     DISK_SAMPLES,
+    SLOW_Y_OVER_X,
     covered_fixed_sentence,
     disk_line,
     median_ratio,
+    memory_state,
     ratio_text,
     verdict_at_most,
     verdict_within,
@@ -191,3 +193,25 @@ def test_covered_fixed_sentence_computes_its_figures(empty_cold, over):
     assert ("more than" in text) == over and ("less than" in text) == (not over)
     work = 1.1 - empty_cold
     assert f"{work:.2f} ms, is {work / 20.0 / 0.02:.2f}× its share" in text
+
+
+def test_memory_state_is_the_median_y_over_x_and_the_share_of_slow_calls():
+    """Calls whose y pass took 1.1×, 1.7×, 1.05×, 1.8× and 2.0× their x pass: median 1.7×,
+    3 of 5 above the slow threshold; a call without both passes is left out; none at all
+    gives NaN, not a figure."""
+    from sssbench.ops import PassRecord
+
+    def call(x_ms: float, y_ms: float) -> list:
+        return [
+            PassRecord("preintegrated.x", 7, 100, x_ms),
+            PassRecord("preintegrated.y", 7, 100, y_ms),
+        ]
+
+    calls = [call(5.0, 5.5), call(5.0, 8.5), call(6.0, 6.3), call(5.0, 9.0), call(4.0, 8.0)]
+    calls.append([PassRecord("preintegrated.x", 7, 100, 5.0)])  # no y pass: left out
+    state = memory_state(calls)
+    assert state["y_over_x"] == pytest.approx(1.7)
+    assert state["slow_share"] == pytest.approx(3 / 5)
+    assert 1.1 < SLOW_Y_OVER_X < 1.7  # between the two stretches' figures (docs/numerics.md)
+    empty = memory_state([])
+    assert math.isnan(empty["y_over_x"]) and math.isnan(empty["slow_share"])

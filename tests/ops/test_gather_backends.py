@@ -790,8 +790,8 @@ def test_gaussian_factor_does_not_depend_on_the_pixels_sharing_its_vector(level,
     (at 8 and 16 lanes: the line's 8th in an x pass, whose vectors run along the line; the 8th
     line's in a y pass, whose vectors run across the lines) steps by 5 mm, so its vector takes
     the full path. The other pixels' results must be the same bits in both, and within 1 ulp
-    of the correctly rounded factor. One tap of weight 1 clamped onto the line's last pixel, colour 1: each result is
-    the factor of its pixel's depth step to that pixel."""
+    of the correctly rounded factor. One tap of weight 1 clamped onto the line's last pixel,
+    colour 1: each result is the factor of its pixel's depth step to that pixel."""
     import numpy as np
 
     lines, n = 257, 64
