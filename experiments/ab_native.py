@@ -58,13 +58,16 @@ NATIVE_DIR = "sssbench/ops/native"
 def units_for(gather_source: str, has_disk: bool) -> tuple[tuple[str, ...], ...]:
     """The translation units (a file name and its ``-D`` flags) that build a revision's native
     library: ``gather.c``'s shared state and float32 loops where its source selects them by
-    ``SSS_PART`` (the gather library's units, :data:`sssbench.ops.native._GATHER_UNITS`; the
-    float64 loops, a library of their own since 2026-12-06, time no operator here), else
-    ``gather.c`` whole; ``disk.c`` where the revision has it."""
+    ``SSS_PART`` — split along the AVX-512 loops where it has ``SSS_AVX512_UNIT`` (the gather
+    library's units, :data:`sssbench.ops.native._GATHER_UNITS`), else one unit; the float64
+    loops, a library of their own since 2026-12-06, time no operator here — else ``gather.c``
+    whole; ``disk.c`` where the revision has it."""
     from sssbench.ops import native
 
-    if "SSS_PART" in gather_source:
+    if "SSS_AVX512_UNIT" in gather_source:  # the float32 part split along its loops
         units = tuple(u for u in native._GATHER_UNITS if u[0] == "gather.c")
+    elif "SSS_PART" in gather_source:  # 2026-12-05 to 06: the float32 part one unit
+        units = (("gather.c", "-DSSS_PART=1"),)
     else:
         units = (("gather.c",),)
     return units + ((("disk.c",),) if has_disk else ())

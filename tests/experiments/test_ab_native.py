@@ -16,7 +16,14 @@ REPO = Path(__file__).resolve().parents[2]
 
 def test_units_follow_the_revisions_gather_source():
     split = ab_native.units_for("#if SSS_PART_F32\n", has_disk=True)
-    assert split == (("gather.c", "-DSSS_PART=1"), ("disk.c",))  # the float32 library's
+    assert split == (("gather.c", "-DSSS_PART=1"), ("disk.c",))  # the float32 part one unit
+    # since 2026-12-06 that part is two units, split along its AVX-512 loops (the library's)
+    split = ab_native.units_for("#if SSS_PART_F32\n#ifdef SSS_AVX512_UNIT\n", has_disk=True)
+    assert split == (
+        ("gather.c", "-DSSS_PART=1", "-DSSS_AVX512_UNIT=0"),
+        ("gather.c", "-DSSS_PART=1", "-DSSS_AVX512_UNIT=1"),
+        ("disk.c",),
+    )
     # a revision from before the halves: gather.c whole (compiling it twice would define
     # every symbol twice), and no disk.c where it had none
     assert ab_native.units_for("int sss_gather_f32(void);\n", has_disk=False) == (("gather.c",),)

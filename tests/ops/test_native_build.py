@@ -17,12 +17,23 @@ import torch
 
 from sssbench.ops import native
 
-#: three units: the gather library's two and the float64 library's one
-THREE_UNITS = (*native._GATHER_UNITS, *native._GATHER64_UNITS)
+#: every unit: the gather library's three and the float64 library's two
+ALL_UNITS = (*native._GATHER_UNITS, *native._GATHER64_UNITS)
+
+
+def unit_flags(cmd: list[str]) -> tuple[str, ...]:
+    """The ``-DSSS_`` flags of a compile command: which part of gather.c it builds."""
+    return tuple(a for a in cmd if a.startswith("-DSSS_"))
+
+
+#: gather.c's four units (two parts, each split along its AVX-512 loops) and the disk's
+GATHER_PARTS = sorted(
+    [(), *((f"-DSSS_PART={p}", f"-DSSS_AVX512_UNIT={u}") for p in (1, 2) for u in (0, 1))]
+)
 
 
 def test_units_compile_side_by_side_up_to_the_cores_then_link(monkeypatch, tmp_path):
-    """Three units on two cores: two compilers at once, never three; the link comes after
+    """Five units on two cores: two compilers at once, never three; the link comes after
     every compile and takes every object."""
     lock = threading.Lock()
     running = {"now": 0, "most": 0}
@@ -41,21 +52,20 @@ def test_units_compile_side_by_side_up_to_the_cores_then_link(monkeypatch, tmp_p
     monkeypatch.setattr(native.subprocess, "run", fake_run)
     monkeypatch.setattr(native, "_cores", lambda: 2)
     out = tmp_path / "lib.so"
-    native._compile_and_link("cc", THREE_UNITS, str(out), tmp_path)
+    native._compile_and_link("cc", ALL_UNITS, str(out), tmp_path)
     assert running["most"] == 2
     *compiles, link = calls
-    assert len(compiles) == 3 and all("-c" in c for c in compiles)
+    assert len(compiles) == 5 and all("-c" in c for c in compiles)
     objects = sorted(c[c.index("-o") + 1] for c in compiles)
     assert "-c" not in link and "-shared" in link and link[link.index("-o") + 1] == str(out)
     assert sorted(a for a in link if a.endswith(".o")) == objects
-    # gather.c's two parts and the disk's loop, each once
-    parts = sorted(tuple(a for a in c if a.startswith("-DSSS_PART")) for c in compiles)
-    assert parts == [(), ("-DSSS_PART=1",), ("-DSSS_PART=2",)]
+    # gather.c's four units and the disk's loop, each once
+    assert sorted(unit_flags(c) for c in compiles) == GATHER_PARTS
     assert out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["lib.so"]
 
 
 def test_a_failing_unit_stops_the_units_not_yet_started(monkeypatch, tmp_path):
-    """One core, the first of three units fails: its error is raised and the two units
+    """One core, the first of five units fails: its error is raised and the four units
     queued behind it never run, nor does the link."""
     calls: list[list[str]] = []
 
@@ -68,7 +78,7 @@ def test_a_failing_unit_stops_the_units_not_yet_started(monkeypatch, tmp_path):
     monkeypatch.setattr(native.subprocess, "run", fake_run)
     monkeypatch.setattr(native, "_cores", lambda: 1)
     with pytest.raises(subprocess.CalledProcessError) as caught:
-        native._compile_and_link("cc", THREE_UNITS, str(tmp_path / "lib.so"), tmp_path)
+        native._compile_and_link("cc", ALL_UNITS, str(tmp_path / "lib.so"), tmp_path)
     assert caught.value.stderr == "gather.c: error"
     assert len(calls) == 1 and list(tmp_path.iterdir()) == []
 
@@ -93,11 +103,34 @@ def test_a_unit_that_does_not_compile_raises_the_compilers_message(tmp_path):
 
 
 def test_the_gather_library_holds_float32_and_the_float64_library_float64():
-    assert native._GATHER_UNITS == (("gather.c", "-DSSS_PART=1"), ("disk.c",))
-    assert native._GATHER64_UNITS == (("gather.c", "-DSSS_PART=2"),)
+    """Each part of gather.c in two units, all but the AVX-512 loops first (the longer
+    compile, started first), the disk's loop last (the second compiler takes it once the
+    AVX-512 loops are done)."""
+    assert native._GATHER_UNITS == (
+        ("gather.c", "-DSSS_PART=1", "-DSSS_AVX512_UNIT=0"),
+        ("gather.c", "-DSSS_PART=1", "-DSSS_AVX512_UNIT=1"),
+        ("disk.c",),
+    )
+    assert native._GATHER64_UNITS == (
+        ("gather.c", "-DSSS_PART=2", "-DSSS_AVX512_UNIT=0"),
+        ("gather.c", "-DSSS_PART=2", "-DSSS_AVX512_UNIT=1"),
+    )
 
 
 NATIVE = pytest.mark.skipif(native.library() is None, reason="no C compiler")
+
+
+@NATIVE
+def test_the_avx512_loops_are_linked_in_and_not_exported():
+    """Each part's AVX-512 loops are a unit of their own (``SSS_AVX512_UNIT``): the pass's
+    entry calls their ``run_f32_avx512`` / ``run_f64_avx512`` (a pass at that level gives the
+    scalar loop's bits: tests/ops/test_gather_backends.py), a hidden symbol of its library —
+    absent from the dynamic symbol table, so no other loaded library's symbol of that name can
+    stand in for it — while the entries are exported."""
+    for lib, suffix in ((native.library(), "f32"), (native.library64(), "f64")):
+        assert hasattr(lib, f"sss_gather_{suffix}")
+        for isa in ("avx512", "avx2"):
+            assert not hasattr(lib, f"run_{suffix}_{isa}")
 
 
 @NATIVE
@@ -193,8 +226,8 @@ def test_without_the_float64_library_float64_passes_run_the_torch_loop(monkeypat
 
 
 def test_both_dtypes_build_side_by_side_when_float64_is_wanted(monkeypatch, tmp_path):
-    """``_build_both`` on an empty cache: the three units compiled together (2 cores: two at
-    once), the gather library linked from its two objects, the float64 one from its object
+    """``_build_both`` on an empty cache: the five units compiled together (2 cores: two at
+    once), the gather library linked from its three objects, the float64 one from its two
     and the gather library's file (its DT_NEEDED: the gather library's SONAME), both under
     the names library() and library64() look for; cached, nothing runs again."""
     monkeypatch.setenv("SSSBENCH_CACHE_DIR", str(tmp_path))
@@ -213,23 +246,20 @@ def test_both_dtypes_build_side_by_side_when_float64_is_wanted(monkeypatch, tmp_
     )
     assert path == tmp_path / "native" / name
     assert sorted(p.name for p in path.parent.iterdir()) == sorted([name, name64])
-    compiles, (link, link64) = calls[:3], calls[3:]
-    parts = sorted(tuple(a for a in c if a.startswith("-DSSS_PART")) for c in compiles)
-    assert parts == [(), ("-DSSS_PART=1",), ("-DSSS_PART=2",)] and len(calls) == 5
-    objects = {tuple(a for a in c if a.startswith("-DSSS_PART")): c[c.index("-o") + 1]
-               for c in compiles}  # fmt: skip
-    assert sorted(a for a in link if a.endswith(".o")) == sorted(
-        [objects[()], objects[("-DSSS_PART=1",)]]
-    )
-    assert [a for a in link64 if a.endswith(".o")] == [objects[("-DSSS_PART=2",)]]
+    compiles, (link, link64) = calls[:5], calls[5:]
+    assert sorted(unit_flags(c) for c in compiles) == GATHER_PARTS and len(calls) == 7
+    objects = {unit_flags(c): c[c.index("-o") + 1] for c in compiles}
+    part = {p: [o for f, o in objects.items() if f"-DSSS_PART={p}" in f] for p in (1, 2)}
+    assert sorted(a for a in link if a.endswith(".o")) == sorted([objects[()], *part[1]])
+    assert sorted(a for a in link64 if a.endswith(".o")) == sorted(part[2])
     gather_file = link[link.index("-o") + 1]
     assert gather_file in link64 and f"-Wl,-soname,{name}" in link
     assert f"-Wl,-soname,{name64}" in link64 and f"-Wl,-rpath,{path.parent}" in link64
-    assert native._build_both("cc") == path and len(calls) == 5  # cached
+    assert native._build_both("cc") == path and len(calls) == 7  # cached
     # what library64() would build is the same file: found, not built
     assert native._build("cc", units=native._GATHER64_UNITS, prefix="sssgather64",
                          needs=path) == path.parent / name64  # fmt: skip
-    assert len(calls) == 5
+    assert len(calls) == 7
 
 
 def test_runs_that_run_float64_passes():

@@ -11,12 +11,13 @@ Python package beyond the declared ones is needed; on a machine without a C comp
 :func:`library` returns ``None`` once with a warning and the gather runs its torch loop.
 ``disk.c`` (with ``disk_body.h`` and the vectorised ``disk_simd.h``), the disk's sample loop
 (:mod:`sssbench.ops._disk_native`), is another translation unit of the same library, at the
-same SIMD level. The library's units (``gather.c``'s shared state and float32 loops,
-``disk.c``: :data:`_GATHER_UNITS`) are compiled side by side, one compiler per core this process
-may use, and linked. ``gather.c``'s float64 loops are a second library (:func:`library64`,
-:data:`_GATHER64_UNITS`), built the first time a float64 pass runs and linked against the first,
-whose shared state (the SIMD level, the OpenMP hand-over) it uses: a float32 run never waits for
-them (about 12 of the 28 s of CPU with gcc 12). :func:`library_for` gives the library of an
+same SIMD level. The library's units (``gather.c``'s shared state and float32 loops, in two
+units split along the AVX-512 loops, and ``disk.c``: :data:`_GATHER_UNITS`) are compiled side
+by side, one compiler per core this process may use, and linked. ``gather.c``'s float64 loops
+are a second library (:func:`library64`, :data:`_GATHER64_UNITS`, split likewise), built the
+first time a float64 pass runs and linked against the first, whose shared state (the SIMD
+level, the OpenMP hand-over) it uses: a float32 run never waits for them (about 12 of the 28 s
+of CPU with gcc 12). :func:`library_for` gives the library of an
 image's dtype.
 ``quad.c`` (with ``quad_simd.h``), the Gauss–Legendre cell sums of the exact reference's near
 field (:mod:`sssbench.ops._reference_quad`), is a library of its own (:func:`quad_library`):
@@ -79,16 +80,23 @@ _SOURCES = (
     "disk_simd.h",
     "exp2_32.h",
 )
-#: the gather library's translation units, each a source and its ``-D`` flags: ``gather.c``
-#: with ``SSS_PART`` 1 (the shared state and the float32 loops, 12 s with gcc 12), then the
-#: disk's loop (2 s), compiled side by side
+#: the gather library's translation units, each a source and its ``-D`` flags, compiled side
+#: by side in this order: ``gather.c`` with ``SSS_PART`` 1 (the shared state and the float32
+#: loops) split by ``SSS_AVX512_UNIT`` into all but the AVX-512 loops (8 s with gcc 12) and
+#: those loops (5.5 s), then the disk's loop (2 s), which the second compiler takes once the
+#: AVX-512 loops are done: about 8 s of wall time on 2 cores, against 13 s with the float32
+#: part one unit (until 2026-12-06)
 _GATHER_UNITS: tuple[tuple[str, ...], ...] = (
-    ("gather.c", "-DSSS_PART=1"),
+    ("gather.c", "-DSSS_PART=1", "-DSSS_AVX512_UNIT=0"),
+    ("gather.c", "-DSSS_PART=1", "-DSSS_AVX512_UNIT=1"),
     ("disk.c",),
 )
-#: the float64 loops' library (:func:`library64`): ``gather.c`` with ``SSS_PART`` 2 (12 s),
-#: linked against the gather library for its shared state
-_GATHER64_UNITS: tuple[tuple[str, ...], ...] = (("gather.c", "-DSSS_PART=2"),)
+#: the float64 loops' library (:func:`library64`): ``gather.c`` with ``SSS_PART`` 2, split
+#: likewise (7.5 and 5 s), linked against the gather library for its shared state
+_GATHER64_UNITS: tuple[tuple[str, ...], ...] = (
+    ("gather.c", "-DSSS_PART=2", "-DSSS_AVX512_UNIT=0"),
+    ("gather.c", "-DSSS_PART=2", "-DSSS_AVX512_UNIT=1"),
+)
 #: the reference quadrature's library (:func:`quad_library`): its sources, its one unit
 _QUAD_SOURCES = ("quad.c", "quad_simd.h", "exp2_32.h")
 _QUAD_UNITS: tuple[tuple[str, ...], ...] = (("quad.c",),)

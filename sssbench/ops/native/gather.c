@@ -7,11 +7,26 @@
  * objects with disk.c's: SSS_PART=1 gives the shared state (the OpenMP hand-over, the SIMD
  * level) and the float32 loops, SSS_PART=2 the float64 loops; without SSS_PART, one unit holds
  * all of it. The two halves share no static function; pool.h's pool and workspace are static,
- * so each half has its own (as disk.c has), each used by its own passes one at a time. */
+ * so each half has its own (as disk.c has), each used by its own passes one at a time.
+ *
+ * SSS_AVX512_UNIT splits a part once more, along its loops (since 2026-12-06: gcc 12 takes
+ * about 5 s of a part's 12 s on its AVX-512 loops, 5 s on its AVX2 ones, 3 s on the rest):
+ * 0, this unit holds the part but its AVX-512 loops, which it calls as run_f32_avx512 /
+ * run_f64_avx512, hidden symbols of the library; 1, this unit holds those loops only (their
+ * run_ and what they inline: the same source, so the same instructions). Undefined: the
+ * part's loops all here. */
 #ifndef SSS_PART
 #define SSS_PART 0
 #endif
-#define SSS_PART_SHARED (SSS_PART != 2) /* the OpenMP hand-over, the SIMD level */
+#ifdef SSS_AVX512_UNIT
+#define SSS_LOOPS512_APART 1
+#define SSS_LOOPS512_ONLY (SSS_AVX512_UNIT == 1)
+#else
+#define SSS_LOOPS512_APART 0
+#define SSS_LOOPS512_ONLY 0
+#endif
+/* the OpenMP hand-over, the SIMD level */
+#define SSS_PART_SHARED (SSS_PART != 2 && !SSS_LOOPS512_ONLY)
 #define SSS_PART_F32 (SSS_PART != 2)
 #define SSS_PART_F64 (SSS_PART != 1)
 #include <float.h>

@@ -495,7 +495,7 @@ static inline __attribute__((always_inline)) void CAT(lines_, SUFFIX)(
  * another; out of line, 33 s on the second). The code of each loop is the same, and so are
  * its results (tests/ops/test_gather_backends.py, bitwise at every level). */
 #define LINES_DISPATCH(LINES, RUN, ATTR)                                        \
-    ATTR static void *RUN(void *arg) {                                          \
+    ATTR RUN_LINKAGE void *RUN(void *arg) {                                     \
         static void (*const table[2][3][2])(const CAT(job_, SUFFIX) *) = {        \
             {{CAT(LINES, _x0s), CAT(LINES, _x0m)}, {CAT(LINES, _x1s), CAT(LINES, _x1m)},  \
              {CAT(LINES, _x2s), CAT(LINES, _x2m)}},                                 \
@@ -536,7 +536,11 @@ static inline __attribute__((always_inline)) void CAT(lines_, SUFFIX)(
     }
 #endif
 
+/* a set's run_ (LINES_DISPATCH): static, but for the AVX-512 loops of a unit of their own
+ * (SSS_AVX512_UNIT, gather.c), where it is the library's hidden symbol the other unit calls */
+#define RUN_LINKAGE static
 #if SSS_SIMD /* the vectorised loops (gather_simd.h), one per instruction set */
+#if !SSS_LOOPS512_ONLY
 #define ISA avx2
 #define ISA_TARGET "avx2,fma"
 #define VW VW_AVX2
@@ -564,6 +568,12 @@ static inline __attribute__((always_inline)) void CAT(lines_, SUFFIX)(
 #undef IANY
 #undef SHUFFLE2
 #undef VFMA
+#endif
+#if !SSS_LOOPS512_APART || SSS_LOOPS512_ONLY
+#if SSS_LOOPS512_ONLY
+#undef RUN_LINKAGE
+#define RUN_LINKAGE __attribute__((visibility("hidden")))
+#endif
 #define ISA avx512
 #define ISA_TARGET "avx512f"
 #define VW VW_AVX512
@@ -597,8 +607,14 @@ static inline __attribute__((always_inline)) void CAT(lines_, SUFFIX)(
 #undef IANY
 #undef SHUFFLE2
 #undef VFMA
+#undef RUN_LINKAGE
+#define RUN_LINKAGE static
+#else /* the AVX-512 loops are another unit's: run_f32_avx512 / run_f64_avx512 */
+__attribute__((visibility("hidden"))) void *CAT(CAT(run_, SUFFIX), _avx512)(void *arg);
+#endif
 #endif
 
+#if !SSS_LOOPS512_ONLY /* the rest: the scalar loop, the pass's entry, the blend, the spans */
 /* One thread's lines: run_f32 / run_f64 */
 LINES_ALL(CAT(lines_, SUFFIX), CAT(run_, SUFFIX), )
 
@@ -887,7 +903,9 @@ int64_t CAT(sss_spans_, SUFFIX)(const SCALAR *mask, int64_t h, int64_t w, int64_
     }
     return n;
 }
+#endif /* !SSS_LOOPS512_ONLY */
 
+#undef RUN_LINKAGE
 #undef NARROW_STRIP
 #undef PACK_AHEAD
 #undef WIDE_STRIP
