@@ -188,6 +188,30 @@ def memory_state(calls: Sequence[Sequence]) -> dict[str, float]:
     return {"y_over_x": statistics.median(ratios), "slow_share": slow}
 
 
+def states_by_run(prior: dict[str, list[float]], figures: dict[str, float]) -> str:
+    """`` Run by run (the logged runs of this code, then this one): y / x 1.06, 1.58 (slow
+    in 0, 92 % of the calls); kornia 0.75, 1.29×; the floor 8.98, 14.08×.``: each run's
+    memory state beside its two figures that move with it, so that a reader sees which
+    stretch each pooled figure came from (the verdicts stay on every run). Empty when the
+    logged runs did not all record their state (runs before 2026-12-06)."""
+    names = ("y_over_x", "slow_share", "kornia", "floor")
+    runs = {n: [*prior.get(n, []), figures[n]] for n in names if n in figures}
+    if len(runs) < len(names) or len({len(v) for v in runs.values()}) != 1:
+        return ""
+    if len(runs["kornia"]) < 2:
+        return ""
+
+    def listed(name: str, fmt: str) -> str:
+        return ", ".join(format(v, fmt) for v in runs[name])
+
+    slow = ", ".join(f"{v:.0%}".rstrip("%") for v in runs["slow_share"])
+    return (
+        f" Run by run (the logged runs of this code, then this one): y / x "
+        f"{listed('y_over_x', '.2f')} (slow in {slow} % of the calls); kornia "
+        f"{listed('kornia', '.2f')}×; the floor {listed('floor', '.2f')}×."
+    )
+
+
 def interleaved_ms(
     fns: dict,
     rounds: int,
@@ -1117,7 +1141,7 @@ def run(ctx: Context) -> Section:
         f"{state['slow_share']:.0%} of them above {SLOW_Y_OVER_X}× — a slow stretch, in which "
         f"the y strips' memory traffic (rows a page apart) is slowed and the streaming kornia "
         f"blur and `clone` are not, so the ratios to them rise (docs/numerics.md: about 1.1× "
-        f"in a fast stretch, 1.7× in a slow one)."
+        f"in a fast stretch, 1.7× in a slow one)." + states_by_run(prior, figures)
     )
     targets.extend(["", "Issue 30 (speed at the machine's limit):", *t30])
     # a target not resolved is not shown met: the section is met only when all are

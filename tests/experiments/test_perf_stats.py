@@ -18,6 +18,7 @@ from experiments.perf import (
     median_ratio,
     memory_state,
     ratio_text,
+    states_by_run,
     verdict_at_most,
     verdict_within,
 )
@@ -215,3 +216,18 @@ def test_memory_state_is_the_median_y_over_x_and_the_share_of_slow_calls():
     assert 1.1 < SLOW_Y_OVER_X < 1.7  # between the two stretches' figures (docs/numerics.md)
     empty = memory_state([])
     assert math.isnan(empty["y_over_x"]) and math.isnan(empty["slow_share"])
+
+
+def test_states_by_run_lists_each_runs_state_beside_its_figures():
+    """Two logged runs and this one: each run's y / x, slow share, kornia and floor figures
+    in the order logged; runs that did not record their state (fewer y / x than kornia
+    figures) give no sentence rather than a misaligned one."""
+    prior = {"y_over_x": [1.06, 1.58], "slow_share": [0.0, 0.92], "kornia": [0.75, 1.29],
+             "floor": [8.98, 14.08]}  # fmt: skip
+    this = {"y_over_x": 1.14, "slow_share": 0.4, "kornia": 0.64, "floor": 8.85}
+    text = states_by_run(prior, this)
+    assert "y / x 1.06, 1.58, 1.14 (slow in 0, 92, 40 % of the calls)" in text
+    assert "kornia 0.75, 1.29, 0.64×" in text and "the floor 8.98, 14.08, 8.85×" in text
+    older = dict(prior, kornia=[0.7, 0.75, 1.29], floor=[9.0, 8.98, 14.08])
+    assert states_by_run(older, this) == ""
+    assert states_by_run({}, this) == ""  # one run: nothing to set side by side
