@@ -17,8 +17,7 @@ by side, one compiler per core this process may use, and linked. ``gather.c``'s 
 are a second library (:func:`library64`, :data:`_GATHER64_UNITS`, split likewise), built the
 first time a float64 pass runs and linked against the first, whose shared state (the SIMD
 level, the OpenMP hand-over) it uses: a float32 run never waits for them (about 12 of the 28 s
-of CPU with gcc 12). :func:`library_for` gives the library of an
-image's dtype.
+of CPU with gcc 12). :func:`library_for` gives the library of an image's dtype.
 ``quad.c`` (with ``quad_simd.h``), the Gauss–Legendre cell sums of the exact reference's near
 field (:mod:`sssbench.ops._reference_quad`), is a library of its own (:func:`quad_library`):
 it builds in about a second, so a reference never waits for the tap loop's long build.
@@ -80,18 +79,16 @@ _SOURCES = (
     "disk_simd.h",
     "exp2_32.h",
 )
-#: the gather library's translation units, each a source and its ``-D`` flags, compiled side
-#: by side in this order: ``gather.c`` with ``SSS_PART`` 1 (the shared state and the float32
-#: loops) split by ``SSS_AVX512_UNIT`` into all but the AVX-512 loops (8 s with gcc 12) and
-#: those loops (5.5 s), then the disk's loop (2 s), which the second compiler takes once the
-#: AVX-512 loops are done: about 8 s of wall time on 2 cores, against 13 s with the float32
-#: part one unit (until 2026-12-06)
+#: the gather library's units (a source and its ``-D`` flags), compiled side by side in this
+#: order: ``gather.c``'s ``SSS_PART`` 1 (the shared state, the float32 loops) but its AVX-512
+#: loops (8 s with gcc 12), those loops (``SSS_AVX512_UNIT``, 6 s), then the disk's (2 s):
+#: about 8 s of wall time on 2 cores (13 s with the float32 part one unit, until 2026-12-06)
 _GATHER_UNITS: tuple[tuple[str, ...], ...] = (
     ("gather.c", "-DSSS_PART=1", "-DSSS_AVX512_UNIT=0"),
     ("gather.c", "-DSSS_PART=1", "-DSSS_AVX512_UNIT=1"),
     ("disk.c",),
 )
-#: the float64 loops' library (:func:`library64`): ``gather.c`` with ``SSS_PART`` 2, split
+#: the float64 loops' library (:func:`library64`): ``gather.c``'s ``SSS_PART`` 2, split
 #: likewise (7.5 and 5 s), linked against the gather library for its shared state
 _GATHER64_UNITS: tuple[tuple[str, ...], ...] = (
     ("gather.c", "-DSSS_PART=2", "-DSSS_AVX512_UNIT=0"),
