@@ -172,6 +172,9 @@ int sss_get_simd(void) {
 #define PERMUTE_AVX2(v, idx) _mm256_permutevar8x32_ps((__m256)(v), (__m256i)(idx))
 #define PERMUTE_AVX512(v, idx) _mm512_permutexvar_ps((__m512i)(idx), (__m512)(v))
 #define EXP_TABLE 1 /* the vectorised exp by a table of 2^(j/8) (gather_simd.h) */
+#define EXPZ_SCALE 0.125 /* its argument: z / 8, in units of ln 2 (gather_simd.h) */
+/* a 2^floor(b) (the table exp's 2^n on AVX-512: one instruction) */
+#define SCALEF_AVX512(a, b) ((__typeof__(a))_mm512_scalef_ps((__m512)(a), (__m512)(b)))
 /* lane-wise a < b ? a : b in one instruction (min returns its second operand where either is
  * NaN or both are zeros: exactly the select), for the follow-surface lerp's clamp */
 #define VMINV_AVX2(a, b) ((__typeof__(a))_mm256_min_ps((__m256)(a), (__m256)(b)))
@@ -212,7 +215,9 @@ int sss_get_simd(void) {
 #undef MINPS_AVX512
 #undef PERMUTE_AVX2
 #undef PERMUTE_AVX512
+#undef SCALEF_AVX512
 #undef EXP_TABLE
+#undef EXPZ_SCALE
 #undef VMINV_AVX2
 #undef VMINV_AVX512
 #undef VSET1_AVX2
@@ -245,6 +250,7 @@ int sss_get_simd(void) {
 #define SHUFFLE2_AVX512(lo, hi, idx) \
     _mm512_permutex2var_pd((__m512d)(lo), (__m512i)(idx), (__m512d)(hi))
 #define EXP_TABLE 0 /* double: the degree-13 polynomial */
+#define EXPZ_SCALE 1.0 /* its argument: z, in units of ln 2 / 8 */
 #define VMINV_AVX2(a, b) ((__typeof__(a))_mm256_min_pd((__m256d)(a), (__m256d)(b)))
 #define VMINV_AVX512(a, b) ((__typeof__(a))_mm512_min_pd((__m512d)(a), (__m512d)(b)))
 #define VSET1_AVX2(x) _mm256_set1_pd(x)

@@ -587,6 +587,7 @@ static inline __attribute__((always_inline)) void CAT(lines_, SUFFIX)(
 #ifdef MINPS_AVX512
 #define VMINPS MINPS_AVX512
 #define VPERMUTE PERMUTE_AVX512
+#define VSCALEF SCALEF_AVX512
 #endif
 #ifdef KANY_GTU_AVX512
 #define KANY_GTU KANY_GTU_AVX512
@@ -595,6 +596,7 @@ static inline __attribute__((always_inline)) void CAT(lines_, SUFFIX)(
 #include "gather_simd.h"
 #undef VMINPS
 #undef VPERMUTE
+#undef VSCALEF
 #undef VMINV
 #undef VSET1
 #undef VIMIN

@@ -66,7 +66,15 @@ typedef uint32_t SIMDN(vu_) __attribute__((vector_size(VW * 4)));
  * a pass by tests/ops/test_gather_backends.py); where the exact result is subnormal
  * (z > 1008) it returns FLT_MIN (1.2e-38 or less from it; a weight times it underflows to 0
  * under the pass's flush-to-zero). The fused multiply-adds here are the only ones of the loop
- * (the bitwise-specified tap arithmetic stays unfused). */
+ * (the bitwise-specified tap arithmetic stays unfused).
+ * Since 2026-12-06 (issue 30) expz_ takes y = z / 8 (EXPZ_SCALE; segment_ folds it into k:
+ * the factor is 2^-y), clamped to 126, tm from 1.5 2^20 (ulp 1/8), t and the polynomial's
+ * coefficients 1/8, 1/8^2, 1/8^3 of the above: every quantity is the one above times a power
+ * of 2 (exact; tm's mantissa bits, the table's index and n are the same), so the same bits.
+ * On AVX-512, 2^n is then applied as vscalefps(p, r) = p 2^floor(r), r = tm - 1.5 2^20 =
+ * n8 / 8 (already formed for t; floor(r) = n): one instruction instead of the exponent
+ * field's shift, mask and add, 10 vector operations instead of 12 (checked bit for bit
+ * against the z form at every float z in [0, 1200]: docs/numerics.md). */
 static const float SIMDN(exp_tab_)[16] __attribute__((aligned(64))) = {
     1.0f, 1.0905077457427979f, 1.1892070770263672f, 1.2968395948410034f,
     1.4142135381698608f, 1.5422108173370361f, 1.6817928552627563f, 1.8340080976486206f,
@@ -74,12 +82,14 @@ static const float SIMDN(exp_tab_)[16] __attribute__((aligned(64))) = {
     1.4142135381698608f, 1.5422108173370361f, 1.6817928552627563f, 1.8340080976486206f};
 
 /* e^(-t L) - 1 for t in [-1/2, 1/2], L = ln 2 / 8: -L t + c2 L^2 t^2 + c3 L^3 t^3, c2 and c3
- * minimax (expz_ and expz_near_) */
+ * minimax (expz_ and expz_near_); here of t / 8 in [-1/16, 1/16] (expz_'s y units), its
+ * coefficients those of t times 8^3, 8^2 and 8 (exact: -0.00010840770846698433,
+ * 0.0037540236953645945 and -0.08664339780807495 in t) */
 SIMD_FN SIMDN(vs_) SIMDN(expm1t_)(SIMDN(vs_) t) {
     const SIMDN(vs_) zero = {0};
-    SIMDN(vs_) q = VFMA(t, zero + (SCALAR)-0.00010840770846698433,
-                        zero + (SCALAR)0.0037540236953645945);
-    q = VFMA(q, t, zero + (SCALAR)-0.08664339780807495);
+    SIMDN(vs_) q = VFMA(t, zero + (SCALAR)-0.05550474673509598,
+                        zero + (SCALAR)0.24025751650333405);
+    q = VFMA(q, t, zero + (SCALAR)-0.6931471824645996);
     return q * t;
 }
 
@@ -88,26 +98,32 @@ SIMD_FN SIMDN(vs_) SIMDN(expz_)(SIMDN(vs_) z) {
     typedef SIMDN(vm_) mask;
     typedef SIMDN(vu_) uivec;
     const vec zero = {0};
-    z = VMINPS(z, zero + (SCALAR)1008); /* min(z, 1008): also +inf, NaN -> 1008 */
-    /* tm = 1.5 2^23 + n8, n8 = round(-z) in [-1008, 0] (one rounding: tm's ulp is 1) */
-    const vec magic = zero + (SCALAR)12582912.0;
+    z = VMINPS(z, zero + (SCALAR)126); /* y = z / 8, min(y, 126): also +inf, NaN -> 126 */
+    /* tm = 1.5 2^20 + n8 / 8, n8 = round(-z) in [-1008, 0] (one rounding: tm's ulp is 1/8) */
+    const vec magic = zero + (SCALAR)1572864.0;
     const vec tm = magic - z;
-    const vec t = z + (tm - magic); /* z - round(z) in [-1/2, 1/2], exact; r = -t ln 2 / 8 */
-    const vec q = SIMDN(expm1t_)(t); /* e^r - 1 */
+    const vec r = tm - magic;        /* n8 / 8, exact */
+    const vec t = z + r;             /* (z - round(z)) / 8 in [-1/16, 1/16], exact */
+    const vec q = SIMDN(expm1t_)(t); /* e^(-8 t ln 2 / 8) - 1 */
     vec tab;
     __builtin_memcpy(&tab, SIMDN(exp_tab_), sizeof tab);
     const vec hi = (vec)VPERMUTE(tab, (mask)tm); /* 2^(j/8): the low bits of tm */
     const vec p = VFMA(hi, q, hi);               /* in [0.97, 1.92] */
+#ifdef VSCALEF
+    return (vec)VSCALEF(p, r); /* p 2^floor(n8 / 8) = p 2^n */
+#else
+    (void)r;
     /* n << 23 = (n8 << 20) with the low 23 bits cleared (tm's high bits shift out) */
     const uivec e = ((uivec)tm << 20) & 0xFF800000u;
     return (vec)((uivec)p + e);
+#endif
 }
 
-/* expz_ where every lane's z lies in [0, 1/2) (expz_lanes_ checks, expz_near_below_): there
- * round(z) = 0 (1/2 itself would round to the even 0 too; the check keeps below it), so
- * expz_'s min leaves z, t = z + 0 = z, the table's entry is 2^0 = 1, the exponent field gains
- * 0, and fma(1, q, 1) = 1 + q (the product exact, one rounding either way): expz_'s bits, bit
- * for bit, in 4 vector operations instead of 12. Issue 30: the artist pass's factors of its
+/* expz_ where every lane's z lies in [0, 1/2), y = z / 8 in [0, 1/16) (expz_lanes_ checks,
+ * expz_near_below_): there round(z) = 0 (1/2 itself would round to the even 0 too; the check
+ * keeps below it), so expz_'s min leaves y, t = y + 0 = y, the table's entry is 2^0 = 1, 2^n
+ * is 1, and fma(1, q, 1) = 1 + q (the product exact, one rounding either way): expz_'s bits,
+ * bit for bit, in 4 vector operations instead of 12 (10 on AVX-512 since 2026-12-06). Issue 30: the artist pass's factors of its
  * near taps and of its broad channels (exp(-z ln 2 / 8) > 0.958): in the perf close-up 72 %,
  * 44 % and 36 % of its vectors' red, green and blue exps. Measured (2026-12-06, 1080p
  * close-up, experiments/ab_native, 6 processes): the artist pass 0.960 ± 0.006 the time of
@@ -121,12 +137,12 @@ SIMD_FN SIMDN(vs_) SIMDN(expz_near_)(SIMDN(vs_) z) {
     return SIMDN(expm1t_)(z) + (zero + 1);
 }
 
-/* whether every lane of z lies in [0, 1/2): as unsigned int32 the bits of a float in [+0, 1/2)
- * are below those of 1/2 (0x3F000000), and those of -0, every negative float, every NaN
- * (either sign) and infinity are not */
+/* whether every lane of y = z / 8 lies in [0, 1/16): as unsigned int32 the bits of a float in
+ * [+0, 1/16) are below those of 1/16 (0x3D800000), and those of -0, every negative float,
+ * every NaN (either sign) and infinity are not */
 SIMD_FN int SIMDN(expz_near_below_)(SIMDN(vs_) z) {
     const SIMDN(vi_) izero = {0};
-    return !ANY_GTU(z, izero + 0x3EFFFFFF);
+    return !ANY_GTU(z, izero + 0x3D7FFFFF);
 }
 
 /* expz_ of every lane: expz_near_ where all lanes allow it, else expz_ (the same bits) */
@@ -178,7 +194,7 @@ SIMD_FN SIMDN(vs_) SIMDN(exp_)(SIMDN(vs_) x) {
     return p * scale;
 }
 
-/* exp(-z ln 2 / 8) for z >= 0 (double): the polynomial above */
+/* exp(-z ln 2 / 8) for z >= 0 (double, EXPZ_SCALE 1: z itself): the polynomial above */
 SIMD_FN SIMDN(vs_) SIMDN(expz_)(SIMDN(vs_) z) {
     return SIMDN(exp_)(z * (SCALAR)-0.08664339756999316);
 }
@@ -221,7 +237,7 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
      * the largest finite SCALAR, as 1 / surface_scale is: 0 m = 0), k = m^2, each rounded once
      * from double; |dz|^2 k when every k lies in [1e-35, 1e30] (then |dz|^2 or the product
      * under- or overflows only where the exact factor rounds to 1, or is below FLT_MIN,
-     * anyway), else (|dz| m)^2 */
+     * anyway), else (|dz| m)^2; either times EXPZ_SCALE (float: y = z / 8) */
     double kd[3], md[3];
     int zk = 1;
     for (int ch = 0; ch < 3; ++ch) {
@@ -229,6 +245,7 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
         kd[ch] = inv * inv * 5.7707801635558535;                 /* 4 / ln 2 */
         md[ch] = fmin(inv * 2.4022448175728996, (double)SCALAR_MAX); /* sqrt(4 / ln 2) */
         zk = zk && kd[ch] >= 1e-35 && kd[ch] <= 1e30;
+        kd[ch] *= EXPZ_SCALE; /* expz_'s units (exact: a power of 2, k / 8 >= 1.25e-36) */
     }
     const vec m0 = zero + (SCALAR)md[0], m1 = zero + (SCALAR)md[1], m2 = zero + (SCALAR)md[2];
     const vec k0 = zero + (SCALAR)kd[0], k1 = zero + (SCALAR)kd[1], k2 = zero + (SCALAR)kd[2];
@@ -458,6 +475,9 @@ SIMD_FN void SIMDN(segment_)(const CAT(job_, SUFFIX) *j, const CAT(line_, SUFFIX
                     } else { /* (|dz| m)^2: no under- or overflow the torch loop has not */
                         const vec d0 = dz * m0, d1 = dz * m1, d2 = dz * m2;
                         z0 = d0 * d0, z1 = d1 * d1, z2 = d2 * d2;
+                        if (EXPZ_SCALE != 1) /* exact, or below FLT_MIN where the factor is 1 */
+                            z0 *= (SCALAR)EXPZ_SCALE, z1 *= (SCALAR)EXPZ_SCALE,
+                                z2 *= (SCALAR)EXPZ_SCALE;
                     }
                     /* per channel, expz_'s bits; for the float loops by expz_near_ where
                      * every lane allows it (the artist's broad red channel mostly does) */
