@@ -70,6 +70,7 @@ def native_pass(
     copy: bool,
     blend: tuple[Tensor, Tensor] | None = None,
     sets: tuple[bool, Tensor | None] | None = None,
+    inactive: Tensor | None = None,
 ) -> int:
     """One pass over a batch through the C loop (``native/gather_body.h``); the active pixel
     count. ``args``: the arguments after ``image`` of
@@ -97,7 +98,10 @@ def native_pass(
     ``image (B, 3, H, W)`` and ``out (S, B, 3, H, W)``, set ``s``'s pass into ``out[s]``;
     ``fan_in=True`` (``copy`` False): ``image (S, B, 3, H, W)``, ``out (B, 3, H, W)`` gets
     ``Σ_s coefficients[s] · pass_s(image[s])`` at the active pixels (``coefficients (S, 3)``).
-    Stacked tensors must be contiguous.
+    Stacked tensors must be contiguous. ``inactive``: ``None`` or, for a fan-in, a
+    ``(B, 3, H, W)`` image taken as every set's input at the inactive pixels (the taps' samples
+    there), whatever ``image`` holds there; it may be ``out`` (a fan-in writes only active
+    pixels).
 
     Tensors already contiguous in the right dtype (the rule) are passed by address, image by
     image, without a torch call: on a far-away object the fixed cost of a pass is what its
@@ -134,7 +138,9 @@ def native_pass(
     fn = lib.sss_gather_f32 if dtype == torch.float32 else lib.sss_gather_f64
     if out.dtype != dtype or not out.is_contiguous():
         raise ValueError(f"out must be contiguous {dtype}, got {out.dtype} strides {out.stride()}")
-    fields = [planes(t) for t in (image, depth, strength, width, ddepth, out)]
+    if inactive is not None and (not fan_in or inactive.shape != out.shape):
+        raise ValueError("inactive is for a fan-in sweep, of the result's shape")
+    fields = [planes(t) for t in (image, depth, strength, width, ddepth, out, inactive)]
     taps = (f64(offsets), f64(weights), f64(inv_scale))
     if fan_in:
         coef = f64(sets[1])
@@ -147,12 +153,14 @@ def native_pass(
     n_total = 0
     threads = torch.get_num_threads()
     for bi, spans in enumerate(image_spans(strength, (b, h, w))):
-        src, z, mask, wid, dd, dst = (None if p is None else p + bi * step for p, step in fields)
+        src, z, mask, wid, dd, dst, rest = (
+            None if p is None else p + bi * step for p, step in fields
+        )
         status = fn(
             src, z, spans.data_ptr(), mask, wid, dd, *taps, dst, f_px, width_scalar, correction,
             maxdd, spans.shape[0], offsets.numel(), h, w, int(axis_y), follow, int(copy), threads,
             None if target[0] is None else target[0] + bi * target[1], blend_w,
-            nsets, set_stride, fan_in, coef,
+            nsets, set_stride, fan_in, coef, rest,
         )  # fmt: skip
         if status == -3:
             raise ValueError(f"native gather: {nsets} weight sets (at most {MAX_SETS}, no blend)")

@@ -586,6 +586,8 @@ def separable_sweep(
     use_mask: bool = True,
     name: str | None = None,
     check_finite: bool = True,
+    keep_inactive: bool = True,
+    inactive_from: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """:func:`separable_pass` with ``S`` weight sets over the same tap offsets in one sweep
     (000 §3 eq. 2's rank-S sum of separable kernels, 003 §7.3's Gaussians applied directly):
@@ -611,6 +613,16 @@ def separable_sweep(
             pixel of every set) and returns, when no gradient is needed (otherwise a new
             tensor is returned): a caller that sweeps frame after frame saves allocating
             and faulting in ``S`` images per call.
+        keep_inactive: fan-out: ``True`` (default) writes ``images`` into every set's
+            inactive pixels (what separate passes give there); ``False`` (with ``out``)
+            leaves them as ``out`` holds them on the native loop (no copy: 0.94x the time
+            of the 1080p close-up's fused sum of Gaussians, issue 30), for a caller whose
+            fan-in reads them from ``inactive_from``; the torch loop writes them anyway.
+        inactive_from: fan-in (with ``out``): ``None``, or a ``(B, 3, H, W)`` image of the
+            images' dtype taken as every set's image at the inactive pixels, whatever
+            ``images`` holds there (``torch.where(active, images[s], inactive_from)``):
+            the taps' samples there read it. May be ``out`` (a fan-in writes only the
+            active pixels).
 
     Returns:
         fan-out: ``(S, B, 3, H, W)``, ``[s]`` set ``s``'s pass (``images`` at inactive pixels);
@@ -629,8 +641,8 @@ def separable_sweep(
             raise ValueError(f"kernels[{i}].offsets must equal kernels[0].offsets (shared taps)")
     n_sets = len(kernels)
     fan_in = coefficients is not None
-    if fan_in:
-        check_tensor("images", images, ndim=5, finite=check_finite)
+    if fan_in:  # with inactive_from only the active pixels are read (checked below)
+        check_tensor("images", images, ndim=5, finite=check_finite and inactive_from is None)
         if images.shape[0] != n_sets:
             raise ValueError(
                 f"images must have shape (S, B, 3, H, W) with S = {n_sets} (one per kernel) "
@@ -642,14 +654,30 @@ def separable_sweep(
                 f"coefficients must have shape ({n_sets}, 3), got {tuple(coefficients.shape)}"
             )
         first = images[0]
+        if inactive_from is not None:
+            check_tensor("inactive_from", inactive_from, ndim=4, finite=check_finite)
+            if inactive_from.shape != first.shape or inactive_from.dtype != first.dtype:
+                raise ValueError(
+                    f"inactive_from must have the images' shape {tuple(first.shape)} and dtype "
+                    f"{first.dtype}, got {tuple(inactive_from.shape)} {inactive_from.dtype}"
+                )
+            if out is None:
+                raise ValueError("inactive_from needs out (the fan-in's target)")
     else:
         first = images
+        if inactive_from is not None:
+            raise ValueError("inactive_from is for a fan-in (coefficients given)")
+    if not keep_inactive and (fan_in or out is None):
+        raise ValueError("keep_inactive=False is for a fan-out into a given out")
     _check_pass_inputs(
         first, kernels[0], direction, gbuffer, width, follow_surface, surface_scale, None,
-        None, None, None, check_finite,
+        None, None, None, check_finite and inactive_from is None,
     )  # fmt: skip
     strength = gbuffer.mask if (use_mask and gbuffer.mask is not None) else None
     per_pixel = width if isinstance(width, torch.Tensor) else None
+    if inactive_from is not None and check_finite:
+        read = images if strength is None else torch.where(strength > 0, images, 0)
+        check_tensor("images (at the active pixels)", read, ndim=5, finite=True)
     if out is not None:
         want = first.shape if fan_in else (n_sets, *first.shape)
         if not isinstance(out, torch.Tensor) or out.shape != want or out.dtype != first.dtype:
@@ -697,8 +725,9 @@ def separable_sweep(
                     for img, cs in zip(images_c, c.to(dtype), strict=True):
                         out = out + cs.view(1, 3, 1, 1) * img
                 target = out if out.is_contiguous() else out.contiguous()
+                rest = None if inactive_from is None else inactive_from.contiguous()
                 n_total = native_pass(lib, images_c, target, args, False,
-                                      sets=(True, c))  # fmt: skip
+                                      sets=(True, c), inactive=rest)  # fmt: skip
                 if target is not out:
                     out.copy_(target)
                 elif not out.is_inference():
@@ -710,7 +739,8 @@ def separable_sweep(
                     result = torch.empty((n_sets, *first.shape), dtype=dtype, device=first.device)
                 elif not result.is_inference():
                     torch.autograd.graph.increment_version(result)
-                n_total = native_pass(lib, images_c, result, args, True,
+                n_total = native_pass(lib, images_c, result, args,
+                                      keep_inactive or result is not out,
                                       sets=(False, None))  # fmt: skip
         else:
             offsets, w_t = _taps(kernels[0], dtype)[0], weights.to(dtype)
@@ -720,6 +750,8 @@ def separable_sweep(
                     _inverse_scale(surface_scale, dtype), f_px,
                     0.0 if per_pixel is not None else float(width), 0.0, 0.0, axis == 2,
                     follow)  # fmt: skip
+            if inactive_from is not None and strength is not None:
+                images = torch.where(strength > 0, images, inactive_from)
             result, n_total = sweep_torch(
                 images, *args, coefficients=None if not fan_in else coefficients.to(dtype),
                 out=out if fan_in else None,

@@ -131,16 +131,18 @@ class FusedSumOfGaussiansSSS(SeparableMethod):
     def scatter(self, gbuffer: GBuffer, options: dict[str, object]) -> torch.Tensor:
         opts = {k: options[k] for k in ("width", "follow_surface", "surface_scale", "check_finite")}
         image = gbuffer.diffuse
-        # x: one read of the image, one result per Gaussian
+        # x: one read of the image, one result per Gaussian, at the active pixels only (the
+        # inactive ones of every result are the image's: the y sweep reads them there)
         scratch = _workspace((len(self.kernels), *image.shape), image)
         per_gaussian = separable_sweep(image, self.kernels, "x", gbuffer, out=scratch,
-                                       name="sog_fused.x", **opts)  # fmt: skip
+                                       name="sog_fused.x", keep_inactive=False,
+                                       **opts)  # fmt: skip
         # y: the S results in, Σ_s c_s · pass_s out at the active pixels (the blend fused)
         out = image if options.get("inplace") else serial_copy(image)
         coefficients = self.coefficients.to(dtype=image.dtype, device=image.device)
         return separable_sweep(
             per_gaussian, self.kernels, "y", gbuffer, coefficients=coefficients, out=out,
-            name="sog_fused.y", **opts,
+            name="sog_fused.y", inactive_from=image, **opts,
         )  # fmt: skip
 
 

@@ -154,6 +154,90 @@ def test_sweep_with_a_per_pixel_width_threads_and_a_target(simd, dtype):
     assert torch.equal(got[active], want[active]) and bool((got[~active] == -7.0).all())
 
 
+@needs_native
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("direction", ["x", "y"])
+def test_a_one_set_fan_in_is_its_coefficient_times_the_pass(simd, dtype, direction):
+    """A fan-in of a single set is ``0 + c_0 · pass_0`` at the active pixels, as any fan-in
+    (the native loop ran it as a plain pass until 2026-12-06, leaving ``c_0`` out)."""
+    g = scene(b=2, dtype=dtype)
+    (k,) = kernels(1)
+    coef = torch.tensor([[0.5, 2.0, -3.0]], dtype=dtype)
+    images = torch.rand(1, *g.diffuse.shape, dtype=dtype, generator=torch.Generator())
+    opts = {"follow_surface": "lerp", "surface_scale": 4.0}
+    with backend("native"):
+        got = separable_sweep(images, [k], direction, g, coefficients=coef, **opts)
+        want = separate(images, [k], direction, g, coef, **opts)
+    with backend("torch"):
+        spec = separable_sweep(images, [k], direction, g, coefficients=coef, **opts)
+    assert torch.equal(got, want) and torch.equal(got, spec)
+
+
+@needs_native
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("direction", ["x", "y"])
+@pytest.mark.parametrize(("case", "options"), CASE_OPTIONS[:2] + CASE_OPTIONS[5:7])
+def test_a_fan_in_reads_the_inactive_pixels_from_inactive_from(
+    simd, dtype, direction, case, options
+):
+    """``inactive_from``: every set's image at the inactive pixels is that image's, whatever
+    ``images`` holds there (NaN here): the fan-in of ``torch.where(active, images,
+    inactive_from)``, bitwise, in place (``out`` itself) and not; and the fan-out with
+    ``keep_inactive=False`` leaves ``out``'s inactive pixels as they were. With the two, the
+    fused method's sweeps copy no inactive pixel into its per-Gaussian images."""
+    case = dict(case)
+    taps, reach = case.pop("taps", 7), case.pop("reach", 4.0)
+    g = scene(b=2, dtype=dtype, **case)
+    ks = kernels(3, taps, reach)
+    coef = torch.tensor([[0.1, 0.2, 0.3], [0.4, 0.1, 0.2], [0.3, 0.3, 0.1]], dtype=dtype)
+    gen = torch.Generator().manual_seed(3)
+    clean = torch.rand(3, *g.diffuse.shape, dtype=dtype, generator=gen)
+    rest = torch.rand(g.diffuse.shape, dtype=dtype, generator=gen)
+    use_mask = options.get("use_mask", True)
+    active = (g.mask > 0) if use_mask else torch.ones_like(g.mask, dtype=torch.bool)
+    clean = torch.where(active, clean, rest)  # what every set holds at the inactive pixels
+    dirty = torch.where(active, clean, float("nan"))
+    for name in ("native", "torch"):
+        with backend(name):
+            want = separable_sweep(clean, ks, direction, g, coefficients=coef,
+                                   out=rest.clone(), **options)  # fmt: skip
+            got = separable_sweep(dirty, ks, direction, g, coefficients=coef, out=rest.clone(),
+                                  inactive_from=rest, **options)  # fmt: skip
+            target = rest.clone()  # in place: the inactive pixels read from the target
+            mine = separable_sweep(dirty, ks, direction, g, coefficients=coef, out=target,
+                                   inactive_from=target, **options)  # fmt: skip
+        if options.get("follow_surface") != "gaussian" or name == "native":
+            assert torch.equal(got, want) and torch.equal(mine, want), name
+        else:  # the torch loop's where: the same values, its own exp as before
+            torch.testing.assert_close(got, want, rtol=0, atol=0)
+    with backend("native"):
+        out = torch.full((3, *g.diffuse.shape), -7.0, dtype=dtype)
+        fan_out = separable_sweep(g.diffuse, ks, direction, g, out=out, keep_inactive=False,
+                                  **options)  # fmt: skip
+        full = separable_sweep(g.diffuse, ks, direction, g, **options)
+    on = active.expand_as(g.diffuse).expand(3, *g.diffuse.shape)
+    assert fan_out is out and torch.equal(fan_out[on], full[on])
+    assert bool((fan_out[~on] == -7.0).all())
+
+
+def test_inactive_options_are_refused_where_they_do_not_apply():
+    g = scene()
+    ks = kernels(2)
+    images, coef = torch.stack([g.diffuse] * 2), torch.ones(2, 3, dtype=torch.float64)
+    with pytest.raises(ValueError, match="inactive_from is for a fan-in"):
+        separable_sweep(g.diffuse, ks, "x", g, inactive_from=g.diffuse)
+    with pytest.raises(ValueError, match="inactive_from needs out"):
+        separable_sweep(images, ks, "y", g, coefficients=coef, inactive_from=g.diffuse)
+    with pytest.raises(ValueError, match="inactive_from must have the images' shape"):
+        separable_sweep(images, ks, "y", g, coefficients=coef, out=g.diffuse.clone(),
+                        inactive_from=g.diffuse[..., :3])  # fmt: skip
+    with pytest.raises(ValueError, match="keep_inactive=False is for a fan-out"):
+        separable_sweep(g.diffuse, ks, "x", g, keep_inactive=False)
+    with pytest.raises(ValueError, match="keep_inactive=False is for a fan-out"):
+        separable_sweep(images, ks, "y", g, coefficients=coef, out=g.diffuse.clone(),
+                        keep_inactive=False)  # fmt: skip
+
+
 def test_sweep_is_differentiable_on_the_torch_loop():
     """Under autograd the sweep runs the torch loop: its gradient is the numerical one."""
     g = scene(h=5, w=6)

@@ -42,13 +42,16 @@ typedef struct {
     SCALAR *scale; /* per thread: the scales of one line's active pixels */
     SCALAR *blend_out;      /* (3, H*W) NULL, or lerped toward each result as it is written */
     const SCALAR *blend_w;  /* (3,) per-channel blend weights of blend_out */
-    /* the sweep of several weight sets over the same taps (sss_gather_'s nsets > 1): set s's
+    /* the sweep of weight sets over the same taps (sss_gather_'s nsets > 1, or fan_in): set s's
      * weights at weights4 + 4 k s; fan_in = 0: one src, set s's result at dst + s set_stride;
      * fan_in = 1: set s reads src + s set_stride and dst gets sum_s coef4[4 s + ch] times
      * set s's result (0 + c_0 r_0 + c_1 r_1 + ..., in that order) */
     int64_t nsets, set_stride;
     int fan_in;
     const SCALAR *coef4; /* (nsets, 4) per-set per-channel coefficients (fan_in) */
+    /* (3, H*W) NULL, or (fan_in) every input's value at the inactive pixels, in place of
+     * what the inputs hold there (line_run_: the windows are packed from it there) */
+    const SCALAR *inactive;
     /* several threads: the lines are handed out in chunks (chunk c: lines chunks[c] ..
      * chunks[c + 1] - 1), each thread taking the next unclaimed one (*claim) until none is
      * left; first / last are then the chunk's. NULL: this job's lines are [first, last) */
@@ -231,6 +234,7 @@ typedef struct {
     /* PLANAR y strip, packed as its rows are reached (line_pack_): the next row to pack, the
      * margin r of window_ (a pixel on row p reads rows p - r .. p + r at most) */
     int64_t packed, margin;
+    int64_t run; /* j->inactive: the first of ids not before the row being packed (line_run_) */
 } CAT(line_, SUFFIX);
 
 static inline __attribute__((always_inline)) int CAT(line_begin_, SUFFIX)(
@@ -314,21 +318,50 @@ static inline __attribute__((always_inline)) SCALAR CAT(line_scales_, SUFFIX)(
     return max_abs;
 }
 
+/* j->inactive: where the run of columns that starts at column c of row r ends (at most at
+ * end), and whether its pixels are active (*active). ln->ids lists the line's spans in row
+ * order, then column order; ln->run, the first of them not on a row before r, only moves on
+ * (a line's rows are packed in increasing order; line_window_ starts it at 0), and the call
+ * moves it past the spans of row r that end at or before c. */
+static inline int64_t CAT(line_run_, SUFFIX)(const CAT(job_, SUFFIX) *j,
+                                             CAT(line_, SUFFIX) *ln, int64_t r, int64_t c,
+                                             int64_t end, int *active) {
+    const int64_t *sp = NULL;
+    for (; ln->run < ln->count; ++ln->run) {
+        sp = j->spans + 3 * ln->ids[ln->run];
+        if (sp[0] > r || (sp[0] == r && sp[2] > c)) break;
+        sp = NULL;
+    }
+    if (sp == NULL || sp[0] != r) { /* no active pixel left on this row */
+        *active = 0;
+        return end;
+    }
+    *active = sp[1] <= c;
+    const int64_t stop = *active ? sp[2] : sp[1];
+    return stop < end ? stop : end;
+}
+
 /* PLANAR packing of one row: columns c0 .. c0 + cw - 1 of image row r, plane p (r, g, b,
- * depth, then a fan-in's further inputs' r, g, b) at o + p * gap */
+ * depth, then a fan-in's further inputs' r, g, b) at o + p * gap; with j->inactive, every
+ * input's inactive pixels from it (line_run_) */
 static inline __attribute__((always_inline)) void CAT(pack_row_, SUFFIX)(
-    const CAT(job_, SUFFIX) *j, SCALAR *o, int64_t r, int64_t c0, int64_t cw, int64_t gap) {
+    const CAT(job_, SUFFIX) *j, CAT(line_, SUFFIX) *ln, SCALAR *o, int64_t r, int64_t c0,
+    int64_t cw, int64_t gap) {
     const int64_t w = j->w, hw = j->h * w;
     const int64_t nin = j->fan_in ? j->nsets : 1;
-    const SCALAR *rgb = j->src + r * w + c0;
-    const size_t bytes = sizeof(SCALAR) * (size_t)cw;
-    memcpy(o, rgb, bytes);
-    memcpy(o + gap, rgb + hw, bytes);
-    memcpy(o + 2 * gap, rgb + 2 * hw, bytes);
-    memcpy(o + 3 * gap, j->depth + r * w + c0, bytes);
-    for (int64_t i = 1; i < nin; ++i) /* a fan-in's further inputs, after depth */
-        for (int ch = 0; ch < 3; ++ch)
-            memcpy(o + (4 + 3 * (i - 1) + ch) * gap, rgb + i * j->set_stride + ch * hw, bytes);
+    memcpy(o + 3 * gap, j->depth + r * w + c0, sizeof(SCALAR) * (size_t)cw);
+    for (int64_t c = c0, next; c < c0 + cw; c = next) {
+        int active = 1;
+        next = j->inactive ? CAT(line_run_, SUFFIX)(j, ln, r, c, c0 + cw, &active) : c0 + cw;
+        const size_t bytes = sizeof(SCALAR) * (size_t)(next - c);
+        const SCALAR *rgb = (active ? j->src : j->inactive) + r * w + c;
+        SCALAR *at = o + (c - c0);
+        for (int ch = 0; ch < 3; ++ch) memcpy(at + ch * gap, rgb + ch * hw, bytes);
+        for (int64_t i = 1; i < nin; ++i) /* a fan-in's further inputs, after depth */
+            for (int ch = 0; ch < 3; ++ch)
+                memcpy(at + (4 + 3 * (i - 1) + ch) * gap,
+                       rgb + (active ? i * j->set_stride : 0) + ch * hw, bytes);
+    }
 }
 
 /* the window and its samples in j->buf (see above), given the largest |scale|; or, for an
@@ -363,7 +396,7 @@ static inline __attribute__((always_inline)) void CAT(line_window_, SUFFIX)(
      * sweep takes 0.8x that (102 -> 81 ms CPU, measured) */
     const int64_t nin = j->fan_in ? j->nsets : 1;
     ln->stride = 4 * plane;
-    const int in_place = !AXIS_Y && q * w + hi + 64 < hw;
+    const int in_place = !AXIS_Y && q * w + hi + 64 < hw && !j->inactive;
     if (PLANAR && j->direct && in_place) { /* each input's planes too */
         const int64_t at = q * w + lo;
         ln->pl[0] = j->src + at;
@@ -387,21 +420,26 @@ static inline __attribute__((always_inline)) void CAT(line_window_, SUFFIX)(
     for (int64_t i = 1; i < nin; ++i)
         for (int ch = 0; ch < 3; ++ch) ln->plx[i][ch] = j->buf + (4 + 3 * (i - 1) + ch) * gap;
     ln->packed = lo;
+    ln->run = 0;
     if (PLANAR && AXIS_Y) return; /* line_pack_ */
     for (int64_t r = r0; r <= r1; ++r) {
         const SCALAR *rgb = j->src + r * w, *z = j->depth + r * w;
         if (PLANAR) { /* an x row (a y strip: line_pack_) */
-            CAT(pack_row_, SUFFIX)(j, j->buf, r, c0, cw, gap);
+            CAT(pack_row_, SUFFIX)(j, ln, j->buf, r, c0, cw, gap);
             continue;
         }
-        for (int64_t i = 0; i < nin; ++i) { /* input i's window 4 plane SCALARs further */
-            SCALAR *o = j->buf + i * 4 * plane + 4 * (r - r0) * (c1 - c0 + 1) - 4 * c0;
-            const SCALAR *in = rgb + i * j->set_stride;
-            for (int64_t c = c0; c <= c1; ++c) {
-                o[4 * c] = in[c];
-                o[4 * c + 1] = in[hw + c];
-                o[4 * c + 2] = in[2 * hw + c];
-                o[4 * c + 3] = z[c];
+        for (int64_t c0r = c0, next; c0r <= c1; c0r = next) { /* runs (j->inactive) */
+            int active = 1;
+            next = j->inactive ? CAT(line_run_, SUFFIX)(j, ln, r, c0r, c1 + 1, &active) : c1 + 1;
+            for (int64_t i = 0; i < nin; ++i) { /* input i's window 4 plane SCALARs further */
+                SCALAR *o = j->buf + i * 4 * plane + 4 * (r - r0) * (c1 - c0 + 1) - 4 * c0;
+                const SCALAR *in = active ? rgb + i * j->set_stride : j->inactive + r * w;
+                for (int64_t c = c0r; c < next; ++c) {
+                    o[4 * c] = in[c];
+                    o[4 * c + 1] = in[hw + c];
+                    o[4 * c + 2] = in[2 * hw + c];
+                    o[4 * c + 3] = z[c];
+                }
             }
         }
     }
@@ -430,7 +468,7 @@ static inline __attribute__((always_inline)) void CAT(line_pack_, SUFFIX)(
     const int64_t cw = ln->s1 - ln->s0;
     const int64_t end = upto < ln->hi ? upto : ln->hi;
     for (int64_t r = ln->packed; r <= end; ++r) { /* each row's planes side by side */
-        CAT(pack_row_, SUFFIX)(j, j->buf + (r - ln->lo) * ln->pitch, r, ln->s0, cw, cw);
+        CAT(pack_row_, SUFFIX)(j, ln, j->buf + (r - ln->lo) * ln->pitch, r, ln->s0, cw, cw);
         const int64_t ahead = r + PACK_AHEAD;
         if (ahead <= ln->hi && !j->fan_in)
             CAT(prefetch_row_, SUFFIX)(j, ahead, ln->s0, ln->s1, 0);
@@ -503,7 +541,7 @@ static inline __attribute__((always_inline)) void CAT(lines_, SUFFIX)(
              {CAT(LINES, _y2s), CAT(LINES, _y2m)}}};                                \
         const CAT(job_, SUFFIX) *j = (const CAT(job_, SUFFIX) *)arg;             \
         void (*const lines)(const CAT(job_, SUFFIX) *) =                        \
-            table[j->axis_y != 0][j->follow][j->nsets > 1];                      \
+            table[j->axis_y != 0][j->follow][j->nsets > 1 || j->fan_in];         \
         FTZ_BEGIN(j->follow == 2); /* the gaussian's underflow: FTZ_BEGIN in gather.c */ \
         if (!j->claim) {                                                        \
             lines(j);                                                           \
@@ -656,9 +694,11 @@ static void CAT(taps_in_, SUFFIX)(const double *offsets, const double *weights,
  * nsets > 1 (at most MAX_SETS): a sweep of nsets weight sets over the same offsets, weights
  * (nsets, k, 3) float64, sharing each tap's position, fetch and follow-surface factor; fan_in
  * 0: dst + s set_stride gets set s's pass of src (copy: src everywhere else, in each);
- * fan_in 1 (copy 0): set s reads src + s set_stride, and dst's active pixels get
- * sum_s coef[s] times set s's result (coef (nsets, 3) float64, cast to SCALAR). The
- * blend is for nsets = 1 only. */
+ * fan_in 1 (copy 0, any nsets): set s reads src + s set_stride, and dst's active pixels get
+ * sum_s coef[s] times set s's result (coef (nsets, 3) float64, cast to SCALAR); inactive
+ * (3, H*W) or NULL: with fan_in, every set's input at the inactive pixels (the windows' samples
+ * there), whatever src holds there (it may be dst: a fan-in writes only active pixels). The
+ * blend is for a single pass only (nsets = 1, fan_in 0). */
 int64_t CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const int64_t *spans,
                              const SCALAR *mask, const SCALAR *width, const SCALAR *ddepth,
                              const double *offsets, const double *weights,
@@ -667,11 +707,12 @@ int64_t CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const i
                              int64_t n_spans, int64_t k, int64_t h, int64_t w, int axis_y,
                              int follow, int copy, int threads, SCALAR *blend_out,
                              const SCALAR *blend_w, int64_t nsets, int64_t set_stride,
-                             int fan_in, const double *coef) {
+                             int fan_in, const double *coef, const SCALAR *inactive) {
     enum { MAX_THREADS = 64 };
-    if (nsets < 1 || nsets > MAX_SETS || (nsets > 1 && (blend_out || (fan_in && copy))))
+    if (nsets < 1 || nsets > MAX_SETS || ((nsets > 1 || fan_in) && blend_out) || (fan_in && copy))
         return -3;
-    if (nsets == 1) fan_in = 0;
+    /* a fan-in of one set is a fan-in too: dst gets 0 + c_0 r_0 (the loops' MULTI path; it was
+     * run as a plain pass until 2026-12-06, its coefficients left out) */
     for (int64_t i = 0; i < 3 * k * nsets; ++i) /* every weight finite in SCALAR, first */
         if (!(FABSF((SCALAR)weights[i]) <= SCALAR_MAX)) return -2;
     if (fan_in)
@@ -786,7 +827,7 @@ int64_t CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const i
                                 correction, maxdd, max_offset, k, h, w, first, last, strip, axis_y, follow, copy,
                                 direct,
                                 mine, mine + 4 * (size_t)nin * (size_t)line_len, blend_out, blend_w,
-                                nsets, set_stride, fan_in, coef4,
+                                nsets, set_stride, fan_in, coef4, fan_in ? inactive : NULL,
                                 threads > 1 ? &claim : NULL, chunks, n_chunks};
         jobs[t] = jb;
     }
