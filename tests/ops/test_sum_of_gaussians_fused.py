@@ -100,21 +100,22 @@ CASE_OPTIONS = [
 
 
 @needs_native
+@pytest.mark.parametrize("n_sets", [4, 1])
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 @pytest.mark.parametrize("direction", ["x", "y"])
 @pytest.mark.parametrize(("case", "options"), CASE_OPTIONS)
-def test_sweep_is_the_separate_passes_bitwise(simd, dtype, direction, case, options):
+def test_sweep_is_the_separate_passes_bitwise(simd, dtype, direction, case, options, n_sets):
     case = dict(case)
     taps, reach = case.pop("taps", 7), case.pop("reach", 4.0)
     g = scene(b=2, dtype=dtype, **case)
-    ks = kernels(4, taps, reach)
+    ks = kernels(n_sets, taps, reach)
     coef = torch.tensor([[0.1, 0.2, 0.3], [0.4, 0.1, 0.2], [0.3, 0.3, 0.1], [0.2, 0.4, 0.4]])
-    coef = coef.to(dtype)
+    coef = coef[:n_sets].to(dtype)
     with backend("native"):
         fan_out = separable_sweep(g.diffuse, ks, direction, g, **options)
         assert torch.equal(fan_out, separate(g.diffuse, ks, direction, g, **options))
-        # the fan-in of four different images (not the fan-out's: each set its own input)
-        images = torch.rand(4, *g.diffuse.shape, dtype=dtype, generator=torch.Generator())
+        # the fan-in of n_sets different images (not the fan-out's: each set its own input)
+        images = torch.rand(n_sets, *g.diffuse.shape, dtype=dtype, generator=torch.Generator())
         fan_in = separable_sweep(images, ks, direction, g, coefficients=coef, **options)
         assert torch.equal(fan_in, separate(images, ks, direction, g, coef, **options))
     with backend("torch"):  # the specification, another implementation
