@@ -26,6 +26,11 @@ errors of 1 is "not resolved" (:func:`ab_verdict`).
 Both builds use the same compiler and flags (``native._FLAGS``); a base whose ``gather.c`` has
 no ``SSS_PART`` halves compiles it whole, as one unit, beside ``disk.c`` (:func:`units_for`).
 A base that lacks a symbol the working tree declares cannot be loaded, and the tool says so.
+Only the libraries differ: both are called by the working tree's Python, so a change in what
+the operators ask of the loop is not measured here (and a base older than the loop's argument
+that such a change passes computes other values while it is timed: the fused sum of
+Gaussians' ``inactive`` of 2026-12-06). Time such a change by alternating the two Python
+behaviours in one process (docs/numerics.md).
 """
 
 from __future__ import annotations
