@@ -219,6 +219,12 @@ def test_a_fan_in_reads_the_inactive_pixels_from_inactive_from(
     on = active.expand_as(g.diffuse).expand(3, *g.diffuse.shape)
     assert fan_out is out and torch.equal(fan_out[on], full[on])
     assert bool((fan_out[~on] == -7.0).all())
+    # an out the loop cannot write in place: the new tensor returned is written everywhere
+    strided = torch.full((3, *g.diffuse.shape[:-1], 2 * g.diffuse.shape[-1]), -7.0, dtype=dtype)
+    with backend("native"):
+        fresh = separable_sweep(g.diffuse, ks, direction, g, out=strided[..., ::2],
+                                keep_inactive=False, **options)  # fmt: skip
+    assert torch.equal(fresh, full)
 
 
 def test_inactive_options_are_refused_where_they_do_not_apply():
