@@ -93,17 +93,17 @@ SIMD_FN SIMDN(vs_) SIMDN(expm1t_)(SIMDN(vs_) t) {
     return q * t;
 }
 
-SIMD_FN SIMDN(vs_) SIMDN(expz_)(SIMDN(vs_) z) {
+SIMD_FN SIMDN(vs_) SIMDN(expz_)(SIMDN(vs_) y) { /* y = z / 8 (EXPZ_SCALE) */
     typedef SIMDN(vs_) vec;
     typedef SIMDN(vm_) mask;
     typedef SIMDN(vu_) uivec;
     const vec zero = {0};
-    z = VMINPS(z, zero + (SCALAR)126); /* y = z / 8, min(y, 126): also +inf, NaN -> 126 */
+    y = VMINPS(y, zero + (SCALAR)126); /* min(y, 126): also +inf, NaN -> 126 */
     /* tm = 1.5 2^20 + n8 / 8, n8 = round(-z) in [-1008, 0] (one rounding: tm's ulp is 1/8) */
     const vec magic = zero + (SCALAR)1572864.0;
-    const vec tm = magic - z;
+    const vec tm = magic - y;
     const vec r = tm - magic;        /* n8 / 8, exact */
-    const vec t = z + r;             /* (z - round(z)) / 8 in [-1/16, 1/16], exact */
+    const vec t = y + r;             /* (z - round(z)) / 8 in [-1/16, 1/16], exact */
     const vec q = SIMDN(expm1t_)(t); /* e^(-8 t ln 2 / 8) - 1 */
     vec tab;
     __builtin_memcpy(&tab, SIMDN(exp_tab_), sizeof tab);
@@ -112,7 +112,6 @@ SIMD_FN SIMDN(vs_) SIMDN(expz_)(SIMDN(vs_) z) {
 #ifdef VSCALEF
     return (vec)VSCALEF(p, r); /* p 2^floor(n8 / 8) = p 2^n */
 #else
-    (void)r;
     /* n << 23 = (n8 << 20) with the low 23 bits cleared (tm's high bits shift out) */
     const uivec e = ((uivec)tm << 20) & 0xFF800000u;
     return (vec)((uivec)p + e);
@@ -132,22 +131,22 @@ SIMD_FN SIMDN(vs_) SIMDN(expz_)(SIMDN(vs_) z) {
  * add: 8 operations), measured no faster: its check costs about what it saves. Checked for
  * every float z below 1/2 against expz_ by tests/ops/exp_exhaustive.c, and through passes
  * by tests/ops/test_gather_backends.py. */
-SIMD_FN SIMDN(vs_) SIMDN(expz_near_)(SIMDN(vs_) z) {
+SIMD_FN SIMDN(vs_) SIMDN(expz_near_)(SIMDN(vs_) y) {
     const SIMDN(vs_) zero = {0};
-    return SIMDN(expm1t_)(z) + (zero + 1);
+    return SIMDN(expm1t_)(y) + (zero + 1);
 }
 
 /* whether every lane of y = z / 8 lies in [0, 1/16): as unsigned int32 the bits of a float in
  * [+0, 1/16) are below those of 1/16 (0x3D800000), and those of -0, every negative float,
  * every NaN (either sign) and infinity are not */
-SIMD_FN int SIMDN(expz_near_below_)(SIMDN(vs_) z) {
+SIMD_FN int SIMDN(expz_near_below_)(SIMDN(vs_) y) {
     const SIMDN(vi_) izero = {0};
-    return !ANY_GTU(z, izero + 0x3D7FFFFF);
+    return !ANY_GTU(y, izero + 0x3D7FFFFF);
 }
 
 /* expz_ of every lane: expz_near_ where all lanes allow it, else expz_ (the same bits) */
-SIMD_FN SIMDN(vs_) SIMDN(expz_lanes_)(SIMDN(vs_) z) {
-    return SIMDN(expz_near_below_)(z) ? SIMDN(expz_near_)(z) : SIMDN(expz_)(z);
+SIMD_FN SIMDN(vs_) SIMDN(expz_lanes_)(SIMDN(vs_) y) {
+    return SIMDN(expz_near_below_)(y) ? SIMDN(expz_near_)(y) : SIMDN(expz_)(y);
 }
 #else
 /* exp(x) for x <= 0 (also -inf), double: Cody-Waite reduction x = n ln 2 + r, |r| <= ln 2 / 2,
