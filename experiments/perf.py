@@ -188,6 +188,21 @@ def memory_state(calls: Sequence[Sequence]) -> dict[str, float]:
     return {"y_over_x": statistics.median(ratios), "slow_share": slow}
 
 
+def stretch_words(state: dict[str, float]) -> str:
+    """What the memory state of a run's headline rounds was, from :func:`memory_state`'s
+    figures: ``"a slow stretch"`` when more than half of the calls' y / x were above
+    :data:`SLOW_Y_OVER_X`, ``"a fast stretch"`` when none were, ``"a mix of the two
+    stretches"`` in between, ``"not known"`` without calls (a NaN share)."""
+    share = state["slow_share"]
+    if share != share:
+        return "not known"
+    if share > 0.5:
+        return "a slow stretch"
+    if share == 0:
+        return "a fast stretch"
+    return "a mix of the two stretches"
+
+
 def states_by_run(prior: dict[str, list[float]], figures: dict[str, float]) -> str:
     """`` Run by run (the logged runs of this code, then this one): y / x 1.06, 1.58 (slow
     in 0, 92 % of the calls); kornia 0.75, 1.29×; the floor 8.98, 14.08×.``: each run's
@@ -1138,10 +1153,10 @@ def run(ctx: Context) -> Section:
         f"times taken in this one run, interleaved round by round; absolute times are not "
         f"comparable between runs. Memory state of the headline rounds: the two-pass's y pass "
         f"took {state['y_over_x']:.2f}× its x pass (median of {len(op_passes) - 1} calls), "
-        f"{state['slow_share']:.0%} of them above {SLOW_Y_OVER_X}× — a slow stretch, in which "
-        f"the y strips' memory traffic (rows a page apart) is slowed and the streaming kornia "
-        f"blur and `clone` are not, so the ratios to them rise (docs/numerics.md: about 1.1× "
-        f"in a fast stretch, 1.7× in a slow one)." + states_by_run(prior, figures)
+        f"{state['slow_share']:.0%} of them above {SLOW_Y_OVER_X}×: {stretch_words(state)} "
+        f"(docs/numerics.md: y / x about 1.1× in a fast stretch, 1.7× in a slow one, in which "
+        f"the y strips' memory traffic, rows a page apart, is slowed and the streaming kornia "
+        f"blur and `clone` are not, so the ratios to them rise)." + states_by_run(prior, figures)
     )
     targets.extend(["", "Issue 30 (speed at the machine's limit):", *t30])
     # a target not resolved is not shown met: the section is met only when all are

@@ -19,6 +19,7 @@ from experiments.perf import (
     memory_state,
     ratio_text,
     states_by_run,
+    stretch_words,
     verdict_at_most,
     verdict_within,
 )
@@ -216,6 +217,23 @@ def test_memory_state_is_the_median_y_over_x_and_the_share_of_slow_calls():
     assert 1.1 < SLOW_Y_OVER_X < 1.7  # between the two stretches' figures (docs/numerics.md)
     empty = memory_state([])
     assert math.isnan(empty["y_over_x"]) and math.isnan(empty["slow_share"])
+
+
+def test_stretch_words_name_the_state_from_the_share_of_slow_calls():
+    """The sentence follows the run's own figures (the REPORT once said "a slow stretch" of a
+    run whose calls were all fast): none slow is fast, most slow is slow, some is a mix, no
+    calls is not known."""
+    from sssbench.ops import PassRecord
+
+    def calls(ratios: list[float]) -> list:
+        return [
+            [PassRecord("p.x", 7, 100, 5.0), PassRecord("p.y", 7, 100, 5.0 * r)] for r in ratios
+        ]
+
+    assert stretch_words(memory_state(calls([0.87, 0.9, 1.1]))) == "a fast stretch"
+    assert stretch_words(memory_state(calls([1.6, 1.7, 1.1]))) == "a slow stretch"
+    assert stretch_words(memory_state(calls([1.6, 1.1, 1.1]))) == "a mix of the two stretches"
+    assert stretch_words(memory_state([])) == "not known"
 
 
 def test_states_by_run_lists_each_runs_state_beside_its_figures():
