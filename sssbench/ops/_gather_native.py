@@ -71,6 +71,7 @@ def native_pass(
     blend: tuple[Tensor, Tensor] | None = None,
     sets: tuple[bool, Tensor | None] | None = None,
     inactive: Tensor | None = None,
+    inactive_to: Tensor | None = None,
 ) -> int:
     """One pass over a batch through the C loop (``native/gather_body.h``); the active pixel
     count. ``args``: the arguments after ``image`` of
@@ -101,7 +102,10 @@ def native_pass(
     Stacked tensors must be contiguous. ``inactive``: ``None`` or, for a fan-in, a
     ``(B, 3, H, W)`` image taken as every set's input at the inactive pixels (the taps' samples
     there), whatever ``image`` holds there; it may be ``out`` (a fan-in writes only active
-    pixels).
+    pixels). ``inactive_to``: ``None`` or, not for a fan-in, a contiguous ``(B, 3, H, W)``
+    tensor of ``image``'s dtype sharing no memory with the pass's tensors, which gets
+    ``image``'s inactive pixels (copied line by line by the pass's threads as their lines
+    come); its active pixels are not written.
 
     Tensors already contiguous in the right dtype (the rule) are passed by address, image by
     image, without a torch call: on a far-away object the fixed cost of a pass is what its
@@ -140,7 +144,13 @@ def native_pass(
         raise ValueError(f"out must be contiguous {dtype}, got {out.dtype} strides {out.stride()}")
     if inactive is not None and (not fan_in or inactive.shape != out.shape):
         raise ValueError("inactive is for a fan-in sweep, of the result's shape")
-    fields = [planes(t) for t in (image, depth, strength, width, ddepth, out, inactive)]
+    if inactive_to is not None and (
+        fan_in or inactive_to.shape != image.shape or inactive_to.dtype != dtype
+        or not inactive_to.is_contiguous()
+    ):  # fmt: skip
+        raise ValueError("inactive_to is for a pass or fan-out, contiguous of the image's shape")
+    fields = [planes(t) for t in (image, depth, strength, width, ddepth, out, inactive,
+                                  inactive_to)]  # fmt: skip
     taps = (f64(offsets), f64(weights), f64(inv_scale))
     if fan_in:
         coef = f64(sets[1])
@@ -153,14 +163,14 @@ def native_pass(
     n_total = 0
     threads = torch.get_num_threads()
     for bi, spans in enumerate(image_spans(strength, (b, h, w))):
-        src, z, mask, wid, dd, dst, rest = (
+        src, z, mask, wid, dd, dst, rest, rest_to = (
             None if p is None else p + bi * step for p, step in fields
         )
         status = fn(
             src, z, spans.data_ptr(), mask, wid, dd, *taps, dst, f_px, width_scalar, correction,
             maxdd, spans.shape[0], offsets.numel(), h, w, int(axis_y), follow, int(copy), threads,
             None if target[0] is None else target[0] + bi * target[1], blend_w,
-            nsets, set_stride, fan_in, coef, rest,
+            nsets, set_stride, fan_in, coef, rest, rest_to,
         )  # fmt: skip
         if status == -3:
             raise ValueError(f"native gather: {nsets} weight sets (at most {MAX_SETS}, no blend)")
@@ -174,8 +184,9 @@ def native_pass(
 
 def serial_copy(image: Tensor) -> Tensor:
     """A contiguous copy of ``image`` made on the calling thread alone, for a tensor a native
-    pass writes next (the sums of Gaussians' outputs, whose inactive pixels are the image's:
-    the fused sweep's, the 12-pass schedule's blend target). torch's ``clone`` of a large
+    pass writes next (the 12-pass sum of Gaussians' blend target, whose inactive pixels are
+    the image's; the fused sweep's new result was one until its x sweep filled that result's
+    inactive pixels itself, ``separable_sweep(..., inactive_into=)``). torch's ``clone`` of a large
     tensor runs on its OpenMP threads, which then spin for milliseconds waiting for more work,
     on the core the native pass's second thread needs: measured 0.91x the wall time of the
     1080p ``sum_of_gaussians_fused`` call with this copy instead (21 interleaved rounds,

@@ -588,6 +588,7 @@ def separable_sweep(
     check_finite: bool = True,
     keep_inactive: bool = True,
     inactive_from: torch.Tensor | None = None,
+    inactive_into: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """:func:`separable_pass` with ``S`` weight sets over the same tap offsets in one sweep
     (000 §3 eq. 2's rank-S sum of separable kernels, 003 §7.3's Gaussians applied directly):
@@ -623,6 +624,12 @@ def separable_sweep(
             ``images`` holds there (``torch.where(active, images[s], inactive_from)``):
             the taps' samples there read it. May be ``out`` (a fan-in writes only the
             active pixels).
+        inactive_into: fan-out: ``None``, or a ``(B, 3, H, W)`` tensor of the image's dtype
+            (sharing no memory with the inputs or ``out``) that gets ``images`` at the
+            inactive pixels, its active pixels left as they are: a fresh target for a fan-in
+            with ``inactive_from=images`` that writes the active ones (the native loop's
+            threads copy each line as they reach it; for the fused sum of Gaussians' new
+            image, in place of a copy of the whole image before the sweeps, issue 30).
 
     Returns:
         fan-out: ``(S, B, 3, H, W)``, ``[s]`` set ``s``'s pass (``images`` at inactive pixels);
@@ -667,6 +674,17 @@ def separable_sweep(
         first = images
         if inactive_from is not None:
             raise ValueError("inactive_from is for a fan-in (coefficients given)")
+    if inactive_into is not None:
+        if fan_in:
+            raise ValueError("inactive_into is for a fan-out (no coefficients)")
+        if (
+            not isinstance(inactive_into, torch.Tensor) or inactive_into.shape != first.shape
+            or inactive_into.dtype != first.dtype
+        ):  # fmt: skip
+            raise ValueError(
+                f"inactive_into must be a tensor of the image's shape {tuple(first.shape)} "
+                f"and dtype {first.dtype}"
+            )
     if not keep_inactive and (fan_in or out is None):
         raise ValueError("keep_inactive=False is for a fan-out into a given out")
     _check_pass_inputs(
@@ -689,6 +707,11 @@ def separable_sweep(
         check_writable("out", out, {
             "images": images, "gbuffer.depth": gbuffer.depth, "gbuffer.mask": strength,
             "width": per_pixel,
+        })  # fmt: skip
+    if inactive_into is not None:
+        check_writable("inactive_into", inactive_into, {
+            "images": images, "gbuffer.depth": gbuffer.depth, "gbuffer.mask": strength,
+            "width": per_pixel, "out": out,
         })  # fmt: skip
     name_ = get_backend()
     if name_ == "gl":
@@ -739,9 +762,16 @@ def separable_sweep(
                     result = torch.empty((n_sets, *first.shape), dtype=dtype, device=first.device)
                 elif not result.is_inference():
                     torch.autograd.graph.increment_version(result)
+                into = inactive_into
+                if into is not None and not into.is_contiguous():
+                    into = into.contiguous()
                 n_total = native_pass(lib, images_c, result, args,
                                       keep_inactive or result is not out,
-                                      sets=(False, None))  # fmt: skip
+                                      sets=(False, None), inactive_to=into)  # fmt: skip
+                if into is not inactive_into:
+                    inactive_into.copy_(into)
+                elif into is not None and not into.is_inference():
+                    torch.autograd.graph.increment_version(into)
         else:
             offsets, w_t = _taps(kernels[0], dtype)[0], weights.to(dtype)
             if not bool(torch.isfinite(w_t).all()):
@@ -757,6 +787,8 @@ def separable_sweep(
                 out=out if fan_in else None,
                 accumulate=compiled_accumulate() if name_ == "compile" else None,
             )  # fmt: skip
+            if inactive_into is not None and strength is not None:
+                inactive_into.copy_(torch.where(strength > 0, inactive_into, images))
     ms = (time.perf_counter() - start) * 1e3
     fetched = len(kernels[0]) * (n_sets if fan_in else 1)  # samples per pixel
     add_record(PassRecord(name or f"sweep.{direction}", fetched, n_total, ms))

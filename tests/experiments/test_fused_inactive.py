@@ -1,11 +1,11 @@
-"""experiments/fused_inactive.py: its earlier schedule is the fused method, bit for bit."""
+"""experiments/fused_inactive.py: its earlier schedules are the fused method, bit for bit."""
 
 from __future__ import annotations
 
 import pytest
 import torch
 
-from experiments.fused_inactive import copying
+from experiments.fused_inactive import copying, serial_output
 from sssbench.ops import FusedSumOfGaussiansSSS, native
 from sssbench.ops import sum_of_gaussians_fused as fused
 from sssbench.profiles import SumOfGaussians
@@ -16,7 +16,8 @@ from tests.ops.test_sum_of_gaussians_fused import scene
 def test_the_copying_schedule_is_the_method_bitwise(level):
     """The x sweep into every pixel of a workspace and the y sweep reading it there give the
     method's bits (which reads the inactive pixels from the diffuse image instead); NaN left
-    in either's workspace changes nothing."""
+    in either's workspace changes nothing; so does the new result copied whole first
+    (``serial_output``) instead of filled at its inactive pixels by the x sweep."""
     g = scene(b=2, h=40, w=60, cover=0.5)
     op = FusedSumOfGaussiansSSS(SumOfGaussians.from_table("skin_deon6"), 7)
     scratch = torch.full((len(op.kernels), *g.diffuse.shape), float("nan"), dtype=g.dtype)
@@ -25,3 +26,5 @@ def test_the_copying_schedule_is_the_method_bitwise(level):
         fused._SCRATCH.tensor.fill_(float("nan"))  # the method's kept workspace
         assert torch.equal(op(g), first) and not bool(first.isnan().any())
         assert torch.equal(copying(op, g, scratch), first)
+        scratch.fill_(float("nan"))
+        assert torch.equal(serial_output(op, g, scratch), first)

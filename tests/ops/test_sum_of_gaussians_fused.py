@@ -227,6 +227,39 @@ def test_a_fan_in_reads_the_inactive_pixels_from_inactive_from(
     assert torch.equal(fresh, full)
 
 
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("direction", ["x", "y"])
+@pytest.mark.parametrize(("case", "options"), CASE_OPTIONS[:2] + CASE_OPTIONS[4:7])
+def test_a_fan_out_writes_the_images_inactive_pixels_into_inactive_into(
+    simd, dtype, direction, case, options
+):
+    """``inactive_into`` gets the image at the inactive pixels and keeps its own (a sentinel
+    here) at the active ones, ``torch.where(active, into, image)`` bitwise, on both loops,
+    contiguous or a strided view, with ``keep_inactive`` either way; the fan-out itself is
+    unchanged. Without a mask every pixel is active: nothing is written. The fused method's
+    new image is made so (its y sweep then writes the active pixels)."""
+    case = dict(case)
+    taps, reach = case.pop("taps", 7), case.pop("reach", 4.0)
+    g = scene(b=2, dtype=dtype, **case)
+    ks = kernels(3, taps, reach)
+    use_mask = options.get("use_mask", True)
+    active = (g.mask > 0) if use_mask else torch.ones_like(g.mask, dtype=torch.bool)
+    want = torch.where(active, torch.full_like(g.diffuse, -7.0), g.diffuse)
+    for name in ("native", "torch"):
+        with backend(name):
+            full = separable_sweep(g.diffuse, ks, direction, g, **options)
+            into = torch.full_like(g.diffuse, -7.0)
+            got = separable_sweep(g.diffuse, ks, direction, g, inactive_into=into, **options)
+            assert torch.equal(into, want) and torch.equal(got, full), name
+            out = torch.full((3, *g.diffuse.shape), -7.0, dtype=dtype)
+            wide = torch.full((*g.diffuse.shape[:-1], 2 * g.diffuse.shape[-1]), -7.0, dtype=dtype)
+            got = separable_sweep(g.diffuse, ks, direction, g, out=out, keep_inactive=False,
+                                  inactive_into=wide[..., ::2], **options)  # fmt: skip
+            assert torch.equal(wide[..., ::2], want) and bool((wide[..., 1::2] == -7.0).all())
+            on = active.expand_as(g.diffuse).expand(3, *g.diffuse.shape)
+            assert torch.equal(got[on], full[on]), name
+
+
 def test_inactive_options_are_refused_where_they_do_not_apply():
     g = scene()
     ks = kernels(2)
@@ -243,6 +276,14 @@ def test_inactive_options_are_refused_where_they_do_not_apply():
     with pytest.raises(ValueError, match="keep_inactive=False is for a fan-out"):
         separable_sweep(images, ks, "y", g, coefficients=coef, out=g.diffuse.clone(),
                         keep_inactive=False)  # fmt: skip
+    with pytest.raises(ValueError, match="inactive_into is for a fan-out"):
+        separable_sweep(images, ks, "y", g, coefficients=coef, inactive_into=g.diffuse.clone())
+    with pytest.raises(ValueError, match="inactive_into must be a tensor of the image's shape"):
+        separable_sweep(g.diffuse, ks, "x", g, inactive_into=g.diffuse[..., :3].clone())
+    with pytest.raises(ValueError, match="inactive_into must be a tensor of the image's shape"):
+        separable_sweep(g.diffuse, ks, "x", g, inactive_into=g.diffuse.float())
+    with pytest.raises(ValueError, match="inactive_into"):  # the image itself: read meanwhile
+        separable_sweep(g.diffuse, ks, "x", g, inactive_into=g.diffuse)
 
 
 def test_sweep_is_differentiable_on_the_torch_loop():

@@ -315,7 +315,7 @@ def _declare_loops(lib: ctypes.CDLL, suffix: str) -> None:
     p, i64, i32, f64 = ctypes.c_void_p, ctypes.c_int64, ctypes.c_int, ctypes.c_double
     fn = getattr(lib, f"sss_gather_{suffix}")
     fn.restype = ctypes.c_int64  # active pixels, -1: out of memory
-    fn.argtypes = [p] * 10 + [f64] * 4 + [i64] * 4 + [i32] * 4 + [p] * 2 + [i64] * 2 + [i32, p, p]
+    fn.argtypes = [p] * 10 + [f64] * 4 + [i64] * 4 + [i32] * 4 + [p, p, i64, i64, i32, p, p, p]
     fn = getattr(lib, f"sss_blend_{suffix}")
     fn.restype = ctypes.c_int64  # active pixels
     fn.argtypes = [p] * 4 + [i64] * 3 + [i32]

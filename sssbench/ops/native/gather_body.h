@@ -52,6 +52,10 @@ typedef struct {
     /* (3, H*W) NULL, or (fan_in) every input's value at the inactive pixels, in place of
      * what the inputs hold there (line_run_: the windows are packed from it there) */
     const SCALAR *inactive;
+    /* (3, H*W) NULL, or (not a fan-in) src's inactive pixels copied here line by line, its
+     * active pixels left as they are (a fresh result's inactive pixels: the fused sum of
+     * Gaussians' x sweep fills its y sweep's output there) */
+    SCALAR *inactive_to;
     /* several threads: the lines are handed out in chunks (chunk c: lines chunks[c] ..
      * chunks[c + 1] - 1), each thread taking the next unclaimed one (*claim) until none is
      * left; first / last are then the chunk's. NULL: this job's lines are [first, last) */
@@ -225,6 +229,32 @@ static inline void CAT(prefetch_row_, SUFFIX)(const CAT(job_, SUFFIX) *j, int64_
  * column c at vector (p - lo) * pitch + (c - s0); PLANAR = 1: four planes (r, g, b, depth) of
  * plane SCALARs each, the same index within a plane. line_begin_ returns 0 when the line has
  * no active pixel. */
+/* src's inactive pixels of line q into j->inactive_to: the columns [s0, s1) of every row the
+ * line holds (one for an x pass, all h for a y strip) but those of the line's spans, ids[0 ..
+ * count - 1] (row order, then column order; a y strip's clipped to it) */
+static inline void CAT(inactive_to_, SUFFIX)(const CAT(job_, SUFFIX) *j, const int64_t *ids,
+                                             int64_t count, int64_t q, int64_t s0, int64_t s1,
+                                             const int AXIS_Y) {
+    const int64_t w = j->w, hw = j->h * w;
+    int64_t e = 0;
+    for (int64_t r = AXIS_Y ? 0 : q; r < (AXIS_Y ? j->h : q + 1); ++r) {
+        int64_t c = s0;
+        for (; e < count && j->spans[3 * ids[e]] == r; ++e) {
+            const int64_t *sp = j->spans + 3 * ids[e];
+            const int64_t a = sp[1] > s0 ? sp[1] : s0, b = sp[2] < s1 ? sp[2] : s1;
+            if (a > c)
+                for (int ch = 0; ch < 3; ++ch)
+                    memcpy(j->inactive_to + ch * hw + r * w + c, j->src + ch * hw + r * w + c,
+                           sizeof(SCALAR) * (size_t)(a - c));
+            if (b > c) c = b;
+        }
+        if (s1 > c)
+            for (int ch = 0; ch < 3; ++ch)
+                memcpy(j->inactive_to + ch * hw + r * w + c, j->src + ch * hw + r * w + c,
+                       sizeof(SCALAR) * (size_t)(s1 - c));
+    }
+}
+
 typedef struct {
     const int64_t *ids; /* the spans crossing the line */
     int64_t count, s0, s1, lo, hi, pitch, plane;
@@ -262,6 +292,7 @@ static inline __attribute__((always_inline)) int CAT(line_begin_, SUFFIX)(
                 for (int64_t r = AXIS_Y ? 0 : q; r < (AXIS_Y ? h : q + 1); ++r)
                     memcpy(j->dst + o * j->set_stride + ch * hw + r * w + s0,
                            j->src + ch * hw + r * w + s0, sizeof(SCALAR) * (size_t)(s1 - s0));
+    if (j->inactive_to) CAT(inactive_to_, SUFFIX)(j, ids, count, q, s0, s1, AXIS_Y);
     if (count == 0) return 0;
     if (!AXIS_Y && !j->copy) { /* the next active row of this thread, prefetched */
         int64_t nq = q + 1;
@@ -698,7 +729,9 @@ static void CAT(taps_in_, SUFFIX)(const double *offsets, const double *weights,
  * sum_s coef[s] times set s's result (coef (nsets, 3) float64, cast to SCALAR); inactive
  * (3, H*W) or NULL: with fan_in, every set's input at the inactive pixels (the windows' samples
  * there), whatever src holds there (it may be dst: a fan-in writes only active pixels). The
- * blend is for a single pass only (nsets = 1, fan_in 0). */
+ * blend is for a single pass only (nsets = 1, fan_in 0). inactive_to (3, H*W) or NULL: not
+ * with fan_in; src's inactive pixels copied into it, its active ones not written (it shares no
+ * memory with the pass's other arrays). */
 int64_t CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const int64_t *spans,
                              const SCALAR *mask, const SCALAR *width, const SCALAR *ddepth,
                              const double *offsets, const double *weights,
@@ -707,9 +740,11 @@ int64_t CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const i
                              int64_t n_spans, int64_t k, int64_t h, int64_t w, int axis_y,
                              int follow, int copy, int threads, SCALAR *blend_out,
                              const SCALAR *blend_w, int64_t nsets, int64_t set_stride,
-                             int fan_in, const double *coef, const SCALAR *inactive) {
+                             int fan_in, const double *coef, const SCALAR *inactive,
+                             SCALAR *inactive_to) {
     enum { MAX_THREADS = 64 };
-    if (nsets < 1 || nsets > MAX_SETS || ((nsets > 1 || fan_in) && blend_out) || (fan_in && copy))
+    if (nsets < 1 || nsets > MAX_SETS || ((nsets > 1 || fan_in) && blend_out) ||
+        (fan_in && (copy || inactive_to)))
         return -3;
     /* a fan-in of one set is a fan-in too: dst gets 0 + c_0 r_0 (the loops' MULTI path; it was
      * run as a plain pass until 2026-12-06, its coefficients left out) */
@@ -721,10 +756,11 @@ int64_t CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const i
     const int64_t nin = fan_in ? nsets : 1;
     int64_t n = 0; /* active pixels */
     for (int64_t s = 0; s < n_spans; ++s) n += spans[3 * s + 2] - spans[3 * s + 1];
-    if (n == 0 && !copy) return 0; /* nothing to compute or copy */
+    const int copies = copy || inactive_to != NULL; /* a copy of every inactive pixel */
+    if (n == 0 && !copies) return 0; /* nothing to compute or copy */
     if (threads < 1) threads = 1;
     if (threads > MAX_THREADS) threads = MAX_THREADS;
-    const int64_t work = n + (copy ? h * w / 16 : 0); /* a copied pixel is cheap, not free */
+    const int64_t work = n + (copies ? h * w / 16 : 0); /* a copied pixel is cheap, not free */
     /* at least MIN_THREAD_WORK pixels per thread: splitting a pass costs CPU time that does
      * not scale with its pixels (waking a worker on a core whose caches hold other work, and
      * moving the lines the other thread wrote in the previous pass across cores), measured
@@ -779,7 +815,7 @@ int64_t CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const i
             }
         }
         if (!pass) {
-            if (copy) /* and its share of the copy */
+            if (copies) /* and its share of the copy */
                 for (int64_t q = 0; q < n_lines; ++q) lines[3 * q + 2] += (work - n) / n_lines;
             for (int64_t q = 1; q < n_lines; ++q) lines[3 * q] = lines[3 * q - 3] + lines[3 * q - 2];
             for (int64_t q = 0; q < n_lines; ++q) lines[3 * q + 1] = 0;
@@ -828,6 +864,7 @@ int64_t CAT(sss_gather_, SUFFIX)(const SCALAR *src, const SCALAR *depth, const i
                                 direct,
                                 mine, mine + 4 * (size_t)nin * (size_t)line_len, blend_out, blend_w,
                                 nsets, set_stride, fan_in, coef4, fan_in ? inactive : NULL,
+                                inactive_to,
                                 threads > 1 ? &claim : NULL, chunks, n_chunks};
         jobs[t] = jb;
     }
