@@ -188,19 +188,31 @@ def memory_state(calls: Sequence[Sequence]) -> dict[str, float]:
     return {"y_over_x": statistics.median(ratios), "slow_share": slow}
 
 
-def stretch_words(state: dict[str, float]) -> str:
-    """What the memory state of a run's headline rounds was, from :func:`memory_state`'s
-    figures: ``"a slow stretch"`` when more than half of the calls' y / x were above
-    :data:`SLOW_Y_OVER_X`, ``"a fast stretch"`` when none were, ``"a mix of the two
-    stretches"`` in between, ``"not known"`` without calls (a NaN share)."""
-    share = state["slow_share"]
-    if share != share:
-        return "not known"
-    if share > 0.5:
-        return "a slow stretch"
-    if share == 0:
-        return "a fast stretch"
-    return "a mix of the two stretches"
+#: a run whose median y / x exceeds the lowest logged on its machine by more than this factor
+#: was taken in a slower memory state (docs/numerics.md: on the family/model 25/17 machine
+#: about 1.1 in fast stretches and 1.6 in slow ones; on the 26/2 machine 0.85-0.87 with kornia
+#: at 0.62-0.66x and 1.06-1.11 with kornia at 1.13-1.15x: the threshold 1.4 of the first
+#: does not carry over, the ratio to the machine's own lowest does)
+SLOWER_THAN_LOWEST = 1.15
+
+
+def stretch_words(state: dict[str, float], logged: Sequence[float]) -> str:
+    """Which memory state a run's headline rounds were in, from its median y / x
+    (:func:`memory_state`) against ``logged``, the y / x of the runs logged at its setting on
+    its machine (any code: the state is the machine's): within :data:`SLOWER_THAN_LOWEST` of
+    the lowest of them and this one, the fastest state seen there; above it, a slower one;
+    with no run logged before, not judged."""
+    y = state["y_over_x"]
+    if y != y:
+        return "not known (no timed call with both passes)"
+    if not logged:
+        return "not judged: the first run logged at this setting on this machine"
+    lowest = min(min(logged), y)
+    ratio = y / lowest
+    where = f"{ratio:.2f}× the lowest of the {len(logged) + 1} runs at this setting on this machine"
+    if ratio > SLOWER_THAN_LOWEST:
+        return f"a slower memory state ({where}, {lowest:.2f})"
+    return f"the fastest memory state seen there ({where}, {lowest:.2f})"
 
 
 def states_by_run(prior: dict[str, list[float]], figures: dict[str, float]) -> str:
@@ -362,9 +374,10 @@ def log_perf_run(
 
 
 def logged_figures(
-    log: Path, code: str, setting: str, machine: object = ANY_MACHINE
+    log: Path, code: str | None, setting: str, machine: object = ANY_MACHINE
 ) -> dict[str, list[float]]:
-    """Each target's figures in ``log``'s runs of the code ``code`` at ``setting`` on
+    """Each target's figures in ``log``'s runs of the code ``code`` (``None``: any code) at
+    ``setting`` on
     ``machine`` (a :func:`~experiments.machine.run_machine` dict, compared by
     :func:`~experiments.machine.machine_key`; ``None``: the runs logged without a machine,
     before 2026-12-05, which pool only with each other; :data:`ANY_MACHINE`: every machine),
@@ -377,7 +390,7 @@ def logged_figures(
     for line in log.read_text(encoding="utf-8").splitlines():
         try:
             rec = json.loads(line)
-            if rec["code"] != code or rec["setting"] != setting:
+            if (code is not None and rec["code"] != code) or rec["setting"] != setting:
                 continue
             if not on_machine(rec, machine):
                 continue
@@ -922,6 +935,8 @@ def run(ctx: Context) -> Section:
     setting = f"{big}, {torch.get_num_threads()} threads, level {level}"
     machine = run_machine()  # pooled with the logged runs of this machine only
     prior = {} if quick else logged_figures(PERF_LOG, code_digest(), setting, machine)
+    # the memory states of every code's runs here (stretch_words: the machine's own lowest)
+    seen = [] if quick else logged_figures(PERF_LOG, None, setting, machine).get("y_over_x", [])
     figures: dict[str, float] = {}
 
     def over_runs(
@@ -1152,11 +1167,11 @@ def run(ctx: Context) -> Section:
         f"{os.cpu_count()} cores shared with other jobs: every figure above is a ratio of "
         f"times taken in this one run, interleaved round by round; absolute times are not "
         f"comparable between runs. Memory state of the headline rounds: the two-pass's y pass "
-        f"took {state['y_over_x']:.2f}× its x pass (median of {len(op_passes) - 1} calls), "
-        f"{state['slow_share']:.0%} of them above {SLOW_Y_OVER_X}×: {stretch_words(state)} "
-        f"(docs/numerics.md: y / x about 1.1× in a fast stretch, 1.7× in a slow one, in which "
-        f"the y strips' memory traffic, rows a page apart, is slowed and the streaming kornia "
-        f"blur and `clone` are not, so the ratios to them rise)." + states_by_run(prior, figures)
+        f"took {state['y_over_x']:.2f}× its x pass (median of {len(op_passes) - 1} calls, "
+        f"{state['slow_share']:.0%} of them above {SLOW_Y_OVER_X}×): {stretch_words(state, seen)}"
+        f" (docs/numerics.md: in a slower state the y strips' memory traffic, rows a page "
+        f"apart, is slowed and the streaming kornia blur and `clone` are not, so the ratios to "
+        f"them rise)." + states_by_run(prior, figures)
     )
     targets.extend(["", "Issue 30 (speed at the machine's limit):", *t30])
     # a target not resolved is not shown met: the section is met only when all are

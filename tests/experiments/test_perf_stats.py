@@ -13,6 +13,7 @@ import pytest
 from experiments.perf import (
     DISK_SAMPLES,
     SLOW_Y_OVER_X,
+    SLOWER_THAN_LOWEST,
     covered_fixed_sentence,
     disk_line,
     median_ratio,
@@ -219,21 +220,32 @@ def test_memory_state_is_the_median_y_over_x_and_the_share_of_slow_calls():
     assert math.isnan(empty["y_over_x"]) and math.isnan(empty["slow_share"])
 
 
-def test_stretch_words_name_the_state_from_the_share_of_slow_calls():
-    """The sentence follows the run's own figures (the REPORT once said "a slow stretch" of a
-    run whose calls were all fast): none slow is fast, most slow is slow, some is a mix, no
-    calls is not known."""
+def test_stretch_words_judge_the_state_against_the_machines_lowest_logged_y_over_x():
+    """The sentence follows the run's own figures (the REPORT once said "a slow stretch" of
+    every run, and a fixed threshold of y / x misjudges another machine): on the 26/2 machine
+    0.86 with logged 0.85-0.87 is the fastest state seen, 1.11 is a slower one (1.31x the
+    lowest); a run below every logged one is the lowest itself; no logged run: not judged;
+    no calls: not known."""
     from sssbench.ops import PassRecord
 
-    def calls(ratios: list[float]) -> list:
-        return [
-            [PassRecord("p.x", 7, 100, 5.0), PassRecord("p.y", 7, 100, 5.0 * r)] for r in ratios
-        ]
+    def state(ratios: list[float]) -> dict[str, float]:
+        calls = [[PassRecord("p.x", 7, 100, 5.0), PassRecord("p.y", 7, 100, 5.0 * r)]
+                 for r in ratios]  # fmt: skip
+        return memory_state(calls)
 
-    assert stretch_words(memory_state(calls([0.87, 0.9, 1.1]))) == "a fast stretch"
-    assert stretch_words(memory_state(calls([1.6, 1.7, 1.1]))) == "a slow stretch"
-    assert stretch_words(memory_state(calls([1.6, 1.1, 1.1]))) == "a mix of the two stretches"
-    assert stretch_words(memory_state([])) == "not known"
+    logged = [0.87, 0.85, 1.06]
+    fast = stretch_words(state([0.86, 0.9, 0.8]), logged)
+    assert fast.startswith("the fastest memory state seen there (1.01× the lowest of the 4 runs")
+    slow = stretch_words(state([1.11, 1.2, 1.0]), logged)
+    assert (
+        slow.startswith("a slower memory state (1.31× the lowest of the 4 runs") and "0.85" in slow
+    )
+    assert stretch_words(state([0.5]), logged).startswith(
+        "the fastest memory state seen there (1.00×"
+    )
+    assert stretch_words(state([1.6]), []).startswith("not judged")
+    assert stretch_words(memory_state([]), logged).startswith("not known")
+    assert 1.06 / 0.85 > SLOWER_THAN_LOWEST > 1.17 / 1.06  # both machines' states apart
 
 
 def test_states_by_run_lists_each_runs_state_beside_its_figures():
