@@ -46,7 +46,8 @@ class FusedSumOfGaussiansSSS(SeparableMethod):
     Gaussian is the product of its 1D ones).
 
     Two sweeps (:func:`~sssbench.ops.separable_sweep`): the x sweep reads the diffuse image
-    once and writes one image per Gaussian (its active pixels only); the y sweep reads those
+    once and writes one image per Gaussian (its active pixels only) and, when the result is a
+    new image, the diffuse image's inactive pixels into it; the y sweep reads those
     ``S`` images, and the diffuse image where they are inactive, and writes ``Σ_s c_s ·
     pass_s`` (the blend fused into the last pass). All Gaussians are sampled at
     ONE set of tap offsets (:func:`~sssbench.kernels.preintegrated.shared_gaussian_taps`): the
