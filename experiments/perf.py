@@ -209,10 +209,13 @@ def stretch_words(state: dict[str, float], logged: Sequence[float]) -> str:
         return "not judged: the first run logged at this setting on this machine"
     lowest = min(min(logged), y)
     ratio = y / lowest
-    where = f"{ratio:.2f}× the lowest of the {len(logged) + 1} runs at this setting on this machine"
+    where = (
+        f"y / x {ratio:.2f}× the lowest, {lowest:.2f}, of the {len(logged) + 1} runs at this "
+        f"setting on this machine"
+    )
     if ratio > SLOWER_THAN_LOWEST:
-        return f"a slower memory state ({where}, {lowest:.2f})"
-    return f"the fastest memory state seen there ({where}, {lowest:.2f})"
+        return f"a slower memory state ({where})"
+    return f"the fastest memory state seen there ({where})"
 
 
 def states_by_run(prior: dict[str, list[float]], figures: dict[str, float]) -> str:
