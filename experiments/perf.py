@@ -219,8 +219,8 @@ def stretch_words(state: dict[str, float], logged: Sequence[float]) -> str:
 
 
 def states_by_run(prior: dict[str, list[float]], figures: dict[str, float]) -> str:
-    """`` Run by run (the logged runs of this code, then this one): y / x 1.06, 1.58 (slow
-    in 0, 92 % of the calls); kornia 0.75, 1.29×; the floor 8.98, 14.08×.``: each run's
+    """`` Run by run (the logged runs of this code, then this one): y / x 1.06, 1.58 (above
+    1.4× in 0, 92 % of the calls); kornia 0.75, 1.29×; the floor 8.98, 14.08×.``: each run's
     memory state beside its two figures that move with it, so that a reader sees which
     stretch each pooled figure came from (the verdicts stay on every run). Empty when the
     logged runs did not all record their state (runs before 2026-12-06)."""
@@ -237,7 +237,7 @@ def states_by_run(prior: dict[str, list[float]], figures: dict[str, float]) -> s
     slow = ", ".join(f"{v:.0%}".rstrip("%") for v in runs["slow_share"])
     return (
         f" Run by run (the logged runs of this code, then this one): y / x "
-        f"{listed('y_over_x', '.2f')} (slow in {slow} % of the calls); kornia "
+        f"{listed('y_over_x', '.2f')} (above {SLOW_Y_OVER_X}× in {slow} % of the calls); kornia "
         f"{listed('kornia', '.2f')}×; the floor {listed('floor', '.2f')}×."
     )
 

@@ -253,7 +253,7 @@ def test_states_by_run_lists_each_runs_state_beside_its_figures():
              "floor": [8.98, 14.08]}  # fmt: skip
     this = {"y_over_x": 1.14, "slow_share": 0.4, "kornia": 0.64, "floor": 8.85}
     text = states_by_run(prior, this)
-    assert "y / x 1.06, 1.58, 1.14 (slow in 0, 92, 40 % of the calls)" in text
+    assert "y / x 1.06, 1.58, 1.14 (above 1.4× in 0, 92, 40 % of the calls)" in text
     assert "kornia 0.75, 1.29, 0.64×" in text and "the floor 8.98, 14.08, 8.85×" in text
     older = dict(prior, kornia=[0.7, 0.75, 1.29], floor=[9.0, 8.98, 14.08])
     assert states_by_run(older, this) == ""
