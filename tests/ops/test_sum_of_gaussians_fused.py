@@ -260,6 +260,24 @@ def test_a_fan_out_writes_the_images_inactive_pixels_into_inactive_into(
             assert torch.equal(got[on], full[on]), name
 
 
+@needs_native
+@pytest.mark.parametrize("direction", ["x", "y"])
+def test_inactive_into_of_a_stencil_with_no_active_pixel_is_the_whole_image(simd, direction):
+    """No active pixel: the native loop has nothing to compute and still copies every pixel
+    into ``inactive_into``, with ``keep_inactive`` either way (every set's result the image,
+    or left as it was)."""
+    g = scene(b=2)
+    g = g.replace(mask=torch.zeros_like(g.mask))
+    for keep in (True, False):
+        into = torch.full_like(g.diffuse, -7.0)
+        out = torch.full((3, *g.diffuse.shape), -7.0, dtype=g.dtype)
+        with backend("native"):
+            got = separable_sweep(g.diffuse, kernels(3), direction, g, out=out,
+                                  keep_inactive=keep, inactive_into=into)  # fmt: skip
+        assert torch.equal(into, g.diffuse)
+        assert torch.equal(got, torch.stack([g.diffuse] * 3) if keep else torch.full_like(out, -7))
+
+
 def test_inactive_options_are_refused_where_they_do_not_apply():
     g = scene()
     ks = kernels(2)
