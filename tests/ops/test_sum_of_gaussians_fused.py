@@ -320,6 +320,17 @@ def test_sweep_is_differentiable_on_the_torch_loop():
 
 
 # ------------------------------------------------------------------------------ the kernel
+def test_the_method_is_differentiable_into_a_new_image():
+    """Under autograd the method runs the torch loop, its new image's inactive pixels written
+    by ``inactive_into``'s ``where`` (an in-place copy autograd records): its gradient is the
+    numerical one, at masked pixels and at the others (in place it refuses a tensor that
+    requires grad, tested with the methods)."""
+    g = scene(h=6, w=7)
+    op = FusedSumOfGaussiansSSS(SKIN, 5)
+    image = g.diffuse.clone().requires_grad_(True)
+    assert torch.autograd.gradcheck(lambda x: op(g.replace(diffuse=x)), (image,))
+
+
 def test_shared_taps_are_the_preintegrated_offsets_and_each_gaussians_cell_masses():
     """Offsets and cells: the pre-integrated kernel's (equal taps); Gaussian s's weight at tap
     t: its mass over the cell, by erf here; and Σ_s c_s (mass of s over a cell) is the

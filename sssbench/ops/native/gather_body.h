@@ -221,14 +221,6 @@ static inline void CAT(prefetch_row_, SUFFIX)(const CAT(job_, SUFFIX) *j, int64_
                 __builtin_prefetch(rows[a] + (c < c1 ? c : c1 - 1));
 }
 
-/* One line's preparation, shared by the scalar loop and the vectorised ones (gather_simd.h),
- * in three steps (line_begin_, line_scales_ or its vectorised twin, line_window_):
- * the copy of the line's pixels (copy mode), the prefetch of the next short row (x pass), the
- * scales of its active pixels into j->scale, the window [lo, hi] along the axis and the
- * window's samples in j->buf. PLANAR = 0: interleaved (r, g, b, depth) vectors, position p,
- * column c at vector (p - lo) * pitch + (c - s0); PLANAR = 1: four planes (r, g, b, depth) of
- * plane SCALARs each, the same index within a plane. line_begin_ returns 0 when the line has
- * no active pixel. */
 /* src's inactive pixels of line q into j->inactive_to: the columns [s0, s1) of every row the
  * line holds (one for an x pass, all h for a y strip) but those of the line's spans, ids[0 ..
  * count - 1] (row order, then column order; a y strip's clipped to it) */
@@ -255,6 +247,14 @@ static inline void CAT(inactive_to_, SUFFIX)(const CAT(job_, SUFFIX) *j, const i
     }
 }
 
+/* One line's preparation, shared by the scalar loop and the vectorised ones (gather_simd.h),
+ * in three steps (line_begin_, line_scales_ or its vectorised twin, line_window_):
+ * the copy of the line's pixels (copy mode; or its inactive ones into inactive_to), the
+ * prefetch of the next short row (x pass), the scales of its active pixels into j->scale, the
+ * window [lo, hi] along the axis and the window's samples in j->buf. PLANAR = 0: interleaved (r, g, b, depth) vectors, position p,
+ * column c at vector (p - lo) * pitch + (c - s0); PLANAR = 1: four planes (r, g, b, depth) of
+ * plane SCALARs each, the same index within a plane. line_begin_ returns 0 when the line has
+ * no active pixel. */
 typedef struct {
     const int64_t *ids; /* the spans crossing the line */
     int64_t count, s0, s1, lo, hi, pitch, plane;
