@@ -38,26 +38,32 @@ from sssbench.ops._gather_native import serial_copy
 from sssbench.profiles import SumOfGaussians
 
 
+def _serial_sweeps(
+    op: FusedSumOfGaussiansSSS, g: GBuffer, scratch: torch.Tensor, copies_inactive: bool
+) -> torch.Tensor:
+    """The method's two sweeps into a new result that is first a copy of the whole image
+    (``serial_copy``); ``copies_inactive``: the x sweep also writes the image into every set's
+    inactive pixels of ``scratch`` and the y sweep reads them there (else they are read from
+    the image, ``inactive_from``)."""
+    opts = {"follow_surface": op.follow_surface, "surface_scale": op.surface_scale}
+    xs = separable_sweep(g.diffuse, op.kernels, "x", g, out=scratch, check_finite=False,
+                         keep_inactive=copies_inactive, **opts)  # fmt: skip
+    return separable_sweep(xs, op.kernels, "y", g, coefficients=op.coefficients.to(g.dtype),
+                           out=serial_copy(g.diffuse), check_finite=False,
+                           inactive_from=None if copies_inactive else g.diffuse,
+                           **opts)  # fmt: skip
+
+
 def copying(op: FusedSumOfGaussiansSSS, g: GBuffer, scratch: torch.Tensor) -> torch.Tensor:
     """``op(g)`` as it ran before 2026-12-06: the x sweep writes every pixel of every set
     (the diffuse image at the inactive ones) into ``scratch``, the y sweep reads them there."""
-    opts = {"follow_surface": op.follow_surface, "surface_scale": op.surface_scale}
-    xs = separable_sweep(g.diffuse, op.kernels, "x", g, out=scratch, check_finite=False, **opts)
-    coefficients = op.coefficients.to(g.diffuse.dtype)
-    return separable_sweep(xs, op.kernels, "y", g, coefficients=coefficients,
-                           out=serial_copy(g.diffuse), check_finite=False, **opts)  # fmt: skip
+    return _serial_sweeps(op, g, scratch, copies_inactive=True)
 
 
 def serial_output(op: FusedSumOfGaussiansSSS, g: GBuffer, scratch: torch.Tensor) -> torch.Tensor:
     """``op(g)`` as it ran on 2026-12-06 before ``inactive_into``: the method's two sweeps,
     into a new result that is first a copy of the whole image (``serial_copy``)."""
-    opts = {"follow_surface": op.follow_surface, "surface_scale": op.surface_scale}
-    xs = separable_sweep(g.diffuse, op.kernels, "x", g, out=scratch, keep_inactive=False,
-                         check_finite=False, **opts)  # fmt: skip
-    coefficients = op.coefficients.to(g.diffuse.dtype)
-    return separable_sweep(xs, op.kernels, "y", g, coefficients=coefficients,
-                           out=serial_copy(g.diffuse), inactive_from=g.diffuse,
-                           check_finite=False, **opts)  # fmt: skip
+    return _serial_sweeps(op, g, scratch, copies_inactive=False)
 
 
 #: the earlier schedules by name (``--against``)

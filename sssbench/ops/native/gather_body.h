@@ -221,12 +221,13 @@ static inline void CAT(prefetch_row_, SUFFIX)(const CAT(job_, SUFFIX) *j, int64_
                 __builtin_prefetch(rows[a] + (c < c1 ? c : c1 - 1));
 }
 
-/* src's inactive pixels of line q into j->inactive_to: the columns [s0, s1) of every row the
- * line holds (one for an x pass, all h for a y strip) but those of the line's spans, ids[0 ..
- * count - 1] (row order, then column order; a y strip's clipped to it) */
+/* src's inactive pixels of line q into `to` ((3, H*W) planes: copy mode's outputs, or
+ * j->inactive_to): the columns [s0, s1) of every row the line holds (one for an x pass, all h
+ * for a y strip) but those of the line's spans, ids[0 .. count - 1] (row order, then column
+ * order; a y strip's clipped to it) */
 static inline void CAT(inactive_to_, SUFFIX)(const CAT(job_, SUFFIX) *j, const int64_t *ids,
                                              int64_t count, int64_t q, int64_t s0, int64_t s1,
-                                             const int AXIS_Y) {
+                                             const int AXIS_Y, SCALAR *to) {
     const int64_t w = j->w, hw = j->h * w;
     int64_t e = 0;
     for (int64_t r = AXIS_Y ? 0 : q; r < (AXIS_Y ? j->h : q + 1); ++r) {
@@ -236,13 +237,13 @@ static inline void CAT(inactive_to_, SUFFIX)(const CAT(job_, SUFFIX) *j, const i
             const int64_t a = sp[1] > s0 ? sp[1] : s0, b = sp[2] < s1 ? sp[2] : s1;
             if (a > c)
                 for (int ch = 0; ch < 3; ++ch)
-                    memcpy(j->inactive_to + ch * hw + r * w + c, j->src + ch * hw + r * w + c,
+                    memcpy(to + ch * hw + r * w + c, j->src + ch * hw + r * w + c,
                            sizeof(SCALAR) * (size_t)(a - c));
             if (b > c) c = b;
         }
         if (s1 > c)
             for (int ch = 0; ch < 3; ++ch)
-                memcpy(j->inactive_to + ch * hw + r * w + c, j->src + ch * hw + r * w + c,
+                memcpy(to + ch * hw + r * w + c, j->src + ch * hw + r * w + c,
                        sizeof(SCALAR) * (size_t)(s1 - c));
     }
 }
@@ -275,24 +276,16 @@ static inline __attribute__((always_inline)) int CAT(line_begin_, SUFFIX)(
     const int64_t s1 = AXIS_Y && s0 + j->strip < w ? s0 + j->strip : w;
     /* copy mode with several sets (a fan-out sweep, never a fan-in): into every output */
     const int64_t n_out = j->fan_in ? 1 : j->nsets;
-    if (j->copy && !AXIS_Y) { /* the row's inactive pixels: its results write the others */
-        int64_t c = 0;
-        for (int64_t e = 0; e <= count; ++e) {
-            const int64_t end = e < count ? j->spans[3 * ids[e] + 1] : w;
-            if (end > c)
-                for (int64_t o = 0; o < n_out; ++o)
-                    for (int ch = 0; ch < 3; ++ch)
-                        memcpy(j->dst + o * j->set_stride + ch * hw + q * w + c,
-                               j->src + ch * hw + q * w + c, sizeof(SCALAR) * (size_t)(end - c));
-            if (e < count) c = j->spans[3 * ids[e] + 2];
-        }
-    } else if (j->copy) /* the line's pixels, before its results overwrite the active ones */
+    if (j->copy && !AXIS_Y) /* the row's inactive pixels: its results write the others */
+        for (int64_t o = 0; o < n_out; ++o)
+            CAT(inactive_to_, SUFFIX)(j, ids, count, q, 0, w, 0, j->dst + o * j->set_stride);
+    else if (j->copy) /* the line's pixels, before its results overwrite the active ones */
         for (int64_t o = 0; o < n_out; ++o)
             for (int ch = 0; ch < 3; ++ch)
                 for (int64_t r = AXIS_Y ? 0 : q; r < (AXIS_Y ? h : q + 1); ++r)
                     memcpy(j->dst + o * j->set_stride + ch * hw + r * w + s0,
                            j->src + ch * hw + r * w + s0, sizeof(SCALAR) * (size_t)(s1 - s0));
-    if (j->inactive_to) CAT(inactive_to_, SUFFIX)(j, ids, count, q, s0, s1, AXIS_Y);
+    if (j->inactive_to) CAT(inactive_to_, SUFFIX)(j, ids, count, q, s0, s1, AXIS_Y, j->inactive_to);
     if (count == 0) return 0;
     if (!AXIS_Y && !j->copy) { /* the next active row of this thread, prefetched */
         int64_t nq = q + 1;
