@@ -1,4 +1,4 @@
-"""The fused sum of Gaussians against its earlier schedules, which copied pixels (issue 30).
+"""The fused sum of Gaussians against its earlier schedules (issue 30).
 
 ``FusedSumOfGaussiansSSS`` writes its per-Gaussian x results at the active pixels only
 (``separable_sweep(..., keep_inactive=False)``), its y sweep reads every set's inactive
@@ -10,7 +10,9 @@ through the same public ``separable_sweep`` (``--against``):
   every set's inactive pixels and the y sweep read them there; the new result a copy of the
   whole image on the calling thread (``serial_copy``) before the sweeps;
 - :func:`serial_output` (2026-12-06, until ``inactive_into``): the method's sweeps, but the new
-  result that copy of the whole image.
+  result that copy of the whole image;
+- :func:`small_pages` (2026-12-06, until its per-Gaussian images were put in 2 MB pages): the
+  method itself with a workspace from ``torch.empty`` (4 KB pages).
 
 All are the same library, so ``experiments.ab_native`` (two builds, one Python) cannot time
 the changes: here the method and one earlier schedule are alternated in one process on the
@@ -34,6 +36,7 @@ import torch
 from experiments.perf import CLOSE, interleaved_ms, make_scene, median_ratio
 from sssbench.gbuffer import GBuffer
 from sssbench.ops import FusedSumOfGaussiansSSS, PreintegratedSSS, separable_sweep
+from sssbench.ops import sum_of_gaussians_fused as fused
 from sssbench.ops._gather_native import serial_copy
 from sssbench.profiles import SumOfGaussians
 
@@ -66,8 +69,20 @@ def serial_output(op: FusedSumOfGaussiansSSS, g: GBuffer, scratch: torch.Tensor)
     return _serial_sweeps(op, g, scratch, copies_inactive=False)
 
 
+def small_pages(op: FusedSumOfGaussiansSSS, g: GBuffer, scratch: torch.Tensor) -> torch.Tensor:
+    """``op(g)`` as it ran on 2026-12-06 before its workspace was put in 2 MB pages
+    (:func:`~sssbench.ops._pages.huge_page_empty`): the method itself with ``scratch``, a
+    ``torch.empty`` tensor in 4 KB pages, as its workspace for the call."""
+    saved = getattr(fused._SCRATCH, "tensor", None)
+    fused._SCRATCH.tensor = scratch
+    try:
+        return op(g)
+    finally:
+        fused._SCRATCH.tensor = saved
+
+
 #: the earlier schedules by name (``--against``)
-EARLIER = {"copying": copying, "serial_output": serial_output}
+EARLIER = {"copying": copying, "serial_output": serial_output, "small_pages": small_pages}
 
 
 def one_process(rounds: int, against: str = "copying") -> tuple[float, float, float, float]:
