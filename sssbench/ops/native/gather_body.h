@@ -480,6 +480,25 @@ static inline __attribute__((always_inline)) void CAT(line_window_, SUFFIX)(
  * sweep's 3 S + 1 planes: their rows ahead made the fused sweep 1-6 % slower, and at distances
  * 1, 2 and 4 gained nothing (same rounds). */
 #define PACK_AHEAD ((int64_t)8)
+/* A fan-in's strip rows are asked for FANIN_AHEAD rows ahead (prefetch_inputs_: every input's
+ * r, g, b and the depth) since its inputs lie in 2 MB pages (the fused sum of Gaussians'
+ * workspace, sssbench/ops/_pages.py): the 1-6 % loss above was with 4 KB pages, a page per row
+ * and plane. Measured (2026-12-06, 1080p close-up, 6-set fused sweep, 2 threads, level avx512;
+ * the distance a run-time variable of one build, alternated in one process, 21 rounds):
+ * distance 4 0.972, 0.980, 0.970, 0.973 and 0.961 the wall time of none in five processes,
+ * distance 2 0.966-0.989 in seven, 8 0.98-0.99 and 16 0.98-1.01 in three. The same bits (a
+ * prefetch reads nothing into the loop). */
+#define FANIN_AHEAD ((int64_t)4)
+static inline void CAT(prefetch_inputs_, SUFFIX)(const CAT(job_, SUFFIX) *j, int64_t row,
+                                                 int64_t c0, int64_t c1) {
+    const int64_t w = j->w, hw = j->h * w, step = 64 / (int64_t)sizeof(SCALAR);
+    for (int64_t i = 0; i < j->nsets; ++i)
+        for (int ch = 0; ch < 3; ++ch) {
+            const SCALAR *p = j->src + i * j->set_stride + ch * hw + row * w;
+            for (int64_t c = c0; c < c1; c += step) __builtin_prefetch(p + c);
+        }
+    for (int64_t c = c0; c < c1; c += step) __builtin_prefetch(j->depth + row * w + c);
+}
 /* A PLANAR y strip's window (line_window_), packed up to row 'upto' (clamped to the window):
  * the rows from ln->packed on, each row's planes side by side. The loop asks for the rows a
  * pixel on row p may read before it computes row p (p + margin + 2: window_'s margin plus
@@ -496,6 +515,8 @@ static inline __attribute__((always_inline)) void CAT(line_pack_, SUFFIX)(
         const int64_t ahead = r + PACK_AHEAD;
         if (ahead <= ln->hi && !j->fan_in)
             CAT(prefetch_row_, SUFFIX)(j, ahead, ln->s0, ln->s1, 0);
+        if (j->fan_in && r + FANIN_AHEAD <= ln->hi)
+            CAT(prefetch_inputs_, SUFFIX)(j, r + FANIN_AHEAD, ln->s0, ln->s1);
     }
     if (end >= ln->packed) ln->packed = end + 1;
 }
