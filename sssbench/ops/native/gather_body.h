@@ -206,9 +206,14 @@ static inline int64_t CAT(window_, SUFFIX)(const CAT(job_, SUFFIX) *j, SCALAR ma
  * the row before is computed (measured on a 1 %-of-1080p object: 5 % less CPU time in its x
  * pass; a close-up's long rows are streams the hardware already fetches: not asked). */
 #define SHORT_ROW ((int64_t)256)
+/* every cache line holding one of the columns [c0, c1) (c0 < c1) of the row at `row` */
+static inline void CAT(prefetch_cols_, SUFFIX)(const SCALAR *row, int64_t c0, int64_t c1) {
+    const int64_t step = 64 / (int64_t)sizeof(SCALAR);
+    for (int64_t c = c0; c < c1 + step; c += step) __builtin_prefetch(row + (c < c1 ? c : c1 - 1));
+}
 static inline void CAT(prefetch_row_, SUFFIX)(const CAT(job_, SUFFIX) *j, int64_t row,
                                               int64_t c0, int64_t c1, int first) {
-    const int64_t w = j->w, hw = j->h * w, step = 64 / (int64_t)sizeof(SCALAR);
+    const int64_t w = j->w, hw = j->h * w;
     c0 = c0 > 8 ? c0 - 8 : 0;
     c1 = c1 + 8 < w ? c1 + 8 : w;
     const SCALAR *rows[7] = {j->src + row * w, j->src + hw + row * w, j->src + 2 * hw + row * w,
@@ -216,9 +221,7 @@ static inline void CAT(prefetch_row_, SUFFIX)(const CAT(job_, SUFFIX) *j, int64_
                              j->width ? j->width + row * w : NULL,
                              j->ddepth ? j->ddepth + row * w : NULL};
     for (int a = first; a < 7; ++a)
-        if (rows[a])
-            for (int64_t c = c0; c < c1 + step; c += step)
-                __builtin_prefetch(rows[a] + (c < c1 ? c : c1 - 1));
+        if (rows[a]) CAT(prefetch_cols_, SUFFIX)(rows[a], c0, c1);
 }
 
 /* src's inactive pixels of line q into `to` ((3, H*W) planes: copy mode's outputs, or
@@ -491,13 +494,11 @@ static inline __attribute__((always_inline)) void CAT(line_window_, SUFFIX)(
 #define FANIN_AHEAD ((int64_t)4)
 static inline void CAT(prefetch_inputs_, SUFFIX)(const CAT(job_, SUFFIX) *j, int64_t row,
                                                  int64_t c0, int64_t c1) {
-    const int64_t w = j->w, hw = j->h * w, step = 64 / (int64_t)sizeof(SCALAR);
+    const int64_t w = j->w, hw = j->h * w;
     for (int64_t i = 0; i < j->nsets; ++i)
-        for (int ch = 0; ch < 3; ++ch) {
-            const SCALAR *p = j->src + i * j->set_stride + ch * hw + row * w;
-            for (int64_t c = c0; c < c1; c += step) __builtin_prefetch(p + c);
-        }
-    for (int64_t c = c0; c < c1; c += step) __builtin_prefetch(j->depth + row * w + c);
+        for (int ch = 0; ch < 3; ++ch)
+            CAT(prefetch_cols_, SUFFIX)(j->src + i * j->set_stride + ch * hw + row * w, c0, c1);
+    CAT(prefetch_cols_, SUFFIX)(j->depth + row * w, c0, c1);
 }
 /* A PLANAR y strip's window (line_window_), packed up to row 'upto' (clamped to the window):
  * the rows from ln->packed on, each row's planes side by side. The loop asks for the rows a
