@@ -39,6 +39,8 @@ SIZE = (1080, 1920)
 QUICK_SIZE = (48, 80)
 SCENE = {"pixel_mm": 0.07, "aim": "cheek"}
 REPEATS = 3
+#: rounds of the disk's timings (a 256² crop: each round a fraction of a second)
+DISK_ROUNDS = 7
 #: (label, method, profile, build kwargs)
 CONFIGS = [
     ("preintegrated", "preintegrated", "skin_deon6", dict(samples=7)),
@@ -62,6 +64,9 @@ QUICK_CONFIGS = [CONFIGS[0], CONFIGS[9]]
 DISK_SIZE, DISK_QUICK_SIZE = (256, 256), (48, 48)
 DISK_SAMPLES = 32
 DISK_PROFILES = ("burley", "skin_jg10")
+#: the two-pass the disk's cost per sample is set against, per tap (issue 30's per-sample
+#: comparison, as the perf section makes it for the CPU loop): (method, profile, kwargs)
+TAP_CONFIG = ("preintegrated", "skin_deon6", dict(samples=7))
 
 
 def _build(method: str, profile: str | None, kw: dict):
@@ -88,8 +93,11 @@ def _cpu(m, g, repeats: int) -> tuple[torch.Tensor, dict[str, float]]:
 def _disk_rows(g, quick: bool) -> list[dict]:
     """The disk on GL with its sample geometry in float64 (the torch disk's, the default) and
     float32 (the fallback for drivers without doubles) beside the CPU loop, per estimator and
-    profile: medians of :data:`REPEATS` rounds, the three timings interleaved round by round so
-    their ratios see the same machine state."""
+    profile: medians of :data:`DISK_ROUNDS` rounds, the three timings interleaved round by round
+    so their ratios see the same machine state. In the same rounds, on the same G-buffer, the
+    two-pass of :data:`TAP_CONFIG` on the CPU and on GL (``tap_cpu``, ``tap_gl``: all its
+    passes, ms), and the disk's cost per sample over its cost per tap in each column (``per_tap``:
+    the median over the rounds of :func:`per_sample_over_per_tap` of the round's times)."""
     from sssbench import gl
     from sssbench.ops import DiskSSS
     from sssbench.profiles import BurleyNormalized
@@ -101,14 +109,17 @@ def _disk_rows(g, quick: bool) -> list[dict]:
         "skin_jg10": registry.build_profile("skin_jg10"),
     }
     rows = []
+    tap_method = _build(*TAP_CONFIG)
     before = gl.set_disk_geometry("float64")
     try:
         for estimator in ("sssbench", "hdrp"):
             for name in DISK_PROFILES[:1] if quick else DISK_PROFILES:
                 m = DiskSSS(profiles[name], samples=DISK_SAMPLES, estimator=estimator)
-                t: dict[str, list[float]] = {"cpu": [], "float64": [], "float32": []}
+                t: dict[str, list[float]] = {
+                    "cpu": [], "float64": [], "float32": [], "tap_cpu": [], "tap_gl": []
+                }  # fmt: skip
                 images = {}
-                for _ in range(REPEATS):
+                for _ in range(DISK_ROUNDS):
                     cpu_img, cpu = _cpu(m, g, 1)
                     t["cpu"].append(sum(cpu.values()))
                     for geometry in ("float64", "float32"):
@@ -116,8 +127,16 @@ def _disk_rows(g, quick: bool) -> list[dict]:
                         run = gl.run_method(m, g, repeats=1, warmup=1)
                         t[geometry].append(run.pass_times_ms["disk"])
                         images[geometry] = run.image
+                    t["tap_cpu"].append(sum(_cpu(tap_method, g, 1)[1].values()))
+                    run = gl.run_method(tap_method, g, repeats=1, warmup=1)
+                    t["tap_gl"].append(sum(run.pass_times_ms.values()))
                 med = {k: statistics.median(v) for k, v in t.items()}
-                rows.append({"estimator": estimator, "profile": name, **med,
+                rounds = [dict(zip(t, x, strict=True)) for x in zip(*t.values(), strict=True)]
+                per_tap = {
+                    c: statistics.median(per_sample_over_per_tap(x, c) for x in rounds)
+                    for c in PER_SAMPLE_COLUMNS
+                }
+                rows.append({"estimator": estimator, "profile": name, **med, "per_tap": per_tap,
                              "agree64": _rel(images["float64"], cpu_img),
                              "agree32": _rel(images["float32"], cpu_img)})  # fmt: skip
                 print(f"gl_speed: disk {estimator} {name}: CPU {med['cpu']:.1f} ms, GL float64 "
@@ -126,6 +145,57 @@ def _disk_rows(g, quick: bool) -> list[dict]:
     finally:
         gl.set_disk_geometry(before)
     return rows
+
+
+def per_sample_over_per_tap(times: dict, column: str) -> float:
+    """The disk's cost per sample over the two-pass's cost per tap from one round's ``times``
+    (ms: ``"cpu"``, ``"float64"``, ``"float32"``, ``"tap_cpu"``, ``"tap_gl"``):
+    ``times[column] / DISK_SAMPLES`` over ``tap / (2 · taps)``, the two-pass's time
+    ``times["tap_gl"]`` for a GL column (``"float64"``, ``"float32"``) and ``times["tap_cpu"]``
+    for ``"cpu"``. Both run over the same G-buffer's stencil, so the pixel counts cancel."""
+    taps = 2 * TAP_CONFIG[2]["samples"]
+    tap = times["tap_cpu"] if column == "cpu" else times["tap_gl"]
+    return (times[column] / DISK_SAMPLES) / (tap / taps)
+
+
+#: the columns of the per-sample comparison: the CPU loop, the GL draw with each geometry
+PER_SAMPLE_COLUMNS = {"cpu": "CPU loop", "float64": "GL float64", "float32": "GL float32"}
+
+
+#: the perf section's bound on the disk's cost per sample over the two-pass's per tap
+#: (issue 30, judged there on the CPU loop)
+PER_SAMPLE_BOUND = 1.5
+
+
+def per_sample_text(rows: list[dict], renderer: str) -> str:
+    """The paragraph and table of the disk's cost per sample over the two-pass's per tap on
+    the CPU and on GL (:func:`per_sample_over_per_tap`), every figure from ``rows``."""
+    method, profile, kw = TAP_CONFIG
+    cols = PER_SAMPLE_COLUMNS
+    ratios = {c: [r["per_tap"][c] for r in rows] for c in cols}
+    within = {c: sum(x <= PER_SAMPLE_BOUND for x in v) for c, v in ratios.items()}
+    spans = "; ".join(
+        f"{label} {min(ratios[c]):.2f}–{max(ratios[c]):.2f}× ({within[c]} of {len(rows)} "
+        f"within {PER_SAMPLE_BOUND}×)"
+        for c, label in cols.items()
+    )
+    table = md_table(
+        [
+            [r["estimator"], r["profile"], r["tap_cpu"], r["tap_gl"]]
+            + [r["per_tap"][c] for c in cols]
+            for r in rows
+        ],
+        ["estimator", "profile", "two-pass CPU ms", "two-pass GL ms"]
+        + [f"per sample / per tap, {label}" for label in cols.values()],
+    )
+    return (
+        f"The disk's cost per sample over the two-pass's cost per tap ({method}, {profile}, "
+        f"{kw['samples']} taps × 2 passes, on the same crop and its stencil, timed in the same "
+        f"rounds: the median of the rounds' ratios; the perf section's disk target, "
+        f"≤ {PER_SAMPLE_BOUND}×, judges the CPU loop, so that a time ratio in the tables is a "
+        f"work ratio), on {renderer} and on the CPU: "
+        f"{spans}.\n\n" + table
+    )
 
 
 def _rel(a: torch.Tensor, b: torch.Tensor) -> float:
@@ -269,7 +339,8 @@ def run(ctx: Context) -> Section:
             "close-up), its GL draw with the sample geometry in float64 (the torch disk's own "
             "precision, the default: the image equals torch's) and in float32 (the fallback for "
             "drivers without doubles, the shader an engine would ship; tolerance in docs/gl.md), "
-            "beside the CPU loop; medians of the rounds, the three timed in turn each round. "
+            f"beside the CPU loop; medians of {DISK_ROUNDS} rounds, the three timed in turn "
+            "each round. "
             f"The float64 geometry costs up to {geo:.1f}× the float32 draw here:\n\n"
             + md_table(
                 [
@@ -296,6 +367,8 @@ def run(ctx: Context) -> Section:
                     "rel RMS float32 vs CPU",
                 ],
             )  # fmt: skip
+            + "\n\n"
+            + per_sample_text(disk_rows, info.get("renderer", "–"))
         )
     return Section(
         title="GL pass times beside CPU times (1080p close-up)",
