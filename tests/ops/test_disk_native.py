@@ -13,6 +13,7 @@ import torch
 from sssbench.gbuffer import GBuffer
 from sssbench.ops import DiskSSS, _disk_native, native
 from sssbench.ops._disk_native import DISK_EXP_ULP, DISK_EXPF_REL, DISK_NATIVE_AGREEMENT
+from sssbench.ops.disk import _Pixels
 from sssbench.ops.gather import backend
 from sssbench.profiles import BurleyNormalized, SumOfGaussians
 from sssbench.profiles.dipole import Dipole
@@ -76,8 +77,9 @@ def both(op, g):
 @pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
 @pytest.mark.parametrize("name, profile, options", CASES)
 def test_native_disk_equals_the_torch_loop(name, profile, options, dtype, level):
-    """At every level: the scalar loop, and at AVX2 / AVX-512 the vectorised loop (point
-    fetch, estimator "sssbench"; the other options run the scalar loop compiled there)."""
+    """At every level: the scalar loop, and at AVX2 / AVX-512 the vectorised loops (estimator
+    "sssbench" with the point fetch, and HDRP's estimator; the bilinear fetch runs the scalar
+    loop compiled there)."""
     g = scene(dtype, ids=name == "two")
     kernel = DiskSSS(profile, 16, **options)
     assert _disk_native.usable_profile(kernel.kernels[0])
@@ -122,6 +124,56 @@ def test_vector_levels_agree_bitwise_and_every_level_with_the_torch_loop(options
     tol = DISK_NATIVE_AGREEMENT[dtype] * float(ref.abs().max())
     for level, out in outs.items():
         assert float((out - ref).abs().max()) <= tol, level
+
+
+#: (angle phi, rotation turn, pixels per mm) at radius 1 mm whose offset ppm sin(phi + turn),
+#: with sin by the addition theorem from cos / sin of phi and of turn, rounds half to even to
+#: another integer than with libm's sin of the rounded sum (found by a search in Python, whose
+#: math.sin is libm's and whose float operations are the C loop's): 6.5 → 6 against
+#: 6.500000000000002 → 7; 6.499999999999999 → 6 against 6.500000000000006 → 7; -6.5 → -6
+#: against -6.5000000000000036 → -7
+NEAR_TIES = [
+    (4.924751778411374, 1.9057700639797035, 12.490038987645521),
+    (2.994546979776625, 3.6654974587763136, 17.662955594683233),
+    (3.885326994325826, 1.5739777634038004, 8.858147800735985),
+]
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+@pytest.mark.parametrize("phi, turn, ppm", NEAR_TIES)
+def test_hdrp_vector_loop_lands_each_sample_where_libm_does(phi, turn, ppm, dtype):
+    """HDRP's vectorised loop (disk_simd.h hdrp_vec_) forms sin and cos by the addition
+    theorem and calls libm for a lane whose rounding to a pixel could differ: at offsets
+    where the two round to different pixels its sample lands where the scalar loop's does
+    (so the results agree to the exp's precision, not by a whole other pixel's colour)."""
+    gen = torch.Generator().manual_seed(1)
+    e = torch.rand(1, 3, 48, 48, generator=gen, dtype=torch.float64).to(dtype)
+    z = (300 + torch.rand(1, 1, 48, 48, generator=gen, dtype=torch.float64)).to(dtype)
+    g = GBuffer(e, z, FOV)
+    kernel = DiskSSS(SKIN, 1, estimator="hdrp").kernels[0]
+    ctx = _Pixels(g)
+    pix = torch.tensor([24 * 48 + 24])  # a centre in the middle: every candidate inside
+    f64 = torch.float64
+    args = (ctx, kernel, ctx.on, pix, torch.tensor([turn], dtype=f64),
+            torch.tensor([ppm], dtype=f64), torch.tensor([1.0], dtype=f64),
+            torch.tensor([1.0], dtype=f64), torch.tensor([phi], dtype=f64))  # fmt: skip
+    with native.simd("scalar"):
+        ref = _disk_native.gather_hdrp(*args)
+    # the pixel the scalar loop (libm) takes and the one the addition theorem alone would
+    psi = phi + turn
+    s0, c0, ct, st = math.sin(phi), math.cos(phi), math.cos(turn), math.sin(turn)
+    libm = (24 + round(ppm * math.sin(psi)), 24 + round(ppm * math.cos(psi)))
+    theorem = (24 + round(ppm * (s0 * ct + c0 * st)), 24 + round(ppm * (c0 * ct - s0 * st)))
+    assert libm != theorem  # the case is a near tie
+    # one sample: its E (to the rounding of w E / w), far from the other pixel's
+    at, other = e[0, :, libm[0], libm[1]], e[0, :, theorem[0], theorem[1]]
+    assert torch.allclose(ref[0][0] / ref[1][0], at, rtol=1e-6, atol=0)
+    assert float((at - other).abs().max()) > 0.05
+    for level in native.simd_levels()[1:]:
+        with native.simd(level):
+            num, den = _disk_native.gather_hdrp(*args)
+        assert torch.allclose(num, ref[0], rtol=4 * DISK_EXPF_REL, atol=0), level
+        assert torch.allclose(den, ref[1], rtol=4 * DISK_EXPF_REL, atol=0), level
 
 
 @pytest.mark.parametrize("level", [lv for lv in native.simd_levels() if lv != "scalar"])

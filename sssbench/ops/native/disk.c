@@ -19,10 +19,10 @@
  * SIMD: the loops are compiled three times, for the baseline x86-64, AVX2 and AVX-512F,
  * through target attributes (no -march), and a call uses the level sss_get_simd() (gather.c)
  * reports, as the separable passes do. At AVX2 and AVX-512 the default path (estimator
- * "sssbench", point fetch) runs the loop vectorised across pixels (disk_simd.h: its few-ulp
- * differences to this scalar loop are listed there); the bilinear fetch and HDRP's estimator
- * run the scalar loop at every level. -ffp-contract=off: no fused multiply-add anywhere, so
- * AVX2 and AVX-512 agree bitwise. */
+ * "sssbench", point fetch) and HDRP's estimator (since 2026-12-06) run loops vectorised across
+ * pixels (disk_simd.h: disk_vec_ and hdrp_vec_, their few-ulp differences to these scalar
+ * loops listed there); the bilinear fetch runs the scalar loop at every level.
+ * -ffp-contract=off: no fused multiply-add anywhere, so AVX2 and AVX-512 agree bitwise. */
 #include <float.h>
 #include <math.h>
 #include <pthread.h>
@@ -211,6 +211,9 @@ typedef struct {
     ((__typeof__(x))_mm512_roundscale_pd((__m512d)(x), _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC))
 #define VTRUNC_AVX512(x) \
     ((__typeof__(x))_mm512_roundscale_pd((__m512d)(x), _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC))
+/* nearbyint: to the nearest integer, half to even (the default rounding mode's) */
+#define VRINT_AVX512(x) \
+    ((__typeof__(x))_mm512_roundscale_pd((__m512d)(x), _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC))
 #define VSQRT_AVX512(x) ((__typeof__(x))_mm512_sqrt_pd((__m512d)(x)))
 #define VANY_AVX512(m) (_mm512_test_epi64_mask((__m512i)(m), (__m512i)(m)) != 0)
 #define VGATHER_F64_AVX2(base, idx) _mm256_i64gather_pd((base), (__m256i)(idx), 8)
@@ -222,6 +225,8 @@ typedef struct {
     ((__typeof__(x))_mm256_round_pd((__m256d)(x), _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC))
 #define VTRUNC_AVX2(x) \
     ((__typeof__(x))_mm256_round_pd((__m256d)(x), _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC))
+#define VRINT_AVX2(x) \
+    ((__typeof__(x))_mm256_round_pd((__m256d)(x), _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC))
 #define VSQRT_AVX2(x) ((__typeof__(x))_mm256_sqrt_pd((__m256d)(x)))
 #define VANY_AVX2(m) (_mm256_movemask_pd((__m256d)(m)) != 0)
 /* 2^(j/32) of the vectorised exp (vexp_, disk_simd.h), j = n32 mod 32 per lane (n32: VW int32

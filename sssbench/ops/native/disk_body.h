@@ -188,6 +188,7 @@ static inline __attribute__((always_inline)) void DCAT(hdrp_pixels, SUFFIX)(cons
 #define VGATHER_S VGATHER_S_AVX2
 #define VFLOOR VFLOOR_AVX2
 #define VTRUNC VTRUNC_AVX2
+#define VRINT VRINT_AVX2
 #define VSQRT VSQRT_AVX2
 #define VANY VANY_AVX2
 #define VEXP2_32 VEXP2_32_AVX2
@@ -201,19 +202,25 @@ static inline __attribute__((always_inline)) void DCAT(hdrp_pixels, SUFFIX)(cons
 #define VGATHER_S VGATHER_S_AVX512
 #define VFLOOR VFLOOR_AVX512
 #define VTRUNC VTRUNC_AVX512
+#define VRINT VRINT_AVX512
 #define VSQRT VSQRT_AVX512
 #define VANY VANY_AVX512
 #define VEXP2_32 VEXP2_32_AVX512
 #define VEXP2_8F VEXP2_8F_AVX512
 #include "disk_simd.h" /* undefines the level's macros at its end */
-#define DISK_VEC(isa, job) DCAT(DCAT(disk_vec_, SUFFIX), isa)((job)->a, (job)->k, (job)->p0, (job)->p1)
+/* a job's vectorised loop at level isa: 1 when it ran, 0 when the job needs the scalar loop
+ * (estimator "sssbench": a job without constants, disk.c DISK_ENTRY) */
+#define DISK_VEC(isa, job) \
+    ((job)->k ? (DCAT(DCAT(disk_vec_, SUFFIX), isa)((job)->a, (job)->k, (job)->p0, (job)->p1), 1) : 0)
+#define HDRP_VEC(isa, job) (DCAT(DCAT(hdrp_vec_, SUFFIX), isa)((job)->a, (job)->p0, (job)->p1), 1)
 #else
-#define DISK_VEC(isa, job) (void)0
+#define DISK_VEC(isa, job) 0
+#define HDRP_VEC(isa, job) 0
 #endif
 
-/* the thread entry points at the three instruction-set levels (disk.c header); a job with
- * constants (job->k, disk.c DISK_ENTRY) runs the vectorised loop */
-#define DISK_LEVELS(kernel, runner, vec)                                                 \
+/* the thread entry points at the three instruction-set levels (disk.c header): at AVX2 and
+ * AVX-512 the vectorised loop VEC where it runs the job (see DISK_VEC), else the scalar one */
+#define DISK_LEVELS(kernel, runner, VEC)                                                 \
     static void *DCAT(runner, scalar)(void *arg) {                                      \
         const disk_job *job = (const disk_job *)arg;                                    \
         kernel(job->a, job->p0, job->p1);                                               \
@@ -221,24 +228,19 @@ static inline __attribute__((always_inline)) void DCAT(hdrp_pixels, SUFFIX)(cons
     }                                                                                   \
     __attribute__((target("avx2,fma"))) static void *DCAT(runner, avx2)(void *arg) {    \
         const disk_job *job = (const disk_job *)arg;                                    \
-        if (vec && job->k)                                                              \
-            DISK_VEC(avx2, job);                                                        \
-        else                                                                            \
-            kernel(job->a, job->p0, job->p1);                                           \
+        if (!VEC(avx2, job)) kernel(job->a, job->p0, job->p1);                          \
         return NULL;                                                                    \
     }                                                                                   \
     __attribute__((target("avx512f"))) static void *DCAT(runner, avx512)(void *arg) {   \
         const disk_job *job = (const disk_job *)arg;                                    \
-        if (vec && job->k)                                                              \
-            DISK_VEC(avx512, job);                                                      \
-        else                                                                            \
-            kernel(job->a, job->p0, job->p1);                                           \
+        if (!VEC(avx512, job)) kernel(job->a, job->p0, job->p1);                        \
         return NULL;                                                                    \
     }
 
-DISK_LEVELS(DCAT(disk_pixels, SUFFIX), DCAT(disk_run, SUFFIX), 1)
-DISK_LEVELS(DCAT(hdrp_pixels, SUFFIX), DCAT(hdrp_run, SUFFIX), 0)
+DISK_LEVELS(DCAT(disk_pixels, SUFFIX), DCAT(disk_run, SUFFIX), DISK_VEC)
+DISK_LEVELS(DCAT(hdrp_pixels, SUFFIX), DCAT(hdrp_run, SUFFIX), HDRP_VEC)
 #undef DISK_LEVELS
 #undef DISK_VEC
+#undef HDRP_VEC
 #undef DCAT
 #undef DCAT_
