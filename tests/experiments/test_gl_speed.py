@@ -1,7 +1,10 @@
-"""The gl_speed section's per-sample comparison: the disk's cost per sample over the
-two-pass's cost per tap, from one round's times (a closed form) and its paragraph's counts."""
+"""The gl_speed section's per-sample comparison (the disk's cost per sample over the
+two-pass's cost per tap, from one round's times: a closed form; its paragraph's counts) and
+its verdict's reading of a ratio against its standard error."""
 
 from __future__ import annotations
+
+import math
 
 import pytest
 
@@ -9,6 +12,7 @@ from experiments.gl_speed import (
     DISK_SAMPLES,
     PER_SAMPLE_BOUND,
     TAP_CONFIG,
+    gl_verdict,
     per_sample_over_per_tap,
     per_sample_text,
 )
@@ -42,3 +46,16 @@ def test_per_sample_text_counts_rows_within_the_bound():
     assert "GL float32 0.50–1.10× (2 of 2 within 1.5×)" in text
     assert "on some renderer" in text
     assert text.count("\n| sssbench |") == 1 and text.count("\n| hdrp |") == 1
+
+
+def test_gl_verdict_names_a_bound_within_one_standard_error():
+    paper = 3.07 / 1.05  # 002 Table 2; reproduced from paper / 1.5 = 1.949
+    assert gl_verdict(2.10, 0.05, paper) == ("reproduced", None)
+    assert gl_verdict(1.50, 0.05, paper) == ("partly reproduced", None)
+    assert gl_verdict(0.90, 0.05, paper) == ("not reproduced", None)
+    verdict, bound = gl_verdict(1.93, 0.05, paper)  # below the bound, within one error
+    assert verdict == "pending" and bound == pytest.approx(paper / 1.5)
+    verdict, bound = gl_verdict(1.98, 0.05, paper)  # above it, within one error
+    assert verdict == "pending" and bound == pytest.approx(paper / 1.5)
+    assert gl_verdict(1.02, 0.05, paper) == ("pending", 1.0)
+    assert gl_verdict(1.93, math.nan, paper) == ("partly reproduced", None)  # no error: plain
