@@ -363,6 +363,29 @@ DISK_ENTRY(sss_disk_f64, disk_run_f64)
 HDRP_ENTRY(sss_disk_hdrp_f32, hdrp_run_f32)
 HDRP_ENTRY(sss_disk_hdrp_f64, hdrp_run_f64)
 
+/* Burley's sampler (radial_sample, sampler_kind 1, d mm) at n quantiles u: radii r and
+ * inverse area densities inv, by the vectorised loop's burley_radial_ for images of float32
+ * (f32 != 0) or float64 at `level` (1 AVX2, 2 AVX-512F, capped at the CPU's; 0: the scalar
+ * loop's, libm): for its test against the scalar loop. Returns the level used. */
+int sss_disk_burley_radial(double d, const double *u, double *r, double *inv, int64_t n,
+                           int level, int f32) {
+    const int best = sss_get_simd() >= 0 ? sss_simd_best() : 0;
+    level = level > best ? best : (level < 0 ? 0 : level);
+    disk_args a;
+    memset(&a, 0, sizeof a);
+    a.sampler_kind = 1, a.sampler_d = d;
+#if DISK_SIMD
+    if (level >= 2)
+        return (f32 ? burley_radial_array_f32_avx512
+                    : burley_radial_array_f64_avx512)(&a, u, r, inv, n), 2;
+    if (level == 1)
+        return (f32 ? burley_radial_array_f32_avx2
+                    : burley_radial_array_f64_avx2)(&a, u, r, inv, n), 1;
+#endif
+    for (int64_t i = 0; i < n; ++i) r[i] = radial_sample(&a, u[i], &inv[i]);
+    return 0;
+}
+
 /* y = exp(x) for n doubles by the vectorised loop's exp for images of float32 (f32 != 0,
  * vexpf_) or float64 (vexp_) at `level` (1 AVX2, 2 AVX-512F, capped at the CPU's; 0: libm's
  * exp): for its test against libm. Returns the level used. */
