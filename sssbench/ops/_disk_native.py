@@ -299,6 +299,20 @@ DISK_EXP_ULP = 1
 DISK_EXPF_REL = 2.0**-23
 
 
+def _test_entry(caller: str, symbol: str, level: str, image_dtype: torch.dtype):
+    """The C library's test entry ``symbol`` for :func:`burley_radial` and :func:`vexp`
+    (``caller``), after checking ``level`` and ``image_dtype``: ``RuntimeError`` without the
+    C library, ``ValueError`` for an unknown level or dtype."""
+    lib = native.library()
+    if lib is None:
+        raise RuntimeError(f"{caller} needs the native library (no C compiler?)")
+    if level not in native.SIMD_LEVELS:
+        raise ValueError(f"level must be one of {native.SIMD_LEVELS}, got {level!r}")
+    if image_dtype not in (torch.float32, torch.float64):
+        raise ValueError(f"image_dtype must be torch.float32 or torch.float64, got {image_dtype}")
+    return getattr(lib, symbol)
+
+
 def burley_radial(
     u: torch.Tensor, d: float, level: str, image_dtype: torch.dtype = torch.float64
 ) -> tuple[torch.Tensor, torch.Tensor, str]:
@@ -309,14 +323,7 @@ def burley_radial(
     (the density's exp: ``vexp_`` for float64, ``vexpf_`` for float32): for its test against
     the scalar loop. Raises ``RuntimeError`` without the C library and ``ValueError`` for an
     unknown level or dtype."""
-    lib = native.library()
-    if lib is None:
-        raise RuntimeError("burley_radial needs the native library (no C compiler?)")
-    if level not in native.SIMD_LEVELS:
-        raise ValueError(f"level must be one of {native.SIMD_LEVELS}, got {level!r}")
-    if image_dtype not in (torch.float32, torch.float64):
-        raise ValueError(f"image_dtype must be torch.float32 or torch.float64, got {image_dtype}")
-    fn = lib.sss_disk_burley_radial
+    fn = _test_entry("burley_radial", "sss_disk_burley_radial", level, image_dtype)
     fn.restype = ctypes.c_int
     fn.argtypes = [ctypes.c_double, _P, _P, _P, ctypes.c_int64, ctypes.c_int, ctypes.c_int]
     src = u.detach().to(torch.float64).contiguous()
@@ -336,14 +343,7 @@ def vexp(
     ``vexpf_``, :data:`DISK_EXPF_REL`) and the level used: for its test against the C library.
     Raises ``RuntimeError`` without the C library and ``ValueError`` for an unknown level or
     dtype."""
-    lib = native.library()
-    if lib is None:
-        raise RuntimeError("vexp needs the native library (no C compiler?)")
-    if level not in native.SIMD_LEVELS:
-        raise ValueError(f"level must be one of {native.SIMD_LEVELS}, got {level!r}")
-    if image_dtype not in (torch.float32, torch.float64):
-        raise ValueError(f"image_dtype must be torch.float32 or torch.float64, got {image_dtype}")
-    fn = lib.sss_disk_vexp
+    fn = _test_entry("vexp", "sss_disk_vexp", level, image_dtype)
     fn.restype = ctypes.c_int
     fn.argtypes = [_P, _P, ctypes.c_int64, ctypes.c_int, ctypes.c_int]
     src = x.detach().to(torch.float64).contiguous()
