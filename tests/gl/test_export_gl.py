@@ -143,13 +143,14 @@ def _method(argv: list[str]):
     return build_from_overrides(argv)[0]
 
 
-def run_ssss_blur_ps(exported: str, gbuffer) -> torch.Tensor:
-    """The user's way: paste the exported file into the port, set sssWidth from the file's
-    header, render the horizontal then the vertical pass with GL_LINEAR / clamp-to-edge
-    textures (SSSSSample), into targets holding the input where the stencil discards."""
+def run_ssss_blur_ps(exported: str, gbuffer, shader: str = SSSS_BLUR_PS) -> torch.Tensor:
+    """The user's way: paste the exported file into the port (``shader``: :data:`SSSS_BLUR_PS`
+    or a user's edit of it), set sssWidth from the file's header, render the horizontal then
+    the vertical pass with GL_LINEAR / clamp-to-edge textures (SSSSSample), into targets
+    holding the input where the stencil discards."""
     sss_width = float(re.search(r"sssWidth = ([0-9.eE+-]+) mm", exported).group(1))
     assert "#define SSSS_FOLLOW_SURFACE_FACTOR" in exported
-    source = SSSS_BLUR_PS.replace("{KERNEL}", exported).replace(
+    source = shader.replace("{KERNEL}", exported).replace(
         "{FOVY}", f"{math.degrees(gbuffer.fov_y):.9g}"
     )
     assert PAPER_FACTOR in source
@@ -201,6 +202,54 @@ def test_exported_kernel_in_ssss_blur_ps_reproduces_torch(case, tmp_path):
     paper = 300.0 / math.tan(g.fov_y / 2) * sss_width
     wrong += f"\n#define SSSS_FOLLOW_SURFACE_FACTOR {paper:.9g}\n"
     assert rel_rms(run_ssss_blur_ps(wrong, g), ref) > 10 * TOL
+
+
+@pytest.mark.parametrize("case", list(CASES))
+@pytest.mark.parametrize("res", [(64, 96), (96, 64)], ids=["wide", "tall"])
+def test_exported_kernel_in_ssss_blur_ps_on_a_non_square_image(case, res, tmp_path):
+    """The header's rule for a non-square image (docs/gl.md: the horizontal pass's ``dir`` is
+    ``(H / W, 0)``, texture coordinates spanning W pixels across and H down) reproduces the
+    torch operator, which steps in pixels, in either orientation."""
+    argv = CASES[case]
+    g = data_synth.make_scene("sphere", res, radius=5.0, distance=25.0)
+    with backend("torch"), torch.no_grad():
+        ref = _method(argv)(g)
+    assert rel_rms(g.diffuse, ref) > 1e-3
+    assert rel_rms(run_ssss_blur_ps(_export(argv, "glsl", tmp_path), g), ref) <= TOL
+
+
+#: the paper's accumulation line in SSSSBlurPS, and a user's edit of it for the header's
+#: ``SSSS_FOLLOW_SURFACE 2`` (000 eq. 7: "tap weight *= exp(-0.5 * (SSSS_FOLLOW_SURFACE_FACTOR *
+#: |dz|)^2)", per channel with a vec3 factor), written from the export header's words alone
+PAPER_ACCUMULATE = "        colorBlurred.rgb += kernel[i].rgb * color.rgb;"
+GAUSSIAN_ACCUMULATE = """        #if SSSS_FOLLOW_SURFACE == 2
+        float depthS = SSSSSample(depthTex, offset).r;
+        vec3 d = SSSS_FOLLOW_SURFACE_FACTOR * abs(depthM - depthS);
+        colorBlurred.rgb += kernel[i].rgb * exp(-0.5 * d * d) * color.rgb;
+        #else
+        colorBlurred.rgb += kernel[i].rgb * color.rgb;
+        #endif"""
+
+
+def test_artist_export_with_its_gaussian_follow_surface_in_ssss_blur_ps(tmp_path):
+    """The artist model's default follow-surface (000 eq. 7, ``SSSS_FOLLOW_SURFACE 2`` with a
+    per-channel ``vec3`` factor): the paper's shader with the one edit the export header
+    describes reproduces the torch operator on the curved scene; the shader without it (the
+    paper's ``#if SSSS_FOLLOW_SURFACE == 1`` skips every depth test) is far off."""
+    argv = ["method=artist", "samples=7"]
+    method = _method(argv)
+    assert method.follow_surface == "gaussian"
+    text = _export(argv, "glsl", tmp_path)
+    assert "#define SSSS_FOLLOW_SURFACE 2" in text
+    assert "#define SSSS_FOLLOW_SURFACE_FACTOR vec3(" in text
+    g = curved_scene()
+    with backend("torch"), torch.no_grad():
+        ref = method(g)
+    assert rel_rms(g.diffuse, ref) > 1e-3
+    assert PAPER_ACCUMULATE in SSSS_BLUR_PS
+    edited = SSSS_BLUR_PS.replace(PAPER_ACCUMULATE, GAUSSIAN_ACCUMULATE)
+    assert rel_rms(run_ssss_blur_ps(text, g, edited), ref) <= TOL
+    assert rel_rms(run_ssss_blur_ps(text, g), ref) > 10 * TOL
 
 
 @pytest.mark.parametrize(
