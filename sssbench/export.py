@@ -43,7 +43,8 @@ command line next to the taps in every format):
   line, for **linear depth in mm**: ``s = saturate(SSSS_FOLLOW_SURFACE_FACTOR * abs(depthM -
   depth))``. It is ``1 / surface_scale`` (the method's depth step of full replacement); a depth
   buffer in another unit multiplies it by the mm per depth unit. A per-channel scale (the
-  artist model) writes a ``float3`` / ``vec3`` and the lerp becomes per channel. With
+  artist model) writes a ``float3`` / ``vec3`` and the lerp becomes per channel (the line's
+  ``s`` declared ``float3`` / ``vec3``: the header says so, :func:`_factor_comment`). With
   ``SSSS_FOLLOW_SURFACE 2`` (000 eq. 7, the artist model's default) the factor is ``1 /
   σ_max`` and the tap weight is multiplied by ``exp(-0.5 · (factor · |Δz|)²)`` instead;
 - the mask: ``SSSS_STRENGTH_SOURCE`` is the G-buffer mask, 0 = not computed (the stencil,
@@ -299,6 +300,32 @@ class Constant:
         return {"name": self.name, "value": v, "comment": self.comment}
 
 
+def _factor_comment(mode: int, per_channel: bool) -> str:
+    """The header's words on ``SSSS_FOLLOW_SURFACE_FACTOR`` for follow-surface ``mode`` (1 the
+    lerp, 2 000 eq. 7) and a factor per channel or not: what to put where in ``SSSSBlurPS``.
+    A per-channel factor with the paper's ``float s`` would keep its first channel only (HLSL
+    truncates a vector assigned to a scalar with a warning, GLSL refuses it), so the comment
+    names the declaration to change."""
+    if mode == 2:
+        return (
+            "1/mm, 1 / sigma_max per channel, for LINEAR depth in mm (depth in another unit:\n"
+            "times mm per unit). SSSSBlurPS has no 000 eq. 7 line: in its accumulation weight\n"
+            "each tap by exp(-0.5 * d * d), d = FACTOR * abs(depthM - depth) (float3 / vec3 d);\n"
+            "its SSSS_FOLLOW_SURFACE == 1 lerp is then not compiled"
+        )
+    text = (
+        "1/mm: replaces `300.0 * distanceToProjectionWindow * sssWidth` in SSSSBlurPS's\n"
+        "follow-surface line, for LINEAR depth in mm: s = saturate(FACTOR * abs(depthM -\n"
+        "depth)); = 1 / surface_scale (depth in another unit: times mm per unit)"
+    )
+    if per_channel:
+        text += (
+            "\nper channel: declare that line's s as float3 / vec3 (the paper's float s keeps\n"
+            "the first channel only: HLSL truncates it with a warning, GLSL refuses it)"
+        )
+    return text
+
+
 def _constant_lines(constants: Sequence[Constant], vec3: str) -> list[str]:
     lines = ["// constants the measured result used (sssbench docs/gl.md, 'the export contract'):"]
     for c in constants:
@@ -342,16 +369,11 @@ def method_constants(method: nn.Module) -> list[Constant]:
     if mode:
         factor = _follow_factor(method.surface_scale)
         value: float | tuple[float, float, float] = factor[0]
-        if len(set(factor)) > 1:
+        per_channel = len(set(factor)) > 1
+        if per_channel:
             value = factor
         out.append(
-            Constant(
-                "SSSS_FOLLOW_SURFACE_FACTOR",
-                value,
-                "1/mm: replaces `300.0 * distanceToProjectionWindow * sssWidth` in SSSSBlurPS's\n"
-                "follow-surface line, for LINEAR depth in mm: s = saturate(FACTOR * abs(depthM -\n"
-                "depth)); = 1 / surface_scale (depth in another unit: times mm per unit)",
-            )
+            Constant("SSSS_FOLLOW_SURFACE_FACTOR", value, _factor_comment(mode, per_channel))
         )
     out.append(
         Constant(

@@ -93,8 +93,10 @@ class GLContext:
 
     def texture(self, plane: torch.Tensor) -> object:
         """A float32 texture of a ``(C, H, W)`` plane set: ``C = 1`` R32F, 2 RG32F, 3 or 4
-        RGBA32F (a 3-channel image gets alpha 1). Nearest filtering, clamp to edge (taps are
-        filtered in the shader, see :mod:`sssbench.gl.shaders`)."""
+        RGBA32F (a 3-channel image gets alpha 1). Linear filtering (``GL_LINEAR``, what
+        ``SSSSBlurPS``'s ``texture()`` taps and the backend's ``hardware_filter`` read; the
+        backend's own taps are filtered in the shader from ``texelFetch``, see
+        :mod:`sssbench.gl.shaders`), clamp to edge."""
         c, h, w = plane.shape
         data = plane.detach().to(device="cpu", dtype=torch.float32)
         comps = 4 if c == 3 else c

@@ -252,6 +252,42 @@ def test_artist_export_with_its_gaussian_follow_surface_in_ssss_blur_ps(tmp_path
     assert rel_rms(run_ssss_blur_ps(text, g), ref) > 10 * TOL
 
 
+def _artist_lerp_export(fmt: str) -> tuple[object, str]:
+    """The artist model with the lerp follow-surface (a per-channel factor; the Python API's
+    ``follow_surface="lerp"``) and its export in ``fmt``, as the command line writes it."""
+    from sssbench.export import default_sss_width, method_constants, method_kernels, shader_source
+    from sssbench.ops import ArtistSSS
+
+    method = ArtistSSS.preset("multi_layer_close_fit", samples=7, follow_surface="lerp")
+    kernels = method_kernels(method)
+    width = default_sss_width(kernels, method)
+    constants = method_constants(method)
+    return method, shader_source(kernels, fmt, width, header="artist", constants=constants)
+
+
+#: the paper's follow-surface declaration (a scalar s), which a per-channel factor changes
+PAPER_S = "float s = 300.0f"
+
+
+def test_per_channel_lerp_export_with_the_vec3_the_header_names(tmp_path):
+    """A per-channel factor (``vec3``): the header says to declare the follow-surface line's
+    ``s`` as ``vec3``; with that one change the port's image is the torch operator's, and
+    without it GLSL refuses the paper's ``float s`` (no silent first-channel result)."""
+    method, text = _artist_lerp_export("glsl")
+    assert "#define SSSS_FOLLOW_SURFACE 1" in text
+    assert "#define SSSS_FOLLOW_SURFACE_FACTOR vec3(" in text
+    assert "declare that line's s as float3 / vec3" in text
+    g = curved_scene()
+    with backend("torch"), torch.no_grad():
+        ref = method(g)
+    assert rel_rms(g.diffuse, ref) > 1e-3
+    assert PAPER_S in SSSS_BLUR_PS
+    edited = SSSS_BLUR_PS.replace(PAPER_S, "vec3 s = 300.0f")
+    assert rel_rms(run_ssss_blur_ps(text, g, edited), ref) <= TOL
+    with pytest.raises(Exception, match="(?i)vec3|float|conver|type"):
+        run_ssss_blur_ps(text, g)
+
+
 @pytest.mark.parametrize(
     "argv",
     [
