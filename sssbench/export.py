@@ -243,6 +243,9 @@ def shader_source(
         f"// {len(kernels)} kernel(s); {vec4}(r, g, b, w): per-channel weights and the offset",
         f"// w = 1.5 * offset_mm / sssWidth with sssWidth = {_num(sss_width_mm)} mm: the pass",
         "// steps w * sssWidth * distToProjWindow / depth * dir / 3 texture units (SSSSBlurPS).",
+        "// sssWidth and the linear depth share one unit: with depth in metres pass",
+        f"// sssWidth = {_num(sss_width_mm / 1000.0)}, and the constants below in mm or 1/mm alike",
+        "// (the follow-surface factor times 1000).",
         *(
             [
                 "// float4 kernel[] = {...} as in SeparableSSS.h; outside an effect file make it",

@@ -143,12 +143,16 @@ def _method(argv: list[str]):
     return build_from_overrides(argv)[0]
 
 
-def run_ssss_blur_ps(exported: str, gbuffer, shader: str = SSSS_BLUR_PS) -> torch.Tensor:
+def run_ssss_blur_ps(
+    exported: str, gbuffer, shader: str = SSSS_BLUR_PS, sss_width: float | None = None
+) -> torch.Tensor:
     """The user's way: paste the exported file into the port (``shader``: :data:`SSSS_BLUR_PS`
-    or a user's edit of it), set sssWidth from the file's header, render the horizontal then
+    or a user's edit of it), set sssWidth from the file's header (or ``sss_width``), render
+    the horizontal then
     the vertical pass with GL_LINEAR / clamp-to-edge textures (SSSSSample), into targets
     holding the input where the stencil discards."""
-    sss_width = float(re.search(r"sssWidth = ([0-9.eE+-]+) mm", exported).group(1))
+    if sss_width is None:
+        sss_width = float(re.search(r"sssWidth = ([0-9.eE+-]+) mm", exported).group(1))
     assert "#define SSSS_FOLLOW_SURFACE_FACTOR" in exported
     source = shader.replace("{KERNEL}", exported).replace(
         "{FOVY}", f"{math.degrees(gbuffer.fov_y):.9g}"
@@ -250,6 +254,29 @@ def test_artist_export_with_its_gaussian_follow_surface_in_ssss_blur_ps(tmp_path
     edited = SSSS_BLUR_PS.replace(PAPER_ACCUMULATE, GAUSSIAN_ACCUMULATE)
     assert rel_rms(run_ssss_blur_ps(text, g, edited), ref) <= TOL
     assert rel_rms(run_ssss_blur_ps(text, g), ref) > 10 * TOL
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_exported_kernel_with_depth_in_metres(case, tmp_path):
+    """The header's rule for a depth buffer in metres (sssWidth and depth share one unit: its
+    metres line, the follow-surface factor times 1000) gives the same image as the torch
+    operator on the G-buffer in mm."""
+    argv = CASES[case]
+    g = curved_scene()
+    with backend("torch"), torch.no_grad():
+        ref = _method(argv)(g)
+    text = _export(argv, "glsl", tmp_path)
+    metres = float(re.search(r"with depth in metres pass\n// sssWidth = ([0-9.eE+-]+),", text)[1])
+    factor = float(re.search(r"#define SSSS_FOLLOW_SURFACE_FACTOR ([0-9.eE+-]+)\n", text)[1])
+    in_metres = re.sub(
+        r"#define SSSS_FOLLOW_SURFACE_FACTOR [^\n]+",
+        f"#define SSSS_FOLLOW_SURFACE_FACTOR {factor * 1000:.9g}",
+        text,
+    )
+    g_m = g.replace(depth=g.depth / 1000)
+    assert rel_rms(run_ssss_blur_ps(in_metres, g_m, sss_width=metres), ref) <= TOL
+    # the mm figure with a depth in metres: far off
+    assert rel_rms(run_ssss_blur_ps(in_metres, g_m), ref) > 10 * TOL
 
 
 def _artist_lerp_export(fmt: str) -> tuple[object, str]:
