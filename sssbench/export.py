@@ -310,11 +310,12 @@ def _factor_comment(mode: int, per_channel: bool) -> str:
     truncates a vector assigned to a scalar with a warning, GLSL refuses it), so the comment
     names the declaration to change."""
     if mode == 2:
+        d = "float3 / vec3 d, per channel" if per_channel else "float d"
         return (
-            "1/mm, 1 / sigma_max per channel, for LINEAR depth in mm (depth in another unit:\n"
-            "times mm per unit). SSSSBlurPS has no 000 eq. 7 line: in its accumulation weight\n"
-            "each tap by exp(-0.5 * d * d), d = FACTOR * abs(depthM - depth) (float3 / vec3 d);\n"
-            "its SSSS_FOLLOW_SURFACE == 1 lerp is then not compiled"
+            "1/mm: 1 / surface_scale (000 eq. 7's 1 / sigma_max), for LINEAR depth in mm (depth\n"
+            "in another unit: times mm per unit). SSSSBlurPS has no eq. 7 line: in its\n"
+            "accumulation weight each tap by exp(-0.5 * d * d), d = FACTOR * abs(depthM -\n"
+            f"depth) ({d});\nits SSSS_FOLLOW_SURFACE == 1 lerp is then not compiled"
         )
     text = (
         "1/mm: replaces `300.0 * distanceToProjectionWindow * sssWidth` in SSSSBlurPS's\n"

@@ -235,23 +235,33 @@ GAUSSIAN_ACCUMULATE = """        #if SSSS_FOLLOW_SURFACE == 2
         #endif"""
 
 
-def test_artist_export_with_its_gaussian_follow_surface_in_ssss_blur_ps(tmp_path):
-    """The artist model's default follow-surface (000 eq. 7, ``SSSS_FOLLOW_SURFACE 2`` with a
-    per-channel ``vec3`` factor): the paper's shader with the one edit the export header
-    describes reproduces the torch operator on the curved scene; the shader without it (the
-    paper's ``#if SSSS_FOLLOW_SURFACE == 1`` skips every depth test) is far off."""
-    argv = ["method=artist", "samples=7"]
+@pytest.mark.parametrize(
+    ("argv", "d_type"),
+    [
+        (["method=artist", "samples=7"], "vec3"),
+        (CASES["preintegrated"] + ["method.params.follow_surface=gaussian"], "float"),
+    ],
+    ids=["artist", "preintegrated"],
+)
+def test_gaussian_follow_surface_export_in_ssss_blur_ps(argv, d_type, tmp_path):
+    """000 eq. 7's follow-surface (``SSSS_FOLLOW_SURFACE 2``; the artist model's default, a
+    per-channel ``vec3`` factor; the pre-integrated kernel's option, a scalar one): the paper's
+    shader with the one edit the export header describes, ``d`` of the type it names,
+    reproduces the torch operator on the curved scene; the shader without it (the paper's
+    ``#if SSSS_FOLLOW_SURFACE == 1`` skips every depth test) is far off."""
     method = _method(argv)
     assert method.follow_surface == "gaussian"
     text = _export(argv, "glsl", tmp_path)
     assert "#define SSSS_FOLLOW_SURFACE 2" in text
-    assert "#define SSSS_FOLLOW_SURFACE_FACTOR vec3(" in text
+    named = "(float3 / vec3 d, per channel)" if d_type == "vec3" else "(float d)"
+    assert named in text
     g = curved_scene()
     with backend("torch"), torch.no_grad():
         ref = method(g)
     assert rel_rms(g.diffuse, ref) > 1e-3
     assert PAPER_ACCUMULATE in SSSS_BLUR_PS
-    edited = SSSS_BLUR_PS.replace(PAPER_ACCUMULATE, GAUSSIAN_ACCUMULATE)
+    edit = GAUSSIAN_ACCUMULATE.replace("vec3 d =", f"{d_type} d =")
+    edited = SSSS_BLUR_PS.replace(PAPER_ACCUMULATE, edit)
     assert rel_rms(run_ssss_blur_ps(text, g, edited), ref) <= TOL
     assert rel_rms(run_ssss_blur_ps(text, g), ref) > 10 * TOL
 
