@@ -23,11 +23,80 @@ pytestmark = pytest.mark.skipif(not OK, reason=f"no headless GL: {WHY}")
 
 TOL = 1e-5
 
-#: 002 appendix, Appendix A, ``SSSSBlurPS``, ported to GLSL 330 line by line (HLSL intrinsics
-#: as the SSSS* macros of SeparableSSS.h's GLSL path would define them). ``{KERNEL}`` is where
-#: the user pastes the exported file; the follow-surface line is the paper's, with its
+#: 002 Appendix A, ``SSSSBlurPS``, as printed (HLSL)
+PAPER_BLUR_PS = """float4 SSSSBlurPS(float2 texcoord, SSSSTexture2D colorTex,
+                SSSSTexture2D depthTex, float sssWidth,
+                float2 dir, bool initStencil) {
+
+    // Fetch color of current pixel:
+    float4 colorM = SSSSSamplePoint(colorTex, texcoord);
+
+    // Initialize the stencil buffer in case it was not
+    // already available:
+    if (initStencil)
+        if (SSSS_STRENGTH_SOURCE == 0.0) discard;
+
+    // Fetch linear depth of current pixel:
+    float depthM = SSSSSamplePoint(depthTex, texcoord).r;
+
+    // Calculate the sssWidth scale (1.0 for a unit plane
+    // sitting on the projection window):
+    float distToProjWindow = 1.0 /
+        tan(0.5 * radians(SSSS_FOVY));
+    float scale = distToProjWindow / depthM;
+
+    // Calculate the final step to fetch the surrounding
+    // pixels:
+    float2 finalStep = sssWidth * scale * dir;
+
+    // Modulate it using the alpha channel:
+    finalStep *= SSSS_STRENGTH_SOURCE;
+
+    // Divide by 3 as the kernels range from -3 to 3:
+    finalStep *= 1.0 / 3.0;
+
+    // Accumulate the center sample:
+    float4 colorBlurred = colorM;
+    colorBlurred.rgb *= kernel[0].rgb;
+
+    // Accumulate the other samples:
+    SSSS_UNROLL
+    for (int i = 1; i < SSSS_N_SAMPLES; i++) {
+        // Fetch color and depth for current sample:
+        float2 offset = texcoord + kernel[i].a * finalStep;
+        float4 color = SSSSSample(colorTex, offset);
+
+        #if SSSS_FOLLOW_SURFACE == 1
+        // If the difference in depth is huge, we lerp
+        // color back to "colorM":
+        float depth = SSSSSample(depthTex, offset).r;
+        float s = 300.0f * distToProjWindow *
+            sssWidth * abs(depthM - depth);
+            s = SSSSSaturate(s);
+        color.rgb = SSSSLerp(color.rgb, colorM.rgb, s);
+        #endif
+
+        // Accumulate:
+        colorBlurred.rgb += kernel[i].rgb * color.rgb;
+    }
+    return colorBlurred;
+}
+"""
+
+
+def glsl_port(hlsl: str) -> str:
+    """The paper's HLSL function in GLSL 330, line by line: its only HLSL-only words are the
+    vector types ``float4`` and ``float2`` (the intrinsics are the SSSS* macros, which the
+    GLSL harness below defines as SeparableSSS.h's GLSL path would)."""
+    return re.sub(r"\bfloat2\b", "vec2", re.sub(r"\bfloat4\b", "vec4", hlsl))
+
+
+#: 002 appendix, Appendix A, ``SSSSBlurPS``, ported to GLSL 330 (:func:`glsl_port`, HLSL
+#: intrinsics as the SSSS* macros of SeparableSSS.h's GLSL path would define them). ``{KERNEL}``
+#: is where the user pastes the exported file; the follow-surface line is the paper's, with its
 #: ``300.0f * distToProjWindow * sssWidth`` replaced textually by the exported factor below.
-SSSS_BLUR_PS = """#version 330
+SSSS_BLUR_PS = (
+    """#version 330
 #define SSSS_FOVY {FOVY}
 #define SSSSTexture2D sampler2D
 #define SSSSSamplePoint(tex, coord) texelFetch(tex, ivec2(coord * vec2(textureSize(tex, 0))), 0)
@@ -47,69 +116,15 @@ uniform vec2 dir;
 uniform bool initStencil;
 out vec4 fragColor;
 
-vec4 SSSSBlurPS(vec2 texcoord, SSSSTexture2D colorTex,
-                SSSSTexture2D depthTex, float sssWidth,
-                vec2 dir, bool initStencil) {
-
-    // Fetch color of current pixel:
-    vec4 colorM = SSSSSamplePoint(colorTex, texcoord);
-
-    // Initialize the stencil buffer in case it was not
-    // already available:
-    if (initStencil)
-        if (SSSS_STRENGTH_SOURCE == 0.0) discard;
-
-    // Fetch linear depth of current pixel:
-    float depthM = SSSSSamplePoint(depthTex, texcoord).r;
-
-    // Calculate the sssWidth scale (1.0 for a unit plane
-    // sitting on the projection window):
-    float distToProjWindow = 1.0 /
-        tan(0.5 * radians(SSSS_FOVY));
-    float scale = distToProjWindow / depthM;
-
-    // Calculate the final step to fetch the surrounding
-    // pixels:
-    vec2 finalStep = sssWidth * scale * dir;
-
-    // Modulate it using the alpha channel:
-    finalStep *= SSSS_STRENGTH_SOURCE;
-
-    // Divide by 3 as the kernels range from -3 to 3:
-    finalStep *= 1.0 / 3.0;
-
-    // Accumulate the center sample:
-    vec4 colorBlurred = colorM;
-    colorBlurred.rgb *= kernel[0].rgb;
-
-    // Accumulate the other samples:
-    SSSS_UNROLL
-    for (int i = 1; i < SSSS_N_SAMPLES; i++) {
-        // Fetch color and depth for current sample:
-        vec2 offset = texcoord + kernel[i].a * finalStep;
-        vec4 color = SSSSSample(colorTex, offset);
-
-        #if SSSS_FOLLOW_SURFACE == 1
-        // If the difference in depth is huge, we lerp
-        // color back to "colorM":
-        float depth = SSSSSample(depthTex, offset).r;
-        float s = 300.0f * distToProjWindow *
-            sssWidth * abs(depthM - depth);
-            s = SSSSSaturate(s);
-        color.rgb = SSSSLerp(color.rgb, colorM.rgb, s);
-        #endif
-
-        // Accumulate:
-        colorBlurred.rgb += kernel[i].rgb * color.rgb;
-    }
-    return colorBlurred;
-}
-
+"""
+    + glsl_port(PAPER_BLUR_PS)
+    + """
 void main() {
     vec2 texcoord = gl_FragCoord.xy / vec2(textureSize(colorTex, 0));
     fragColor = SSSSBlurPS(texcoord, colorTex, depthTex, sssWidth, dir, initStencil);
 }
 """
+)
 
 #: the contract (export header, docs/gl.md): SSSS_FOLLOW_SURFACE_FACTOR replaces this
 PAPER_FACTOR = "300.0f * distToProjWindow *\n            sssWidth"
@@ -289,9 +304,11 @@ def test_exported_kernel_with_depth_in_metres(case, tmp_path):
     assert rel_rms(run_ssss_blur_ps(in_metres, g_m), ref) > 10 * TOL
 
 
-def _artist_lerp_export(fmt: str) -> tuple[object, str]:
+def _artist_lerp_case(fmt: str) -> tuple[str, object, torch.Tensor]:
     """The artist model with the lerp follow-surface (a per-channel factor; the Python API's
-    ``follow_surface="lerp"``) and its export in ``fmt``, as the command line writes it."""
+    ``follow_surface="lerp"``): its export in ``fmt`` as the command line writes it (checked:
+    the lerp, a per-channel factor and the header's words on declaring ``s``), the curved
+    scene and the torch operator's image of it."""
     from sssbench.export import default_sss_width, method_constants, method_kernels, shader_source
     from sssbench.ops import ArtistSSS
 
@@ -299,7 +316,16 @@ def _artist_lerp_export(fmt: str) -> tuple[object, str]:
     kernels = method_kernels(method)
     width = default_sss_width(kernels, method)
     constants = method_constants(method)
-    return method, shader_source(kernels, fmt, width, header="artist", constants=constants)
+    text = shader_source(kernels, fmt, width, header="artist", constants=constants)
+    vec3 = "float3" if fmt == "hlsl" else "vec3"
+    assert "#define SSSS_FOLLOW_SURFACE 1" in text
+    assert f"#define SSSS_FOLLOW_SURFACE_FACTOR {vec3}(" in text
+    assert "declare that line's s as float3 / vec3" in text
+    g = curved_scene()
+    with backend("torch"), torch.no_grad():
+        ref = method(g)
+    assert rel_rms(g.diffuse, ref) > 1e-3
+    return text, g, ref
 
 
 #: the paper's follow-surface declaration (a scalar s), which a per-channel factor changes
@@ -310,14 +336,7 @@ def test_per_channel_lerp_export_with_the_vec3_the_header_names(tmp_path):
     """A per-channel factor (``vec3``): the header says to declare the follow-surface line's
     ``s`` as ``vec3``; with that one change the port's image is the torch operator's, and
     without it GLSL refuses the paper's ``float s`` (no silent first-channel result)."""
-    method, text = _artist_lerp_export("glsl")
-    assert "#define SSSS_FOLLOW_SURFACE 1" in text
-    assert "#define SSSS_FOLLOW_SURFACE_FACTOR vec3(" in text
-    assert "declare that line's s as float3 / vec3" in text
-    g = curved_scene()
-    with backend("torch"), torch.no_grad():
-        ref = method(g)
-    assert rel_rms(g.diffuse, ref) > 1e-3
+    text, g, ref = _artist_lerp_case("glsl")
     assert PAPER_S in SSSS_BLUR_PS
     edited = SSSS_BLUR_PS.replace(PAPER_S, "vec3 s = 300.0f")
     assert rel_rms(run_ssss_blur_ps(text, g, edited), ref) <= TOL

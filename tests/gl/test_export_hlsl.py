@@ -24,9 +24,11 @@ from tests.gl.test_export_gl import (
     CASES,
     GAUSSIAN_ACCUMULATE,
     PAPER_ACCUMULATE,
+    PAPER_BLUR_PS,
+    PAPER_FACTOR,
     PAPER_S,
     TOL,
-    _artist_lerp_export,
+    _artist_lerp_case,
     _export,
     _method,
     curved_scene,
@@ -40,66 +42,6 @@ pytestmark = [
     pytest.mark.skipif(bool(TOOLS), reason=f"no {' / '.join(TOOLS)} (Debian glslang-tools, "
                                            "spirv-cross)"),
 ]  # fmt: skip
-
-#: 002 Appendix A, ``SSSSBlurPS``, as printed (HLSL)
-PAPER_BLUR_PS = """float4 SSSSBlurPS(float2 texcoord, SSSSTexture2D colorTex,
-                SSSSTexture2D depthTex, float sssWidth,
-                float2 dir, bool initStencil) {
-
-    // Fetch color of current pixel:
-    float4 colorM = SSSSSamplePoint(colorTex, texcoord);
-
-    // Initialize the stencil buffer in case it was not
-    // already available:
-    if (initStencil)
-        if (SSSS_STRENGTH_SOURCE == 0.0) discard;
-
-    // Fetch linear depth of current pixel:
-    float depthM = SSSSSamplePoint(depthTex, texcoord).r;
-
-    // Calculate the sssWidth scale (1.0 for a unit plane
-    // sitting on the projection window):
-    float distToProjWindow = 1.0 /
-        tan(0.5 * radians(SSSS_FOVY));
-    float scale = distToProjWindow / depthM;
-
-    // Calculate the final step to fetch the surrounding
-    // pixels:
-    float2 finalStep = sssWidth * scale * dir;
-
-    // Modulate it using the alpha channel:
-    finalStep *= SSSS_STRENGTH_SOURCE;
-
-    // Divide by 3 as the kernels range from -3 to 3:
-    finalStep *= 1.0 / 3.0;
-
-    // Accumulate the center sample:
-    float4 colorBlurred = colorM;
-    colorBlurred.rgb *= kernel[0].rgb;
-
-    // Accumulate the other samples:
-    SSSS_UNROLL
-    for (int i = 1; i < SSSS_N_SAMPLES; i++) {
-        // Fetch color and depth for current sample:
-        float2 offset = texcoord + kernel[i].a * finalStep;
-        float4 color = SSSSSample(colorTex, offset);
-
-        #if SSSS_FOLLOW_SURFACE == 1
-        // If the difference in depth is huge, we lerp
-        // color back to "colorM":
-        float depth = SSSSSample(depthTex, offset).r;
-        float s = 300.0f * distToProjWindow *
-            sssWidth * abs(depthM - depth);
-            s = SSSSSaturate(s);
-        color.rgb = SSSSLerp(color.rgb, colorM.rgb, s);
-        #endif
-
-        // Accumulate:
-        colorBlurred.rgb += kernel[i].rgb * color.rgb;
-    }
-    return colorBlurred;
-}
-"""
 
 #: the engine's side: SeparableSSS.h's D3D10 macros (``SSSSSamplePoint`` as a ``Load`` of the
 #: pixel's own texel, which point sampling at its centre is), the two textures, the pasted
@@ -127,9 +69,6 @@ float4 main(float4 pos : SV_Position) : SV_Target {
     return SSSSBlurPS(texcoord, colorTex, depthTex, SSS_WIDTH, DIR, true);
 }
 """
-
-#: the paper's follow-surface constant, which the export's factor replaces (its header)
-PAPER_FACTOR = "300.0f * distToProjWindow *\n            sssWidth"
 
 
 def compile_hlsl(source: str, defines: dict[str, str], tmp_path) -> str:
@@ -243,13 +182,7 @@ def test_hlsl_per_channel_lerp_needs_the_float3_the_header_names(tmp_path):
     truncated to its first channel, a warning only) and gives a visibly different image; the
     header says to declare ``s`` as ``float3``, and with that one change the image is the
     torch operator's."""
-    method, text = _artist_lerp_export("hlsl")
-    assert "#define SSSS_FOLLOW_SURFACE 1" in text
-    assert "#define SSSS_FOLLOW_SURFACE_FACTOR float3(" in text
-    assert "declare that line's s as float3" in text
-    g = curved_scene()
-    with backend("torch"), torch.no_grad():
-        ref = method(g)
+    text, g, ref = _artist_lerp_case("hlsl")
     assert PAPER_S in PAPER_BLUR_PS
     edited = PAPER_BLUR_PS.replace(PAPER_S, "float3 s = 300.0f")
     assert rel_rms(run_hlsl_blur_ps(text, g, tmp_path, edited), ref) <= TOL
