@@ -48,12 +48,23 @@ command line next to the taps in every format):
   ``SSSS_FOLLOW_SURFACE 2`` (000 eq. 7, the artist model's default) the factor is ``1 /
   σ_max`` and the tap weight is multiplied by ``exp(-0.5 · (factor · |Δz|)²)`` instead;
 - the mask: ``SSSS_STRENGTH_SOURCE`` is the G-buffer mask, 0 = not computed (the stencil,
-  002's ``initStencil`` ``discard``), otherwise it multiplies ``finalStep``;
+  002's ``initStencil`` ``discard``), otherwise it multiplies ``finalStep``; and
+  ``SSSS_SKIPPED_PIXELS``, the render targets' rule: where a pass computes no pixel its target
+  must hold that pass's input (the torch passes leave it there, and the next pass's taps read
+  it);
 - the JG10 stretch (003 §7.3.1): ``SSSS_STRETCH_SSSLEVEL``, ``_CORRECTION`` (px), ``_MAXDD``
   (mm/px), the step divided by ``depth + correction · min(|∂depth/∂axis|, maxdd)``;
 - stochastic rotation (000 §6): ``SSSS_ROTATION_RADIUS``;
 - the sum of Gaussians: its pass schedule, the blend factors ``w'`` (``kernel_sog<i>_blend``)
-  and the LOD (``SSSS_LOD_THRESHOLD`` px, each step's ``σ``); the SVD rank-N terms' schedule.
+  and the LOD (``SSSS_LOD_THRESHOLD`` px, each step's ``σ`` as ``KERNEL_SOG<i>_SIGMA``, and
+  the line that adds it to ``SSSSBlurPS``); the SVD rank-N terms' schedule (in
+  ``SSSSBlurPS``: the x pass without the stencil's discard);
+- several kernels in one file: the two lines that select one for ``SSSSBlurPS``
+  (:func:`_selection_lines`).
+
+Tested where users run them: tests/gl/test_export_gl.py, test_export_hlsl.py and
+test_export_schedules.py paste these files into the paper's ``SSSSBlurPS`` (GLSL port; HLSL
+through glslang and SPIRV-Cross), follow the header and compare with the torch operator.
 
 ``--format glsl-pass`` writes complete GLSL 330 fragment shaders, one per kernel (the pass with
 the kernel and these constants baked in, :func:`sssbench.gl.shaders.pass_source`): the very
@@ -259,6 +270,8 @@ def shader_source(
     if constants:
         lines += _constant_lines(constants, vec3) + [""]
     single = len(kernels) == 1
+    if not single:
+        lines += _selection_lines(_identifier(kernels[0].name, single)) + [""]
     for nk in kernels:
         ident = _identifier(nk.name, single)
         order, centred = shader_order(nk.kernel)
@@ -281,6 +294,18 @@ def shader_source(
             lines.append(f"const vec4 {ident}[{n}] = vec4[{n}](\n{body}\n);")
         lines.append("")
     return "\n".join(lines)
+
+
+def _selection_lines(ident: str) -> list[str]:
+    """The header's words on running one kernel of a file of several through ``SSSSBlurPS``,
+    which reads ``kernel`` and ``SSSS_N_SAMPLES`` (002 appendix), with ``ident`` (the first
+    kernel's identifier) as the example; tested by pasting each kernel so."""
+    return [
+        "// several kernels: SSSSBlurPS reads kernel and SSSS_N_SAMPLES, so compile one shader",
+        "// per kernel, this file followed by two lines naming it, e.g. for the first:",
+        f"//   #define kernel {ident}",
+        f"//   #define SSSS_N_SAMPLES {ident.upper()}_N_SAMPLES",
+    ]
 
 
 @dataclass(frozen=True)
@@ -387,6 +412,16 @@ def method_constants(method: nn.Module) -> list[Constant]:
             "initStencil discard: the input is kept), else finalStep *= mask (003 s' = s * alpha)",
         )
     )
+    out.append(
+        Constant(
+            "SSSS_SKIPPED_PIXELS",
+            None,
+            "render targets: where a pass computes no pixel (the stencil's discard, the LOD)\n"
+            "its target must already hold that pass's input, which the next pass's taps read:\n"
+            "copy the input into the target first (a target cleared to black darkens the\n"
+            "pixels beside a stencil edge on one surface: far off, tested)",
+        )
+    )
     if method.rotation is not None:
         out.append(
             Constant(
@@ -422,6 +457,24 @@ def method_constants(method: nn.Module) -> list[Constant]:
         )
         out.append(Constant("SSSS_LOD_THRESHOLD", _f32(method.lod_threshold), "px"))
         steps = [] if method.steps is None else method.steps
+        if method.lod:
+            out.append(
+                Constant(
+                    "SSSS_LOD_IN_SSSSBLURPS",
+                    None,
+                    "in SSSSBlurPS, after its scale line (scale = distToProjWindow / depthM;\n"
+                    "H the target's height in pixels, ssslevel 1 without the stretch, sigma\n"
+                    "the step's KERNEL_SOG<i>_SIGMA):\n"
+                    "  if (sigma * ssslevel * 0.5 * H * scale * SSSS_STRENGTH_SOURCE <\n"
+                    "      SSSS_LOD_THRESHOLD) discard;\n"
+                    "and the step's blend only where its pass ran (the same test)",
+                )
+            )
+        for i, step in enumerate(steps):
+            if step.kernel is not None:
+                sigma = _num(step.increment**0.5)
+                comment = f"mm: step sog{i}'s sigma (the LOD's width)"
+                out.append(Constant(f"KERNEL_SOG{i}_SIGMA", float(sigma), comment))
         sched = [
             "pass schedule (003 §7.3.3, Fig. 7.6): RTF = RT1 = the input; for each step in",
             "order: x pass RT1 -> RT2, y pass RT2 -> RT1, then RTF = RT1 * w' + RTF * (1 - w')",
@@ -443,7 +496,11 @@ def method_constants(method: nn.Module) -> list[Constant]:
                 "pass schedule (000 eq. 2): result = sum over terms i of the y pass\n"
                 "(kernel_low_rank<i>_y) of the x pass (kernel_low_rank<i>_x); the x\n"
                 "pass writes input * sum(x weights) at pixels with mask 0; pixels\n"
-                "with mask 0 keep the input in the result",
+                "with mask 0 keep the input in the result. In SSSSBlurPS: each x pass with\n"
+                "initStencil false and no stencil test (at mask 0 its step is 0, finalStep\n"
+                "*= mask, so it writes input * sum(x weights) there; a discard instead is far\n"
+                "off, tested), each y pass summed into one target (blend ONE, ONE), then\n"
+                "the input where the mask is 0",
             )
         )
     return out
