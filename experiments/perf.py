@@ -137,7 +137,45 @@ def scene_label(which: tuple[str, str], g) -> str:
     )
 
 
-def covered_fixed_sentence(fixed: dict, close_ms: float, share: float) -> str:
+def native_cpu_ms(call: Callable[[], object], rounds: int) -> dict[str, float] | None:
+    """The CPU time of ``call`` after :data:`SETTLE_S` and the part of it spent inside the
+    native tap loop's entry point (``sss_gather_f32``, timed by wrapping it for these rounds
+    only, within the same calls): ``{"whole": median ms, "native": median ms}``; ``None``
+    without the C library. What a call path without any Python around its C calls would
+    cost at most."""
+    from sssbench.ops import native
+
+    lib = native.library_for(torch.float32)
+    if lib is None:
+        return None
+    original = lib.sss_gather_f32
+    inside: list[float] = []
+
+    def timed(*args):
+        start = time.process_time()
+        try:
+            return original(*args)
+        finally:
+            inside[-1] += time.process_time() - start
+
+    whole = []
+    call()
+    lib.sss_gather_f32 = timed
+    try:
+        for _ in range(rounds):
+            time.sleep(SETTLE_S)
+            inside.append(0.0)
+            start = time.process_time()
+            call()
+            whole.append(time.process_time() - start)
+    finally:
+        lib.sss_gather_f32 = original
+    return {"whole": statistics.median(whole) * 1e3, "native": statistics.median(inside) * 1e3}
+
+
+def covered_fixed_sentence(
+    fixed: dict, close_ms: float, share: float, native_ms: dict[str, float] | None = None
+) -> str:
     """What part of the far call's sealed CPU time no covered pixel causes, from ``fixed``:
     ``{(key, mode): median ms}`` for key ``"far"`` (the far shot) and ``"empty"`` (its
     G-buffer with an empty stencil), mode ``"cold"`` (after :data:`SETTLE_S`) and ``"warm"``
@@ -161,6 +199,21 @@ def covered_fixed_sentence(fixed: dict, close_ms: float, share: float) -> str:
         f"is {fixed[('empty', 'cold')] / allowance:.2f}× the target's allowance of "
         f"{allowance:.2f} ms ({verdict}). The far call's CPU time above that, "
         f"{work:.2f} ms, is {work / close_ms / share:.2f}× its share of the close-up's."
+    ) + ("" if native_ms is None else native_sentence(native_ms, close_ms, share))
+
+
+def native_sentence(native_ms: dict[str, float], close_ms: float, share: float) -> str:
+    """What the far call's C calls alone cost (:func:`native_cpu_ms`'s ``native_ms``) against
+    the target: a bound on any leaner Python path. Every figure is this run's."""
+    c = native_ms["native"]
+    ratio = c / close_ms / share
+    reach = "would meet" if ratio <= 1.5 else "would not meet"
+    return (
+        f" Inside its two C calls (the tap loop's entry point timed within the same calls, "
+        f"after the same settle) the far call spends {c:.2f} ms of its "
+        f"{native_ms['whole']:.2f} ms: a call with no Python at all around them would be "
+        f"{ratio:.2f}× its share, and so {reach} the target; the rest, "
+        f"{native_ms['whole'] - c:.2f} ms, is the Python and torch calls around them."
     )
 
 
@@ -839,6 +892,7 @@ def run(ctx: Context) -> Section:
         cpu_sealed = interleaved_ms(in_place, rounds, time.process_time, settle=SETTLE_S)
         fixed_cold = interleaved_ms(fixed_calls, rounds, time.process_time, settle=SETTLE_S)
         fixed_warm = interleaved_ms(fixed_calls, 10 * rounds, time.process_time)
+        native_ms = native_cpu_ms(in_place["far"], rounds)
     fixed = {
         (key, mode): statistics.median(times[key])
         for mode, times in (("cold", fixed_cold), ("warm", fixed_warm))
@@ -1061,8 +1115,10 @@ def run(ctx: Context) -> Section:
         f"Judged on the sealed CPU time, {t_sealed / share:.2f}× its share"
         + band("covered_cpu_sealed", t_sealed / share, -math.inf, 1.5)
         + ". "
-        + covered_fixed_sentence(fixed, sealed_ms["close"], share)
+        + covered_fixed_sentence(fixed, sealed_ms["close"], share, native_ms)
     )
+    if native_ms is not None:
+        figures["covered_native_ms"] = native_ms["native"]
     figures["covered_cpu"] = t_cpu / share  # the measure before, logged for comparison
     figures["covered_fixed_ms"] = fixed[("empty", "cold")]
     figures["y_over_x"] = state["y_over_x"]  # the memory state (not a target)

@@ -18,6 +18,7 @@ from experiments.perf import (
     disk_line,
     median_ratio,
     memory_state,
+    native_cpu_ms,
     ratio_text,
     states_by_run,
     stretch_words,
@@ -196,6 +197,41 @@ def test_covered_fixed_sentence_computes_its_figures(empty_cold, over):
     assert ("more than" in text) == over and ("less than" in text) == (not over)
     work = 1.1 - empty_cold
     assert f"{work:.2f} ms, is {work / 20.0 / 0.02:.2f}× its share" in text
+
+
+@pytest.mark.parametrize("native, reach", [(0.5, "would meet"), (0.7, "would not meet")])
+def test_native_sentence_bounds_a_leaner_python_path(native, reach):
+    """The far call's C calls alone over its share of the close-up (hand-computed: share 0.02,
+    close-up 20 ms: 0.5 ms is 1.25×, 0.7 ms 1.75× against the target's 1.5×), and the rest
+    of the whole call is the Python around them."""
+    fixed = {("far", "cold"): 1.1, ("empty", "cold"): 0.4,
+             ("far", "warm"): 0.5, ("empty", "warm"): 0.07}  # fmt: skip
+    text = covered_fixed_sentence(fixed, 20.0, 0.02, {"whole": 1.0, "native": native})
+    assert f"spends {native:.2f} ms of its 1.00 ms" in text
+    assert f"{native / 20.0 / 0.02:.2f}× its share, and so {reach} the target" in text
+    assert f"the rest, {1.0 - native:.2f} ms, is the Python" in text
+    assert covered_fixed_sentence(fixed, 20.0, 0.02) in text  # the sentence before it, kept
+
+
+def test_native_cpu_ms_times_the_c_calls_inside_a_call():
+    """A two-pass call spends part (not all, not none) of its CPU time inside the entry point,
+    a Python-only call none; the library's entry point is restored afterwards."""
+    import torch
+
+    from sssbench.gbuffer import GBuffer
+    from sssbench.ops import PreintegratedSSS, native
+    from sssbench.profiles import SumOfGaussians
+
+    lib = native.library_for(torch.float32)
+    if lib is None:
+        pytest.skip("no C library")
+    entry = lib.sss_gather_f32
+    g = GBuffer(torch.rand(1, 3, 256, 256), torch.full((1, 1, 256, 256), 300.0), 0.4)
+    op = PreintegratedSSS(SumOfGaussians.from_table("skin_deon6"), 7)
+    ms = native_cpu_ms(lambda: op(g), 3)
+    assert 0.0 < ms["native"] < ms["whole"]
+    assert native_cpu_ms(lambda: sum(range(1000)), 3)["native"] == 0.0
+    assert lib.sss_gather_f32 is entry
 
 
 def test_memory_state_is_the_median_y_over_x_and_the_share_of_slow_calls():
