@@ -438,7 +438,10 @@ def method_constants(method: nn.Module) -> list[Constant]:
                 "SSSS_STRETCH",
                 int(st is not None),
                 "JG10 stretch (003 §7.3.1): step *= ssslevel * depth / (depth +\n"
-                "correction * min(|d depth / d axis|, maxdd)) (central difference)",
+                "correction * min(|d depth / d axis|, maxdd)) (central difference); in\n"
+                "SSSSBlurPS finalStep times that factor, d depth / d axis per pixel along the\n"
+                "pass's axis: (depth[i+1] - depth[i-1]) / 2, one-sided at the image's first\n"
+                "and last pixel (depth[1] - depth[0], depth[n-1] - depth[n-2])",
             )
         )
         if st is not None:
@@ -463,8 +466,8 @@ def method_constants(method: nn.Module) -> list[Constant]:
                     "SSSS_LOD_IN_SSSSBLURPS",
                     None,
                     "in SSSSBlurPS, after its scale line (scale = distToProjWindow / depthM;\n"
-                    "H the target's height in pixels, ssslevel 1 without the stretch, sigma\n"
-                    "the step's KERNEL_SOG<i>_SIGMA):\n"
+                    "H the target's height in pixels, ssslevel SSSS_STRETCH_SSSLEVEL, 1\n"
+                    "without the stretch, sigma the step's KERNEL_SOG<i>_SIGMA):\n"
                     "  if (sigma * ssslevel * 0.5 * H * scale * SSSS_STRENGTH_SOURCE <\n"
                     "      SSSS_LOD_THRESHOLD) discard;\n"
                     "and the step's blend only where its pass ran (the same test)",

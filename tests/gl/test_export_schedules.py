@@ -59,7 +59,7 @@ void main() {
     float distToProjWindow = 1.0 / tan(0.5 * radians(SSSS_FOVY));
     float scale = distToProjWindow / depthM;
     float H = float(textureSize(colorTex, 0).y);
-    if (LOD_SIGMA * 1.0 * 0.5 * H * scale * mask < SSSS_LOD_THRESHOLD) discard;
+    if (LOD_SIGMA * LEVEL * 0.5 * H * scale * mask < SSSS_LOD_THRESHOLD) discard;
 #endif
     fragColor = texelFetch(colorTex, pix, 0);
 }
@@ -89,14 +89,18 @@ class Client:
     """The user's side: GL textures of one G-buffer, ``SSSSBlurPS`` compiled per kernel of an
     exported file (with the header's selection lines and optional edits), copies and blends."""
 
-    def __init__(self, text: str, g, tmp_path=None) -> None:
+    def __init__(self, text: str, g, tmp_path=None, edit=None) -> None:
         self.text, self.g, self.tmp_path = text, g, tmp_path  # tmp_path: HLSL
+        self.edit = edit  # a user's edit of the paper's GLSL port (str -> str), or None
         self.programs: dict = {}
         self.glc = gl.get_context()
         _, _, self.h, self.w = g.diffuse.shape
         self.rgba = torch.cat([g.diffuse[0], g.mask_or_ones()[0]], 0)  # alpha: strength
         self.width = float(re.search(r"sssWidth = ([0-9.eE+-]+) mm", text)[1])
         self.fovy = f"{math.degrees(g.fov_y):.9g}"
+        # the LOD's ssslevel: SSSS_STRETCH_SSSLEVEL with the stretch, else 1 (the header)
+        level = re.search(r"#define SSSS_STRETCH_SSSLEVEL ([^\n]+)\n", text)
+        self.level = level[1] if "#define SSSS_STRETCH 1" in text else "1.0"
         self.textures: list = []
         self.color = self.texture(self.rgba)
         self.depth = self.texture(g.depth[0])
@@ -132,6 +136,8 @@ class Client:
             height = "SIZE_Y"
         else:
             source, text, height = SSSS_BLUR_PS, self.text, "float(textureSize(colorTex, 0).y)"
+            if self.edit is not None:
+                source = self.edit(source)
         assert ONE_KERNEL in source and PAPER_FACTOR in source and SCALE in source
         if ident is not None:
             source = source.replace(ONE_KERNEL, selection(self.text, ident))
@@ -141,7 +147,7 @@ class Client:
             assert test, "the header gives the LOD test"
             line = (test[1] + " " + test[2].strip()).replace("sigma", lod_sigma, 1)
             line = line.replace(" H ", f" {height} ")
-            line = line.replace("ssslevel", "1.0")  # no stretch in these cases
+            line = line.replace("ssslevel", self.level)
             source = source.replace(SCALE, SCALE + "    " + line + "\n")
         source = source.replace("{KERNEL}", text).replace("{FOVY}", self.fovy)
         if hlsl:
@@ -201,7 +207,7 @@ class Client:
         """``src`` -> ``dst`` by :data:`COPY` (``stencil``, ``lod_sigma``: its discards)."""
         defines = "#define STENCIL\n" if stencil else ""
         if lod_sigma is not None:
-            defines += f"#define LOD_SIGMA {lod_sigma}\n"
+            defines += f"#define LOD_SIGMA {lod_sigma}\n#define LEVEL {self.level}\n"
             defines += re.search(r"#define SSSS_LOD_THRESHOLD [^\n]+\n", self.text)[0]
         prog = self.glc.program(COPY.replace("{FOVY}", self.fovy).replace("{DEFINES}", defines))
         units = {"colorTex": src, "maskTex": self.color, "depthTex": self.depth}
@@ -212,14 +218,14 @@ class Client:
 
 
 def run_sum_of_gaussians(
-    text: str, g, lod: bool = True, copy_first: bool = True, tmp_path=None
+    text: str, g, lod: bool = True, copy_first: bool = True, tmp_path=None, edit=None
 ) -> torch.Tensor:
     """003 §7.3.3 as the header's schedule says: RTF = RT1 = the input; per step the x pass
     RT1 -> RT2 and the y pass RT2 -> RT1 (each target first holding its pass's input:
     ``copy_first``; else RT2 starts cleared to black), then RT1 blended into RTF with the
     step's ``w'`` where its pass ran. ``lod``: the header's LOD test in the pass and blend.
-    ``tmp_path``: ``text`` is the HLSL file, compiled there."""
-    c = Client(text, g, tmp_path)
+    ``tmp_path``: ``text`` is the HLSL file, compiled there; ``edit``: see :class:`Client`."""
+    c = Client(text, g, tmp_path, edit)
     try:
         rt1, rtf = c.texture(c.rgba), c.texture(c.rgba)
         rt2 = c.texture(c.rgba * 0)
@@ -329,6 +335,68 @@ def test_low_rank_export_through_ssss_blur_ps(tmp_path):
     ref = _reference(LOW_RANK, g)
     assert rel_rms(run_low_rank(text, g), ref) <= TOL
     assert rel_rms(run_low_rank(text, g, x_stencil=True), ref) > 10 * TOL
+
+
+#: the paper's line before which the header's stretch factor multiplies ``finalStep``
+DIVIDE = "    // Divide by 3 as the kernels range from -3 to 3:\n"
+
+
+def stretch_edit(one_sided: bool = True):
+    """The user's edit for ``SSSS_STRETCH 1``, written from the header's words: ``finalStep``
+    times ``ssslevel · depth / (depth + correction · min(|∂depth/∂axis|, maxdd))``, the
+    derivative per pixel along the pass's axis, central, one-sided at the image's first and
+    last pixel (``one_sided=False``: central everywhere, the border's texel repeated)."""
+    border = (
+        "dd = i == 0 ? dp - depthM : i == n - 1 ? depthM - dm : (dp - dm) / 2.0;"
+        if one_sided
+        else "dd = (dp - dm) / 2.0;"
+    )
+    lines = f"""    ivec2 size = textureSize(depthTex, 0);
+    bool across = dir.x != 0.0;
+    vec2 texel = across ? vec2(1.0 / float(size.x), 0.0) : vec2(0.0, 1.0 / float(size.y));
+    int n = across ? size.x : size.y;
+    int i = int((across ? texcoord.x : texcoord.y) * float(n));
+    float dp = SSSSSamplePoint(depthTex, (texcoord + texel * float(i < n - 1))).r;
+    float dm = SSSSSamplePoint(depthTex, (texcoord - texel * float(i > 0))).r;
+    float dd;
+    {border}
+    finalStep *= SSSS_STRETCH_SSSLEVEL * depthM /
+        (depthM + SSSS_STRETCH_CORRECTION * min(abs(dd), SSSS_STRETCH_MAXDD));
+"""
+
+    def edit(source: str) -> str:
+        assert DIVIDE in source
+        return source.replace(DIVIDE, lines + DIVIDE)
+
+    return edit
+
+
+@pytest.mark.parametrize("lod", [True, False], ids=["lod", "no-lod"])
+def test_sum_of_gaussians_stretch_export_through_ssss_blur_ps(lod, tmp_path):
+    """The JG10 stretch (``SSSS_STRETCH 1``, the Python API's ``stretch=``, exported by
+    :func:`~sssbench.export.shader_source` with :func:`~sssbench.export.method_constants`):
+    the paper's pass with the edit the header describes equals the torch image on a sphere
+    filling the frame (its depth slopes reach the border); without the edit, or with the
+    central difference also at the border, far off."""
+    from sssbench.export import default_sss_width, method_constants, method_kernels, shader_source
+    from sssbench.ops import SumOfGaussiansSSS
+    from sssbench.ops.sum_of_gaussians import jg10_stretch
+    from sssbench.profiles import SumOfGaussians
+
+    g = stencil_scene(42.0)
+    method = SumOfGaussiansSSS(
+        SumOfGaussians.from_table("skin_jg10"), 7, stretch=jg10_stretch(96), lod=lod
+    )
+    kernels = method_kernels(method)
+    width = default_sss_width(kernels, method)
+    text = shader_source(kernels, "glsl", width, constants=method_constants(method))
+    assert "#define SSSS_STRETCH 1" in text and "one-sided at the image's first" in text
+    with backend("torch"), torch.no_grad():
+        ref = method(g)
+    assert rel_rms(run_sum_of_gaussians(text, g, lod=lod, edit=stretch_edit()), ref) <= TOL
+    assert rel_rms(run_sum_of_gaussians(text, g, lod=lod), ref) > 10 * TOL
+    central = run_sum_of_gaussians(text, g, lod=lod, edit=stretch_edit(one_sided=False))
+    assert rel_rms(central, ref) > 10 * TOL
 
 
 TOOLS = [t for t in ("glslangValidator", "spirv-cross") if shutil.which(t) is None]
