@@ -428,7 +428,10 @@ def method_constants(method: nn.Module) -> list[Constant]:
                 "SSSS_ROTATION_RADIUS",
                 _f32(method.rotation),
                 "000 §6: taps with |offset| <= radius * (largest |offset|) are turned by a\n"
-                f"per-pixel angle in [0, pi) (seed {method.seed}), fetched bilinearly",
+                f"per-pixel angle in [0, pi) (seed {method.seed}), fetched bilinearly; the angles\n"
+                "are sssbench.ops.random_rotation(gbuffer, radius, seed)'s: a\n"
+                "renderer's own noise gives an image of the same statistics, not this one\n"
+                "pixel for pixel",
             )
         )
     if isinstance(method, SumOfGaussiansSSS):
